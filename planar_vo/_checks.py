@@ -1,0 +1,66 @@
+"""Input checks run once at each public entry point (kornia style): shapes, dtypes, finiteness.
+
+The maths below an entry point trusts its inputs; numerically bad items are flagged there (NaN or
+a weight), never raised.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from planar_vo.errors import InputError
+
+__all__ = ['as_array', 'same_length', 'shape_str']
+
+
+def shape_str(shape: tuple[int | str | None, ...]) -> str:
+    """Render a shape like ``(N, 2, 2)``; ``None`` and strings stand for free dimensions."""
+    parts = ['N' if d is None else str(d) for d in shape]
+    return '(' + ', '.join(parts) + (',)' if len(parts) == 1 else ')')
+
+
+def as_array(
+    name: str,
+    value: Any,
+    shape: tuple[int | str | None, ...],
+    *,
+    min_items: int = 1,
+    finite: bool = True,
+) -> np.ndarray:
+    """Return `value` as a float64 array of `shape`, or raise `InputError` naming `name`.
+
+    Args:
+        name: argument name used in the error message.
+        value: array-like input.
+        shape: expected shape; ``None`` (or a string) marks a free dimension. A string names a
+            dimension that must agree across the call, which the caller checks.
+        min_items: minimum size of the first dimension when it is free.
+        finite: reject NaN and infinity.
+    """
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise InputError(f'{name}: expected a numeric array of shape {shape_str(shape)}, '
+                         f'got {type(value).__name__}') from err
+    if arr.ndim != len(shape) or any(
+        isinstance(d, int) and d != s for d, s in zip(shape, arr.shape)
+    ):
+        raise InputError(f'{name}: expected shape {shape_str(shape)}, got {arr.shape}')
+    if not isinstance(shape[0], int) and arr.shape[0] < min_items:
+        raise InputError(f'{name}: expected at least {min_items} item(s) along the first axis, '
+                         f'got {arr.shape[0]}')
+    if finite and not np.all(np.isfinite(arr)):
+        bad = int(np.count_nonzero(~np.isfinite(arr)))
+        raise InputError(f'{name}: expected finite values, got {bad} NaN or infinite value(s)')
+    return arr
+
+
+def same_length(**arrays: np.ndarray) -> int:
+    """Check that all arrays have the same first dimension and return it."""
+    lengths = {k: v.shape[0] for k, v in arrays.items()}
+    if len(set(lengths.values())) > 1:
+        desc = ', '.join(f'{k} has {n}' for k, n in lengths.items())
+        raise InputError(f'arguments must have the same number of items: {desc}')
+    return next(iter(lengths.values()))

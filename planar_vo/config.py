@@ -1,0 +1,446 @@
+"""One configuration for every stage: frozen dataclasses, validated once, mirroring
+``config/planar_vo.yaml``.
+
+The node maps ROS parameters onto it (dotted names such as ``voting.bins``), the CLI maps flags
+and ``--config FILE`` onto it, and the library takes the section it needs. Values use SI units and
+radians. Sections:
+
+- `CameraConfig`: intrinsics when no ``CameraInfo`` is available, focal self-calibration.
+- `MountConfig`: the ``base_link -> camera optical`` transform (height, pitch, roll, yaw, offset).
+- `FrontendConfig`: how affine correspondences are extracted.
+- `VotingConfig`: histogram voting, inlier selection and refinement.
+- `KeyframeConfig`, `ScaleConfig`: keyframe selection and the source of metric scale.
+- `RosConfig`: topics, frames and publishing (used by the node only).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from pathlib import Path
+from typing import Any, ClassVar
+
+from planar_vo.errors import ConfigError
+
+__all__ = [
+    'CameraConfig',
+    'ConfigSection',
+    'FrontendConfig',
+    'KeyframeConfig',
+    'MountConfig',
+    'PlanarVoConfig',
+    'RosConfig',
+    'ScaleConfig',
+    'VotingConfig',
+    'describe',
+    'flatten',
+    'load_config',
+]
+
+
+class ConfigSection:
+    """Base of frozen configuration dataclasses: typed construction from dicts and validation.
+
+    Subclasses are ``@dataclass(frozen=True)`` with defaults for every field and override
+    `validate` to check ranges; `from_dict` checks names and types and reports the dotted path
+    of any bad value.
+    """
+
+    _section: ClassVar[str] = ''
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Check value ranges; raise `ConfigError` naming the field."""
+
+    # -- construction ------------------------------------------------------------------------
+
+    @classmethod
+    def from_dict(cls, data: typing.Mapping[str, Any] | None, *, path: str = ''):
+        """Build from a (nested) mapping; unknown keys and wrong types raise `ConfigError`."""
+        data = {} if data is None else data
+        if not isinstance(data, typing.Mapping):
+            raise ConfigError(f'{path or "config"}: expected a mapping, got {type(data).__name__}')
+        hints = typing.get_type_hints(cls)
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            where = f'{path}.' if path else ''
+            raise ConfigError(f'unknown configuration key(s) {", ".join(where + k for k in unknown)}'
+                              f'; known keys: {", ".join(sorted(names))}')
+        values = {}
+        for name, raw in data.items():
+            key = f'{path}.{name}' if path else name
+            values[name] = _coerce(key, raw, hints[name])
+        try:
+            return cls(**values)
+        except ConfigError as err:
+            raise ConfigError(f'{path + "." if path else ""}{err}') from None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Nested plain dict (tuples as lists), the shape of ``config/planar_vo.yaml``."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, ConfigSection):
+                value = value.to_dict()
+            elif isinstance(value, tuple):
+                value = list(value)
+            out[f.name] = value
+        return out
+
+    def replace(self, **changes: Any):
+        """A copy with some fields changed (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    # -- validation helpers ------------------------------------------------------------------
+
+    def _require(self, ok: bool, name: str, expected: str) -> None:
+        if not ok:
+            raise ConfigError(f'{name}: expected {expected}, got {getattr(self, name)!r}')
+
+
+def _coerce(key: str, raw: Any, hint: Any) -> Any:
+    """Check and convert one value to the annotated type."""
+    if isinstance(hint, type) and issubclass(hint, ConfigSection):
+        return hint.from_dict(raw, path=key)
+    origin = typing.get_origin(hint)
+    if hint is bool:
+        if isinstance(raw, bool):
+            return raw
+    elif hint is int:
+        if isinstance(raw, int) and not isinstance(raw, bool):
+            return raw
+    elif hint is float:
+        if isinstance(raw, (int, float)) and not isinstance(raw, bool):
+            return float(raw)
+    elif hint is str:
+        if isinstance(raw, str):
+            return raw
+    elif origin is tuple:
+        (item,) = {a for a in typing.get_args(hint) if a is not Ellipsis}
+        if isinstance(raw, (list, tuple)):
+            return tuple(_coerce(f'{key}[{i}]', v, item) for i, v in enumerate(raw))
+    elif origin is typing.Literal:
+        if raw in typing.get_args(hint):
+            return raw
+        raise ConfigError(f'{key}: expected one of {list(typing.get_args(hint))}, got {raw!r}')
+    elif origin in (typing.Union, types.UnionType):
+        raise ConfigError(f'{key}: optional values are not supported')  # pragma: no cover
+    else:  # pragma: no cover - a programming error in a section definition
+        raise TypeError(f'{key}: unsupported configuration type {hint!r}')
+    name = getattr(hint, '__name__', str(hint))
+    raise ConfigError(f'{key}: expected {name}, got {type(raw).__name__} {raw!r}')
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+# ------------------------------------------------------------------------------------------------
+# Sections
+# ------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class CameraConfig(ConfigSection):
+    """Intrinsics used when no ``CameraInfo`` arrives (all zero: wait for ``CameraInfo``).
+
+    Attributes:
+        fx, fy, cx, cy: pinhole intrinsics in pixels; ``fx = 0`` means 'from CameraInfo'.
+        distortion_model: ``'none'``, ``'plumb_bob'`` or ``'equidistant'`` (ROS names).
+        distortion: coefficients in the ROS order for that model.
+        estimate_focal: self-calibrate the focal length online with 1ACf voting (the
+            principal point is assumed at ``(cx, cy)``, or the image centre when those are 0).
+    """
+
+    fx: float = 0.0
+    fy: float = 0.0
+    cx: float = 0.0
+    cy: float = 0.0
+    distortion_model: typing.Literal['none', 'plumb_bob', 'equidistant'] = 'none'
+    distortion: tuple[float, ...] = ()
+    estimate_focal: bool = False
+
+    def validate(self) -> None:
+        self._require(_finite(self.fx, self.fy, self.cx, self.cy), 'fx', 'finite intrinsics')
+        self._require(self.fx >= 0.0 and self.fy >= 0.0, 'fx', 'fx, fy >= 0 (0 = from CameraInfo)')
+        self._require(_finite(*self.distortion), 'distortion', 'finite coefficients')
+
+
+@dataclasses.dataclass(frozen=True)
+class MountConfig(ConfigSection):
+    """Pose of the camera optical frame in ``base_link`` (REP-103: x forward, y left, z up).
+
+    The optical frame (x right, y down, z forward) is first rotated into ``base_link`` in the
+    usual way (optical z along base x), then by ``roll``, ``pitch``, ``yaw`` (radians, about the
+    base x, y, z axes; positive pitch looks down) and placed at ``(x, y, height)`` metres.
+
+    Attributes:
+        x, y, height: camera position in ``base_link`` (metres); ``height`` above the ground.
+        roll, pitch, yaw: camera orientation offsets (radians).
+        estimate_tilt: estimate pitch and roll online from the motion (real mounts are not level).
+    """
+
+    x: float = 0.0
+    y: float = 0.0
+    height: float = 1.5
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+    estimate_tilt: bool = False
+
+    def validate(self) -> None:
+        self._require(_finite(self.x, self.y, self.height, self.roll, self.pitch, self.yaw),
+                      'height', 'finite values')
+        self._require(self.height > 0.0, 'height', 'a positive height above the ground (m)')
+        for name in ('roll', 'pitch', 'yaw'):
+            self._require(abs(getattr(self, name)) <= math.pi, name, 'an angle in [-pi, pi] rad')
+
+
+@dataclasses.dataclass(frozen=True)
+class FrontendConfig(ConfigSection):
+    """Affine-correspondence extraction.
+
+    Attributes:
+        method: ``'flow'`` (DIS optical flow + per-patch affine refinement; the default),
+            ``'klt'`` (KLT tracks refined by affine Lucas-Kanade) or ``'asift'`` (faithful to
+            the paper, slow).
+        max_correspondences: cap on ACs per frame pair.
+        grid_step: spacing in pixels of the candidate grid for ``flow``.
+        patch_radius: half-size in pixels of the patch an affine is fitted on.
+        dis_preset: DIS optical-flow preset, ``'ultrafast'``, ``'fast'`` or ``'medium'``.
+        fb_threshold: maximum forward-backward flow error in pixels.
+        min_texture: minimum patch gradient energy (structure-tensor smaller eigenvalue).
+        refine_affine: refine each affine on its patch (needed on the foreshortened ground).
+    """
+
+    method: typing.Literal['flow', 'klt', 'asift'] = 'flow'
+    max_correspondences: int = 4000
+    grid_step: int = 12
+    patch_radius: int = 7
+    dis_preset: typing.Literal['ultrafast', 'fast', 'medium'] = 'fast'
+    fb_threshold: float = 0.5
+    min_texture: float = 1e-3
+    refine_affine: bool = True
+
+    def validate(self) -> None:
+        self._require(self.max_correspondences >= 1, 'max_correspondences', 'at least 1')
+        self._require(self.grid_step >= 2, 'grid_step', 'at least 2 pixels')
+        self._require(self.patch_radius >= 2, 'patch_radius', 'at least 2 pixels')
+        self._require(self.fb_threshold > 0.0, 'fb_threshold', 'a positive number of pixels')
+        self._require(self.min_texture >= 0.0, 'min_texture', 'a non-negative number')
+
+
+@dataclasses.dataclass(frozen=True)
+class VotingConfig(ConfigSection):
+    """Robust estimation of ``(alpha, beta)`` from per-AC candidates.
+
+    Attributes:
+        method: ``'histogram'`` (weighted kernel voting; deterministic, linear time) or
+            ``'ransac'`` (1AC-RANSAC with local optimisation, for comparison).
+        bins: histogram bins over the full circle for each angle.
+        kernel_bins: standard deviation of the voting kernel, in bins.
+        inlier_threshold: threshold on the normalised residual of the three AC constraints.
+        min_inliers: fewer inliers than this flags the estimate as unreliable.
+        refine: least-squares refinement of ``(alpha, beta)`` on the inliers.
+        ransac_iterations, ransac_confidence: for ``method = 'ransac'``.
+        seed: random seed of RANSAC (histogram voting is deterministic).
+    """
+
+    method: typing.Literal['histogram', 'ransac'] = 'histogram'
+    bins: int = 720
+    kernel_bins: float = 1.5
+    inlier_threshold: float = 2e-3
+    min_inliers: int = 20
+    refine: bool = True
+    ransac_iterations: int = 200
+    ransac_confidence: float = 0.999
+    seed: int = 0
+
+    def validate(self) -> None:
+        self._require(self.bins >= 36, 'bins', 'at least 36')
+        self._require(self.kernel_bins > 0.0, 'kernel_bins', 'a positive width in bins')
+        self._require(self.inlier_threshold > 0.0, 'inlier_threshold', 'a positive number')
+        self._require(self.min_inliers >= 1, 'min_inliers', 'at least 1')
+        self._require(self.ransac_iterations >= 1, 'ransac_iterations', 'at least 1')
+        self._require(0.0 < self.ransac_confidence < 1.0, 'ransac_confidence', 'in (0, 1)')
+
+
+@dataclasses.dataclass(frozen=True)
+class KeyframeConfig(ConfigSection):
+    """Keyframe selection by parallax: small baselines carry little information.
+
+    Attributes:
+        min_parallax: median AC displacement (pixels) that makes a new keyframe.
+        max_interval: force a keyframe after this many frames (seconds would drift with rate).
+    """
+
+    min_parallax: float = 4.0
+    max_interval: int = 10
+
+    def validate(self) -> None:
+        self._require(self.min_parallax >= 0.0, 'min_parallax', 'a non-negative pixel count')
+        self._require(self.max_interval >= 1, 'max_interval', 'at least 1 frame')
+
+
+@dataclasses.dataclass(frozen=True)
+class ScaleConfig(ConfigSection):
+    """Where metric scale comes from (monocular motion has none).
+
+    Attributes:
+        source: ``'speed'`` (a TwistStamped/Odometry topic, e.g. wheel odometry), ``'ground'``
+            (ground-plane ACs at the known camera height), ``'fixed'`` (``fixed_speed``), or
+            ``'unit'`` (unit steps between keyframes).
+        fixed_speed: metres per second for ``'fixed'``.
+        fallback: source used while the primary gives nothing (``'ground'`` with no ground
+            ACs, ``'speed'`` before the first message).
+    """
+
+    source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
+    fixed_speed: float = 10.0
+    fallback: typing.Literal['ground', 'fixed', 'unit'] = 'unit'
+
+    def validate(self) -> None:
+        self._require(self.fixed_speed >= 0.0 and _finite(self.fixed_speed), 'fixed_speed',
+                      'a non-negative speed in m/s')
+
+
+@dataclasses.dataclass(frozen=True)
+class RosConfig(ConfigSection):
+    """ROS interface of the node.
+
+    Attributes:
+        odom_frame, base_frame: REP-105 frame ids of the published pose.
+        publish_tf: broadcast ``odom -> base_frame`` (needs ``tf2_ros``).
+        image_transport: ``'raw'`` (``image``) or ``'compressed'`` (``image/compressed``).
+        speed_topic_type: ``'twist'`` (``geometry_msgs/TwistStamped``) or ``'odometry'``.
+        path_max_length: poses kept in the published ``nav_msgs/Path`` (0: unlimited).
+        warn_period: seconds between repeats of the same warning.
+    """
+
+    odom_frame: str = 'odom'
+    base_frame: str = 'base_link'
+    publish_tf: bool = True
+    image_transport: typing.Literal['raw', 'compressed'] = 'raw'
+    speed_topic_type: typing.Literal['twist', 'odometry'] = 'twist'
+    path_max_length: int = 10000
+    warn_period: float = 5.0
+
+    def validate(self) -> None:
+        self._require(bool(self.odom_frame.strip()), 'odom_frame', 'a non-empty frame id')
+        self._require(bool(self.base_frame.strip()), 'base_frame', 'a non-empty frame id')
+        self._require(self.odom_frame != self.base_frame, 'base_frame', 'a frame id other than '
+                      'odom_frame')
+        self._require(self.path_max_length >= 0, 'path_max_length', 'a non-negative count')
+        self._require(self.warn_period >= 0.0, 'warn_period', 'a non-negative number of seconds')
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanarVoConfig(ConfigSection):
+    """The whole configuration (``config/planar_vo.yaml``)."""
+
+    camera: CameraConfig = dataclasses.field(default_factory=CameraConfig)
+    mount: MountConfig = dataclasses.field(default_factory=MountConfig)
+    frontend: FrontendConfig = dataclasses.field(default_factory=FrontendConfig)
+    voting: VotingConfig = dataclasses.field(default_factory=VotingConfig)
+    keyframe: KeyframeConfig = dataclasses.field(default_factory=KeyframeConfig)
+    scale: ScaleConfig = dataclasses.field(default_factory=ScaleConfig)
+    ros: RosConfig = dataclasses.field(default_factory=RosConfig)
+
+    @classmethod
+    def from_flat(cls, flat: typing.Mapping[str, Any]) -> PlanarVoConfig:
+        """Build from dotted keys (``{'voting.bins': 720}``), the form of ROS parameters."""
+        nested: dict[str, Any] = {}
+        for key, value in flat.items():
+            node = nested
+            *parents, leaf = key.split('.')
+            for part in parents:
+                node = node.setdefault(part, {})
+                if not isinstance(node, dict):
+                    raise ConfigError(f'{key}: {part} is a value, not a section')
+            node[leaf] = value
+        return cls.from_dict(nested)
+
+
+def describe(section: type[ConfigSection] = None, prefix: str = '') -> dict[str, str]:
+    """Dotted key -> one-line description, read from the sections' ``Attributes:`` docstrings."""
+    section = PlanarVoConfig if section is None else section
+    docs: dict[str, str] = {}
+    current: list[str] = []
+    lines = (section.__doc__ or '').splitlines()
+    in_attrs = False
+    for line in lines:
+        stripped = line.strip()
+        if stripped == 'Attributes:':
+            in_attrs = True
+            continue
+        if not in_attrs or not stripped:
+            continue
+        head, sep, text = stripped.partition(': ')
+        if sep and all(part.strip().isidentifier() for part in head.split(',')):
+            current = [part.strip() for part in head.split(',')]
+            for name in current:
+                docs[name] = text
+        elif current:
+            for name in current:
+                docs[name] += ' ' + stripped
+    out: dict[str, str] = {}
+    hints = typing.get_type_hints(section)
+    for f in dataclasses.fields(section):
+        key = f'{prefix}.{f.name}' if prefix else f.name
+        hint = hints[f.name]
+        if isinstance(hint, type) and issubclass(hint, ConfigSection):
+            out.update(describe(hint, key))
+        else:
+            out[key] = docs.get(f.name, '')
+    return out
+
+
+def flatten(config: ConfigSection) -> dict[str, Any]:
+    """Dotted-key view ``{'voting.bins': 720, ...}`` of a configuration (ROS parameter names)."""
+    out: dict[str, Any] = {}
+
+    def walk(prefix: str, value: Any) -> None:
+        if isinstance(value, dict):
+            for k, v in value.items():
+                walk(f'{prefix}.{k}' if prefix else k, v)
+        else:
+            out[prefix] = value
+
+    walk('', config.to_dict())
+    return out
+
+
+def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
+                ) -> PlanarVoConfig:
+    """Load a configuration file (None: the defaults).
+
+    Accepts the plain nested form and the ROS parameter-file form
+    (``<node_name>: {ros__parameters: {...}}``, or ``/**`` as the node name) that
+    ``config/planar_vo.yaml`` uses, so one file serves the node and the CLI.
+    """
+    if path is None:
+        return PlanarVoConfig()
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except OSError as err:
+        raise ConfigError(f'{path}: cannot read configuration ({err.strerror})') from err
+    except yaml.YAMLError as err:
+        raise ConfigError(f'{path}: not valid YAML ({err})') from err
+    if data is None:
+        return PlanarVoConfig()
+    if isinstance(data, dict):
+        for name in (node_name, f'/{node_name}', '/**'):
+            if isinstance(data.get(name), dict) and 'ros__parameters' in data[name]:
+                data = data[name]['ros__parameters']
+                break
+    try:
+        return PlanarVoConfig.from_dict(data)
+    except ConfigError as err:
+        raise ConfigError(f'{path}: {err}') from None

@@ -1,0 +1,41 @@
+"""Typed errors of planar_vo, all under one root, `PlanarVoError`.
+
+Library code raises these with a message that names the offending argument, what was received
+and what was expected; the CLI turns them into a one-line message and exit code 1, the node into
+a logged warning and a counted, skipped frame.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    'BagError',
+    'CameraModelError',
+    'ConfigError',
+    'ImageError',
+    'InputError',
+    'PlanarVoError',
+]
+
+
+class PlanarVoError(Exception):
+    """Root of every error planar_vo raises on purpose."""
+
+
+class InputError(PlanarVoError, ValueError):
+    """An array argument has the wrong shape, type or non-finite values, or too few items."""
+
+
+class ConfigError(PlanarVoError, ValueError):
+    """A configuration value is unknown, of the wrong type or out of range."""
+
+
+class CameraModelError(PlanarVoError, ValueError):
+    """Camera intrinsics or distortion are missing, inconsistent or unsupported."""
+
+
+class ImageError(PlanarVoError, ValueError):
+    """An image cannot be used: unsupported encoding, wrong size, or no usable texture."""
+
+
+class BagError(PlanarVoError):
+    """A bag cannot be read or written: missing, corrupt, truncated, or would be overwritten."""

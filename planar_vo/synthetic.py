@@ -1,0 +1,263 @@
+"""Synthetic affine correspondences with exact ground truth, including the paper's protocol.
+
+Two generators, both seeded through a `numpy.random.Generator`:
+
+- `random_exact_acs`: N independent exact ACs, each with its own random planar motion and its
+  own random scene plane (for exact-recovery tests over thousands of cases).
+- `paper_trial`: one trial of Hajder and Barath's synthetic experiment (section 4.2): ``f = 600``,
+  principal point ``(300, 300)``, a random plane, 50 random points on it seen by both cameras,
+  Gaussian noise ``sigma`` (pixels) on the point coordinates, and each AC's affine taken from the
+  homography fitted to the noisy points. Optionally pure forward motion, or the planarity
+  corrupted by tilting the second camera's vertical (``tilt_sigma_deg``).
+
+Conventions: `planar_vo.geometry.planar` (``X2 = Ry(alpha) X1 + t``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from planar_vo.errors import InputError
+from planar_vo.geometry.camera import (
+    fit_homography,
+    homography_jacobian,
+    intrinsic_matrix,
+    normalize_affines,
+    normalize_points,
+)
+from planar_vo.geometry.planar import rotation_y, translation_direction
+
+__all__ = [
+    'PAPER_FOCAL',
+    'PAPER_IMAGE_SIZE',
+    'PAPER_PRINCIPAL_POINT',
+    'ACSet',
+    'paper_trial',
+    'random_exact_acs',
+    'random_planar_motion',
+]
+
+PAPER_FOCAL = 600.0
+PAPER_PRINCIPAL_POINT = (300.0, 300.0)
+PAPER_IMAGE_SIZE = (600, 600)            # width, height: the principal point is the centre
+MOTIONS = ('general', 'forward')
+
+
+@dataclass(frozen=True)
+class ACSet:
+    """Affine correspondences in pixels with their ground truth.
+
+    Attributes:
+        K: intrinsics shared by both views, 3x3.
+        p1, p2: pixel coordinates, ``(N, 2)`` (noisy where noise was added).
+        A: local affines in pixels, ``(N, 2, 2)``.
+        alpha, beta: true motion, shape ``()`` for one shared motion or ``(N,)`` per AC.
+        R: true rotation of view 2 (``(3, 3)`` or ``(N, 3, 3)``); equals ``Ry(alpha)`` unless
+            the planarity was corrupted.
+        t: true unit translation (``(3,)`` or ``(N, 3)``).
+        p1_true, p2_true, A_true: the noise-free correspondences.
+    """
+
+    K: np.ndarray
+    p1: np.ndarray
+    p2: np.ndarray
+    A: np.ndarray
+    alpha: np.ndarray
+    beta: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    p1_true: np.ndarray
+    p2_true: np.ndarray
+    A_true: np.ndarray
+
+    @property
+    def q1(self) -> np.ndarray:
+        """Normalised coordinates in view 1, ``(N, 2)``."""
+        return normalize_points(self.K, self.p1)
+
+    @property
+    def q2(self) -> np.ndarray:
+        """Normalised coordinates in view 2, ``(N, 2)``."""
+        return normalize_points(self.K, self.p2)
+
+    @property
+    def A_norm(self) -> np.ndarray:
+        """Affines in normalised coordinates, ``(N, 2, 2)``."""
+        return normalize_affines(self.K, self.K, self.A)
+
+    @property
+    def centered(self) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates relative to the principal point (the 1ACf inputs), ``(N, 2)`` each."""
+        c = self.K[:2, 2]
+        return self.p1 - c, self.p2 - c
+
+    @property
+    def focal(self) -> float:
+        """The true focal length in pixels."""
+        return float(self.K[0, 0])
+
+
+def paper_intrinsics(focal: float = PAPER_FOCAL) -> np.ndarray:
+    """The paper's camera: ``fx = fy = focal``, principal point ``(300, 300)``."""
+    return intrinsic_matrix(focal, focal, *PAPER_PRINCIPAL_POINT)
+
+
+def random_planar_motion(rng: np.random.Generator, n: int | None = None, *,
+                         max_yaw_deg: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
+    """Random planar motions: ``alpha`` uniform in ``+-max_yaw_deg``, ``beta`` uniform on the circle.
+
+    Returns ``alpha, beta`` in radians, scalars (shape ``()``) when ``n`` is None.
+    """
+    size = () if n is None else (n,)
+    alpha = rng.uniform(-1.0, 1.0, size) * np.deg2rad(max_yaw_deg)
+    beta = rng.uniform(-np.pi, np.pi, size)
+    return alpha, beta
+
+
+def _random_unit_normals(rng: np.random.Generator, n: int, towards: np.ndarray,
+                         max_angle_deg: float) -> np.ndarray:
+    """Unit vectors within ``max_angle_deg`` of the unit vectors ``towards`` ``(n, 3)``."""
+    v = rng.normal(size=(n, 3))
+    v -= np.einsum('ni,ni->n', v, towards)[:, None] * towards
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    ang = np.deg2rad(max_angle_deg) * np.sqrt(rng.uniform(0.0, 1.0, n))
+    return np.cos(ang)[:, None] * towards + np.sin(ang)[:, None] * v
+
+
+def _project(K: np.ndarray, X: np.ndarray) -> np.ndarray:
+    x = X @ K.T
+    return x[..., :2] / x[..., 2:3]
+
+
+def random_exact_acs(rng: np.random.Generator, n: int, *, K: np.ndarray | None = None,
+                     max_yaw_deg: float = 45.0, depth_range: tuple[float, float] = (2.0, 20.0),
+                     min_abs_v: float = 0.05) -> ACSet:
+    """N independent, noise-free ACs, each with its own planar motion and scene plane.
+
+    Each item: a pixel uniform in the image, a depth uniform in ``depth_range`` (translation has
+    unit length), a plane through that point whose normal is within 70 degrees of the viewing
+    ray, and the exact affine ``J`` of the plane-induced homography at the pixel. Items whose
+    point is not seen by camera 2 (depth below 0.5 or outside its image), or whose normalised
+    ``v`` is within
+    ``min_abs_v`` of the horizon row in either view, are redrawn: a point at the camera's height
+    stays at it under planar motion, so at ``v = 0`` the epipolar row and the first affine row of
+    the AC vanish and the AC is degenerate (the conditioning degrades like ``1 / v^2``).
+    """
+    if n < 1:
+        raise InputError(f'n: expected at least 1 item, got {n}')
+    K = paper_intrinsics() if K is None else np.asarray(K, dtype=np.float64)
+    width, height = 2.0 * K[0, 2], 2.0 * K[1, 2]
+    alpha = np.empty(n)
+    beta = np.empty(n)
+    X1 = np.empty((n, 3))
+    normal = np.empty((n, 3))
+    todo = np.arange(n)
+    while todo.size:
+        m = todo.size
+        a, b = random_planar_motion(rng, m, max_yaw_deg=max_yaw_deg)
+        pix = rng.uniform((0.0, 0.0), (width, height), (m, 2))
+        ray = np.column_stack([normalize_points(K, pix), np.ones(m)])
+        X = ray * rng.uniform(*depth_range, m)[:, None]
+        unit_ray = ray / np.linalg.norm(ray, axis=1, keepdims=True)
+        nrm = _random_unit_normals(rng, m, -unit_ray, 70.0)
+        X2 = np.einsum('nij,nj->ni', rotation_y(a), X) + translation_direction(b)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            pix2 = _project(K, X2)
+        ok = ((X2[:, 2] > 0.5) & (np.abs(ray[:, 1]) >= min_abs_v)
+              & (np.abs(X2[:, 1]) >= min_abs_v * np.abs(X2[:, 2]))
+              & (pix2[:, 0] >= 0.0) & (pix2[:, 0] <= width)
+              & (pix2[:, 1] >= 0.0) & (pix2[:, 1] <= height))
+        alpha[todo[ok]], beta[todo[ok]] = a[ok], b[ok]
+        X1[todo[ok]], normal[todo[ok]] = X[ok], nrm[ok]
+        todo = todo[~ok]
+    R = rotation_y(alpha)
+    t = translation_direction(beta)
+    distance = np.einsum('ni,ni->n', normal, X1)
+    M = R + t[:, :, None] * normal[:, None, :] / distance[:, None, None]
+    H = K @ M @ np.linalg.inv(K)                                   # (n, 3, 3) per-item homography
+    p1 = _project(K, X1)
+    h = np.einsum('nij,nj->ni', H, np.column_stack([p1, np.ones(n)]))
+    p2 = h[:, :2] / h[:, 2:3]
+    A = (H[:, :2, :2] - p2[:, :, None] * H[:, 2:3, :2]) / h[:, 2, None, None]
+    return ACSet(K=K, p1=p1, p2=p2, A=A, alpha=alpha, beta=beta, R=R, t=t,
+                 p1_true=p1, p2_true=p2, A_true=A)
+
+
+def _small_rotation(rng: np.random.Generator, sigma_deg: float) -> np.ndarray:
+    """Rotation about the camera's x and z axes by N(0, sigma) each: tilts the vertical (y) axis."""
+    ax, az = np.deg2rad(rng.normal(0.0, sigma_deg, 2))
+    cx, sx, cz, sz = np.cos(ax), np.sin(ax), np.cos(az), np.sin(az)
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+    Rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+    return Rz @ Rx
+
+
+def paper_trial(rng: np.random.Generator, sigma: float, *, n_points: int = 50,
+                motion: str = 'general', tilt_sigma_deg: float = 0.0,
+                focal: float = PAPER_FOCAL, max_yaw_deg: float = 30.0,
+                plane_depth: tuple[float, float] = (4.0, 8.0)) -> ACSet:
+    """One trial of the paper's synthetic protocol (Hajder and Barath, section 4.2).
+
+    A random plane (its normal within 60 degrees of the optical axis, through a point on the axis
+    at a depth uniform in ``plane_depth``; the translation has unit length) carries ``n_points``
+    points whose projections fall inside both 600x600 images. Zero-mean Gaussian noise of
+    standard deviation ``sigma`` pixels is added to all point coordinates; the homography is then
+    fitted to the noisy points (normalised DLT) and every AC's affine is its Jacobian at the
+    noisy ``p1``.
+
+    Args:
+        rng: random generator (seed it for repeatable trials).
+        sigma: point noise in pixels (>= 0).
+        n_points: points on the plane (>= 4).
+        motion: ``'general'`` (random planar motion) or ``'forward'`` (``alpha = 0``,
+            ``beta = -pi/2``: straight ahead, no rotation).
+        tilt_sigma_deg: if positive, the second camera's vertical is tilted by a random rotation
+            with this standard deviation (corrupted planarity; the truth keeps the tilt in ``R``).
+        focal: focal length in pixels (principal point stays at (300, 300)).
+        max_yaw_deg: range of ``alpha`` for general motion.
+        plane_depth: range of the plane's depth along the optical axis, in translation units.
+
+    Returns:
+        An `ACSet` whose ``alpha``, ``beta``, ``R``, ``t`` are shared by all points.
+    """
+    if motion not in MOTIONS:
+        raise InputError(f"motion: expected one of {MOTIONS}, got '{motion}'")
+    if not (sigma >= 0.0) or n_points < 4:
+        raise InputError(f'sigma >= 0 and n_points >= 4 expected, got sigma={sigma}, '
+                         f'n_points={n_points}')
+    K = paper_intrinsics(focal)
+    width, height = PAPER_IMAGE_SIZE
+    while True:
+        if motion == 'forward':
+            alpha, beta = np.float64(0.0), np.float64(-np.pi / 2)
+        else:
+            alpha, beta = random_planar_motion(rng, max_yaw_deg=max_yaw_deg)
+        R = rotation_y(alpha)
+        if tilt_sigma_deg > 0.0:
+            R = _small_rotation(rng, tilt_sigma_deg) @ R
+        t = translation_direction(beta)
+        normal = _random_unit_normals(rng, 1, np.array([[0.0, 0.0, -1.0]]), 60.0)[0]
+        distance = float(normal @ np.array([0.0, 0.0, rng.uniform(*plane_depth)]))
+        # Draw many pixels, keep those whose plane point is visible in both views.
+        pix = rng.uniform((0.0, 0.0), (width, height), (20 * n_points, 2))
+        ray = np.column_stack([normalize_points(K, pix), np.ones(len(pix))])
+        depth = distance / (ray @ normal)
+        X1 = ray * depth[:, None]
+        X2 = X1 @ R.T + t
+        with np.errstate(divide='ignore', invalid='ignore'):
+            p2 = _project(K, X2)
+        ok = ((depth > 0.5) & (X2[:, 2] > 0.5) & (p2[:, 0] >= 0) & (p2[:, 0] <= width)
+              & (p2[:, 1] >= 0) & (p2[:, 1] <= height))
+        if np.count_nonzero(ok) >= n_points:
+            break
+    p1_true = pix[ok][:n_points]
+    p2_true = p2[ok][:n_points]
+    H_true = K @ (R + np.outer(t, normal) / distance) @ np.linalg.inv(K)
+    A_true = homography_jacobian(H_true, p1_true)
+    p1 = p1_true + rng.normal(0.0, sigma, p1_true.shape) if sigma > 0 else p1_true.copy()
+    p2 = p2_true + rng.normal(0.0, sigma, p2_true.shape) if sigma > 0 else p2_true.copy()
+    A = homography_jacobian(fit_homography(p1, p2), p1) if sigma > 0 else A_true.copy()
+    return ACSet(K=K, p1=p1, p2=p2, A=A, alpha=np.asarray(alpha), beta=np.asarray(beta), R=R,
+                 t=t, p1_true=p1_true, p2_true=p2_true, A_true=A_true)

@@ -1,0 +1,79 @@
+"""Configuration: defaults mirror config/planar_vo.yaml, validation names the bad key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from planar_vo.config import PlanarVoConfig, VotingConfig, describe, flatten, load_config
+from planar_vo.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_yaml_file_mirrors_dataclass_defaults():
+    assert load_config(ROOT / 'config' / 'planar_vo.yaml') == PlanarVoConfig()
+
+
+def test_every_parameter_has_a_description():
+    docs = describe()
+    assert set(docs) == set(flatten(PlanarVoConfig()))
+    assert all(docs.values())
+
+
+def test_flat_round_trip():
+    config = PlanarVoConfig().replace(voting=VotingConfig(bins=360))
+    flat = flatten(config)
+    assert flat['voting.bins'] == 360
+    assert PlanarVoConfig.from_flat(flat) == config
+
+
+def test_plain_nested_yaml(tmp_path):
+    path = tmp_path / 'c.yaml'
+    path.write_text('voting:\n  bins: 180\nmount:\n  height: 1.65\n')
+    config = load_config(path)
+    assert config.voting.bins == 180 and config.mount.height == 1.65
+
+
+def test_int_is_accepted_for_float_but_not_bool_for_int():
+    assert PlanarVoConfig.from_dict({'mount': {'height': 2}}).mount.height == 2.0
+    with pytest.raises(ConfigError, match=r'voting.bins: expected int, got bool True'):
+        PlanarVoConfig.from_dict({'voting': {'bins': True}})
+
+
+@pytest.mark.parametrize(('data', 'match'), [
+    ({'voting': {'binz': 3}}, r'unknown configuration key\(s\) voting.binz; known keys: bins'),
+    ({'votes': {}}, r'unknown configuration key\(s\) votes'),
+    ({'voting': {'bins': 'x'}}, r"voting.bins: expected int, got str 'x'"),
+    ({'voting': {'bins': 10}}, r'voting.bins: expected at least 36, got 10'),
+    ({'mount': {'height': -1.0}}, r'mount.height: expected a positive height'),
+    ({'frontend': {'method': 'sift'}}, r"frontend.method: expected one of \['flow', 'klt', "
+                                       r"'asift'\], got 'sift'"),
+    ({'camera': {'distortion': [0.1, 'a']}}, r"camera.distortion\[1\]: expected float"),
+    ({'ros': {'odom_frame': 'x', 'base_frame': 'x'}}, r'ros.base_frame: expected a frame id '
+                                                     r'other than odom_frame'),
+    ({'voting': 3}, r'voting: expected a mapping, got int'),
+])
+def test_invalid_values_are_reported_with_their_key(data, match):
+    with pytest.raises(ConfigError, match=match):
+        PlanarVoConfig.from_dict(data)
+
+
+def test_config_is_frozen():
+    config = PlanarVoConfig()
+    with pytest.raises(AttributeError):
+        config.voting = VotingConfig()  # type: ignore[misc]
+
+
+def test_load_config_errors(tmp_path):
+    with pytest.raises(ConfigError, match=r'cannot read configuration'):
+        load_config(tmp_path / 'missing.yaml')
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('voting: [1, 2\n')
+    with pytest.raises(ConfigError, match=r'not valid YAML'):
+        load_config(bad)
+    wrong = tmp_path / 'wrong.yaml'
+    wrong.write_text('planar_vo:\n  ros__parameters:\n    voting:\n      bins: 1\n')
+    with pytest.raises(ConfigError, match=r'wrong.yaml: voting.bins: expected at least 36'):
+        load_config(wrong)
