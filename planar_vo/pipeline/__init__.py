@@ -1,0 +1,7 @@
+"""The visual-odometry pipeline: frames in, poses out, no ROS (driven by node, replay and tests)."""
+
+from __future__ import annotations
+
+from planar_vo.pipeline.types import DropReason, FrameResult
+
+__all__ = ['DropReason', 'FrameResult']

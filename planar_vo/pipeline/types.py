@@ -1,0 +1,67 @@
+"""What the visual-odometry pipeline returns for every input frame (no ROS types).
+
+Every frame yields a `FrameResult`: either an odometry update (``ok``) or a reason why not, from
+`DropReason`, so nothing is silently lost; the node and replay count and log those reasons.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ['DropReason', 'FrameResult']
+
+
+class DropReason(str, enum.Enum):
+    """Why a frame produced no odometry update (stable keys for counters and logs)."""
+
+    FIRST_FRAME = 'first_frame'            # initialises the pipeline; nothing to compare with yet
+    NO_CAMERA_INFO = 'no_camera_info'      # no intrinsics yet (and no focal self-calibration)
+    BAD_IMAGE = 'bad_image'                # undecodable, unsupported encoding, wrong size
+    BLANK_IMAGE = 'blank_image'            # black, saturated or textureless
+    SIZE_CHANGED = 'size_changed'          # image size differs from the camera model
+    DUPLICATE_STAMP = 'duplicate_stamp'    # same timestamp as the previous frame
+    OUT_OF_ORDER = 'out_of_order'          # older than the previous frame
+    TOO_FEW_CORRESPONDENCES = 'too_few_correspondences'
+    UNRELIABLE = 'unreliable'              # estimator flagged the motion (ambiguous, few inliers)
+    PIPELINE_ERROR = 'pipeline_error'      # an unexpected exception inside the pipeline
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """The outcome of one input frame.
+
+    Attributes:
+        stamp: image timestamp in seconds.
+        ok: the pose was updated from this frame.
+        reason: why not (None when ``ok``).
+        message: human-readable detail for logs.
+        keyframe: this frame became the new reference keyframe.
+        pose: ``T_odom_base`` (4x4) after this frame (the last known pose when not ``ok``).
+        pose_covariance: 6x6 covariance of the pose, REP-103 order (x, y, z, roll, pitch, yaw).
+        twist: body-frame velocity ``(vx, vy, vz, wx, wy, wz)`` in ``base_link``.
+        twist_covariance: 6x6 covariance of ``twist``.
+        scale_source: where the metric scale came from (``'speed'``, ``'ground'``, ``'fixed'``,
+            ``'unit'``).
+        num_correspondences, num_inliers: ACs extracted and accepted.
+        alpha, beta: the camera motion since the reference keyframe (radians; NaN if none).
+        timings: seconds spent per stage (``'decode'``, ``'correspondences'``, ``'solve'``, ...).
+    """
+
+    stamp: float
+    ok: bool
+    pose: np.ndarray
+    pose_covariance: np.ndarray
+    twist: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    twist_covariance: np.ndarray = field(default_factory=lambda: np.eye(6) * 1e6)
+    reason: DropReason | None = None
+    message: str = ''
+    keyframe: bool = False
+    scale_source: str = 'unit'
+    num_correspondences: int = 0
+    num_inliers: int = 0
+    alpha: float = float('nan')
+    beta: float = float('nan')
+    timings: dict[str, float] = field(default_factory=dict)

@@ -1,0 +1,141 @@
+"""Camera model (distortion maps and Jacobians), rigid frames, and the AC container."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from planar_vo.camera import CameraModel
+from planar_vo.correspondences import AffineCorrespondences
+from planar_vo.errors import CameraModelError, InputError
+from planar_vo.geometry.frames import (
+    R_BASE_OPTICAL,
+    camera_motion_to_base,
+    invert,
+    mount_transform,
+    planar_pose,
+    quaternion_from_rotation,
+    rotation_from_quaternion,
+    rotation_rpy,
+    yaw_of,
+)
+
+K = np.array([[500.0, 0.0, 320.0], [0.0, 510.0, 240.0], [0.0, 0.0, 1.0]])
+CAMERAS = {
+    'none': CameraModel(640, 480, K),
+    'plumb_bob': CameraModel(640, 480, K, 'plumb_bob', (-0.28, 0.07, 1e-3, -5e-4, -0.01)),
+    'equidistant': CameraModel(640, 480, K, 'equidistant', (0.05, -0.01, 0.002, -0.0005)),
+}
+
+
+def _numeric_jacobian(f, x, h=1e-6):
+    cols = []
+    for k in range(2):
+        d = np.zeros(2)
+        d[k] = h
+        cols.append((f(x + d) - f(x - d)) / (2 * h))
+    return np.stack(cols, -1)
+
+
+@pytest.mark.parametrize('name', list(CAMERAS))
+def test_distortion_jacobian_matches_finite_differences(rng, name):
+    cam = CAMERAS[name]
+    x = rng.uniform(-0.6, 0.6, (200, 2))
+    _, J = cam.distort(x)
+    Jn = _numeric_jacobian(lambda y: cam.distort(y)[0], x)
+    np.testing.assert_allclose(J, Jn, atol=1e-7)
+
+
+@pytest.mark.parametrize('name', list(CAMERAS))
+def test_pixel_round_trip_and_jacobians_are_inverse(rng, name):
+    cam = CAMERAS[name]
+    p = rng.uniform((0, 0), (640, 480), (300, 2))
+    q, Jq = cam.pixel_to_normalized(p)
+    p_back, Jp = cam.normalized_to_pixel(q)
+    np.testing.assert_allclose(p_back, p, atol=1e-8)
+    np.testing.assert_allclose(Jq @ Jp, np.broadcast_to(np.eye(2), Jq.shape), atol=1e-9)
+    Jn = _numeric_jacobian(lambda y: cam.pixel_to_normalized(y)[0], p, h=1e-3)
+    np.testing.assert_allclose(Jq, Jn, atol=1e-8)
+
+
+def test_camera_info_duck_typed():
+    msg = SimpleNamespace(width=640, height=480, k=K.ravel(), d=[0.0] * 5,
+                          distortion_model='plumb_bob')
+    cam = CameraModel.from_camera_info(msg)
+    assert cam == CAMERAS['none'] and not cam.is_distorted
+    msg.d = list(CAMERAS['plumb_bob'].D)
+    assert CameraModel.from_camera_info(msg) == CAMERAS['plumb_bob']
+
+
+@pytest.mark.parametrize(('changes', 'match'), [
+    ({'k': np.zeros(9)}, r'K is all zeros \(uncalibrated camera\)'),
+    ({'distortion_model': 'rational_polynomial', 'd': [0.1] * 8},
+     r"distortion_model: expected one of \['none', 'plumb_bob', 'equidistant'\], "
+     r"got 'rational_polynomial'"),
+    ({'distortion_model': 'equidistant', 'd': [0.1, 0.2]}, r"D: expected 4 coefficients"),
+    ({'distortion_model': '', 'd': [0.1, 0, 0, 0, 0]}, r'without a distortion model'),
+    ({'width': 0}, r'image size: expected positive integers, got 0x480'),
+    ({'k': [1.0, 2.0]}, r'camera_info: not a CameraInfo message'),
+    ({'k': np.r_[K.ravel()[:8], np.nan]}, r'K: expected a finite 3x3 matrix'),
+])
+def test_camera_info_errors(changes, match):
+    fields = dict(width=640, height=480, k=K.ravel(), d=[], distortion_model='')
+    fields.update(changes)
+    with pytest.raises(CameraModelError, match=match):
+        CameraModel.from_camera_info(SimpleNamespace(**fields))
+
+
+def test_mount_transform_conventions():
+    T = mount_transform(height=1.65)
+    np.testing.assert_allclose(T[:3, :3], R_BASE_OPTICAL)
+    np.testing.assert_allclose(T[:3, 3], [0, 0, 1.65])
+    # Optical axis along base x; positive pitch looks down (optical z gets a -z component).
+    down = mount_transform(pitch=0.1)[:3, :3] @ [0, 0, 1]
+    assert down[0] > 0 and down[2] < 0
+    left = mount_transform(yaw=0.1)[:3, :3] @ [0, 0, 1]
+    assert left[1] > 0
+
+
+def test_camera_yaw_maps_to_positive_base_yaw_for_left_turn():
+    # Camera turns by Ry(alpha) with alpha > 0 (a left turn, see geometry.planar): the camera-2
+    # pose in camera 1 is [R^T | -R^T t]; the vehicle must yaw left (positive about z up).
+    from planar_vo.geometry import rotation_y
+    alpha = 0.1
+    T_c1_c2 = np.eye(4)
+    T_c1_c2[:3, :3] = rotation_y(alpha).T
+    T_b1_b2 = camera_motion_to_base(T_c1_c2, mount_transform(height=1.5))
+    assert yaw_of(T_b1_b2[:3, :3]) == pytest.approx(alpha)
+
+
+def test_quaternions_round_trip(rng):
+    R = rotation_rpy(*rng.uniform(-np.pi, np.pi, (3, 500)))
+    q = quaternion_from_rotation(R)
+    assert np.all(q[:, 3] >= 0)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0)
+    np.testing.assert_allclose(rotation_from_quaternion(q), R, atol=1e-12)
+    np.testing.assert_allclose(quaternion_from_rotation(np.eye(3)), [0, 0, 0, 1])
+
+
+def test_planar_pose_and_inverse(rng):
+    T = planar_pose(rng.normal(size=20), rng.normal(size=20), rng.uniform(-3, 3, 20))
+    np.testing.assert_allclose(T @ invert(T), np.broadcast_to(np.eye(4), T.shape), atol=1e-12)
+
+
+def test_correspondences_normalized_matches_chain_rule(rng):
+    cam = CAMERAS['plumb_bob']
+    p1 = rng.uniform((50, 50), (590, 430), (100, 2))
+    A = np.tile([[1.02, 0.01], [-0.02, 0.98]], (100, 1, 1))
+    p2 = p1 + 3.0
+    acs = AffineCorrespondences(p1, p2, A).normalized(cam)
+    q1, J1 = cam.pixel_to_normalized(p1)
+    q2, J2 = cam.pixel_to_normalized(p2)
+    np.testing.assert_allclose(acs.p1, q1)
+    np.testing.assert_allclose(acs.A, J2 @ A @ np.linalg.inv(J1))
+    assert len(acs.subset(acs.weights > 0)) == 100
+
+
+def test_correspondences_check_shapes():
+    with pytest.raises(InputError, match=r'same number of items: p1 has 3, p2 has 3, A has 2'):
+        AffineCorrespondences(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((2, 2, 2)))
