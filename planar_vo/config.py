@@ -37,6 +37,7 @@ __all__ = [
     'describe',
     'flatten',
     'load_config',
+    'to_ros_yaml',
 ]
 
 
@@ -243,28 +244,54 @@ class VotingConfig(ConfigSection):
             ``'ransac'`` (1AC-RANSAC with local optimisation, for comparison).
         bins: histogram bins over the full circle for each angle.
         kernel_bins: standard deviation of the voting kernel, in bins.
-        inlier_threshold: threshold on the normalised residual of the three AC constraints.
+        refine_candidates: refine each AC's candidate by constrained least squares before voting.
+        inlier_chi2: inlier threshold on the sum of the three squared whitened AC residuals
+            (chi-square with 3 degrees of freedom; 11.34 is its 99% quantile).
         min_inliers: fewer inliers than this flags the estimate as unreliable.
-        refine: least-squares refinement of ``(alpha, beta)`` on the inliers.
-        ransac_iterations, ransac_confidence: for ``method = 'ransac'``.
+        ambiguity_ratio: a separate alpha peak at least this high relative to the winner flags
+            the estimate as ambiguous.
+        min_sharpness: minimum fraction of the vote weight in the winning alpha peak.
+        refine: least-squares refinement of ``(alpha, beta)`` on all inliers' constraints.
+        point_noise: point noise in normalised units (pixels / focal length): RANSAC's noise
+            level; voting estimates the noise from the data, capped at ``max_noise_factor`` times
+            this.
+        affine_noise: affine noise (unitless): RANSAC's level and voting's cap, as above.
+        max_noise_factor: cap of the data-driven noise scales relative to the two levels above.
+        covariance_grid: ACs are grouped in a grid x grid partition of the image for the
+            cluster-robust covariance (neighbouring ACs share errors).
+        ransac_iterations: maximum RANSAC iterations.
+        ransac_confidence: RANSAC confidence for the adaptive iteration count.
         seed: random seed of RANSAC (histogram voting is deterministic).
     """
 
     method: typing.Literal['histogram', 'ransac'] = 'histogram'
     bins: int = 720
     kernel_bins: float = 1.5
-    inlier_threshold: float = 2e-3
+    refine_candidates: bool = False
+    inlier_chi2: float = 11.34
     min_inliers: int = 20
+    ambiguity_ratio: float = 0.8
+    min_sharpness: float = 0.05
     refine: bool = True
-    ransac_iterations: int = 200
+    point_noise: float = 1e-3
+    affine_noise: float = 0.02
+    max_noise_factor: float = 5.0
+    covariance_grid: int = 6
+    ransac_iterations: int = 500
     ransac_confidence: float = 0.999
     seed: int = 0
 
     def validate(self) -> None:
         self._require(self.bins >= 36, 'bins', 'at least 36')
         self._require(self.kernel_bins > 0.0, 'kernel_bins', 'a positive width in bins')
-        self._require(self.inlier_threshold > 0.0, 'inlier_threshold', 'a positive number')
+        self._require(self.inlier_chi2 > 0.0, 'inlier_chi2', 'a positive number')
         self._require(self.min_inliers >= 1, 'min_inliers', 'at least 1')
+        self._require(0.0 < self.ambiguity_ratio <= 1.0, 'ambiguity_ratio', 'in (0, 1]')
+        self._require(0.0 <= self.min_sharpness < 1.0, 'min_sharpness', 'in [0, 1)')
+        self._require(self.point_noise > 0.0, 'point_noise', 'a positive number')
+        self._require(self.affine_noise > 0.0, 'affine_noise', 'a positive number')
+        self._require(self.max_noise_factor >= 1.0, 'max_noise_factor', 'at least 1')
+        self._require(self.covariance_grid >= 1, 'covariance_grid', 'at least 1')
         self._require(self.ransac_iterations >= 1, 'ransac_iterations', 'at least 1')
         self._require(0.0 < self.ransac_confidence < 1.0, 'ransac_confidence', 'in (0, 1)')
 
@@ -444,3 +471,26 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
         return PlanarVoConfig.from_dict(data)
     except ConfigError as err:
         raise ConfigError(f'{path}: {err}') from None
+
+
+def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = 'planar_vo') -> str:
+    """The configuration as a commented ROS 2 parameter file (the form of
+    ``config/planar_vo.yaml``, which is this function's output for the defaults)."""
+    import textwrap
+
+    import yaml
+
+    config = PlanarVoConfig() if config is None else config
+    docs = describe()
+    out = ['# planar_vo parameters, in ROS 2 parameter-file form (ros2 run planar_vo planar_vo_node',
+           '#   --ros-args --params-file FILE). The planar_vo command reads the same file with',
+           '# --config. Mirrors planar_vo.config.PlanarVoConfig; units are SI and radians.',
+           f'{node_name}:', '  ros__parameters:']
+    for section, values in config.to_dict().items():
+        out.append(f'    {section}:')
+        for key, value in values.items():
+            for line in textwrap.wrap(docs[f'{section}.{key}'].replace('``', ''), 86):
+                out.append(f'      # {line}')
+            text = yaml.safe_dump(value, default_flow_style=True).strip()
+            out.append(f'      {key}: {text.removesuffix("...").strip()}')
+    return '\n'.join(out) + '\n'
