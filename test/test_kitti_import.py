@@ -156,6 +156,8 @@ def test_argument_errors_and_existing_output(tmp_path, rng):
         import_kitti(tmp_path / 'seq', tmp_path / 'bag', camera_height=-1.0)
     with pytest.raises(InputError, match=r'rate_hz: expected a positive frame rate, got 0'):
         import_kitti(tmp_path / 'seq', tmp_path / 'bag', rate_hz=0.0)
+    with pytest.raises(InputError, match=r"start: expected a number of seconds, got 'soon'"):
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag', start='soon')
     with pytest.raises(InputError, match=r"sequence: '.*nowhere' is not a directory"):
         import_kitti(tmp_path / 'nowhere', tmp_path / 'bag')
     (tmp_path / 'bag').mkdir()

@@ -241,7 +241,10 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
                          f'{camera_height}')
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f'rate_hz: expected a positive frame rate, got {rate_hz}')
-    start_ns = seconds_to_ns(DEFAULT_START if start is None else start)
+    try:
+        start_ns = seconds_to_ns(DEFAULT_START if start is None else start)
+    except InputError:
+        raise InputError(f'start: expected a number of seconds, got {start!r}') from None
     seq = read_kitti_sequence(folder, need_times=rate_hz is None)
     n = len(seq.images)
     if rate_hz is not None:
