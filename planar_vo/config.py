@@ -10,6 +10,7 @@ radians. Sections:
 - `FrontendConfig`: how affine correspondences are extracted.
 - `VotingConfig`: histogram voting, inlier selection and refinement.
 - `KeyframeConfig`, `ScaleConfig`: keyframe selection and the source of metric scale.
+- `OdometryConfig`: frame checks and the planar-model covariance terms.
 - `RosConfig`: topics, frames and publishing (used by the node only).
 """
 
@@ -30,6 +31,7 @@ __all__ = [
     'FrontendConfig',
     'KeyframeConfig',
     'MountConfig',
+    'OdometryConfig',
     'PlanarVoConfig',
     'RosConfig',
     'ScaleConfig',
@@ -155,6 +157,8 @@ class CameraConfig(ConfigSection):
         distortion: coefficients in the ROS order for that model.
         estimate_focal: self-calibrate the focal length online with 1ACf voting (the
             principal point is assumed at ``(cx, cy)``, or the image centre when those are 0).
+        focal_tolerance: the calibration is used once its relative standard deviation is below
+            this; until then a provisional focal length is used.
     """
 
     fx: float = 0.0
@@ -164,11 +168,13 @@ class CameraConfig(ConfigSection):
     distortion_model: typing.Literal['none', 'plumb_bob', 'equidistant'] = 'none'
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
+    focal_tolerance: float = 0.02
 
     def validate(self) -> None:
         self._require(_finite(self.fx, self.fy, self.cx, self.cy), 'fx', 'finite intrinsics')
         self._require(self.fx >= 0.0 and self.fy >= 0.0, 'fx', 'fx, fy >= 0 (0 = from CameraInfo)')
         self._require(_finite(*self.distortion), 'distortion', 'finite coefficients')
+        self._require(0.0 < self.focal_tolerance < 1.0, 'focal_tolerance', 'in (0, 1)')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -301,16 +307,22 @@ class KeyframeConfig(ConfigSection):
     """Keyframe selection by parallax: small baselines carry little information.
 
     Attributes:
-        min_parallax: median AC displacement (pixels) that makes a new keyframe.
-        max_interval: force a keyframe after this many frames (seconds would drift with rate).
+        min_parallax: median AC displacement (pixels) from the keyframe that makes a frame the
+            new keyframe.
+        max_interval: a frame becomes the keyframe after at most this many frames.
+        stationary_parallax: below this median displacement (pixels) the vehicle is standing
+            still: zero motion is output and no keyframe is made.
     """
 
-    min_parallax: float = 4.0
+    min_parallax: float = 6.0
     max_interval: int = 10
+    stationary_parallax: float = 0.25
 
     def validate(self) -> None:
         self._require(self.min_parallax >= 0.0, 'min_parallax', 'a non-negative pixel count')
         self._require(self.max_interval >= 1, 'max_interval', 'at least 1 frame')
+        self._require(0.0 <= self.stationary_parallax <= self.min_parallax, 'stationary_parallax',
+                      'a pixel count in [0, min_parallax]')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -319,20 +331,63 @@ class ScaleConfig(ConfigSection):
 
     Attributes:
         source: ``'speed'`` (a TwistStamped/Odometry topic, e.g. wheel odometry), ``'ground'``
-            (ground-plane ACs at the known camera height), ``'fixed'`` (``fixed_speed``), or
-            ``'unit'`` (unit steps between keyframes).
+            (road ACs at the known camera height ``mount.height``), ``'fixed'``
+            (``fixed_speed``), or ``'unit'`` (unit steps between keyframes).
+        fallback: source used while the primary gives nothing (``'ground'`` with no road ACs in
+            view, ``'speed'`` before the first message).
+        speed_std: standard deviation of the speed source (m/s).
         fixed_speed: metres per second for ``'fixed'``.
-        fallback: source used while the primary gives nothing (``'ground'`` with no ground
-            ACs, ``'speed'`` before the first message).
+        fixed_speed_std: its assumed standard deviation (m/s).
+        ground_affine_tolerance: a road AC's affine must match the ground homography within
+            this relative Frobenius distance.
+        ground_min_correspondences: fewer road ACs give no ground scale.
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
-    fixed_speed: float = 10.0
     fallback: typing.Literal['ground', 'fixed', 'unit'] = 'unit'
+    speed_std: float = 0.1
+    fixed_speed: float = 10.0
+    fixed_speed_std: float = 3.0
+    ground_affine_tolerance: float = 0.05
+    ground_min_correspondences: int = 10
 
     def validate(self) -> None:
+        self._require(self.speed_std > 0.0 and _finite(self.speed_std), 'speed_std',
+                      'a positive speed in m/s')
         self._require(self.fixed_speed >= 0.0 and _finite(self.fixed_speed), 'fixed_speed',
                       'a non-negative speed in m/s')
+        self._require(self.fixed_speed_std > 0.0, 'fixed_speed_std', 'a positive speed in m/s')
+        self._require(self.ground_affine_tolerance > 0.0, 'ground_affine_tolerance',
+                      'a positive number')
+        self._require(self.ground_min_correspondences >= 1, 'ground_min_correspondences',
+                      'at least 1')
+
+
+@dataclasses.dataclass(frozen=True)
+class OdometryConfig(ConfigSection):
+    """Frame checks and the parts of the pose that planar motion does not estimate.
+
+    Attributes:
+        min_correspondences: fewer ACs than this drop the frame (too_few_correspondences).
+        min_contrast: grey-level standard deviation below which a frame is blank.
+        max_lost_frames: after this many frames in a row without an update, tracking is
+            re-anchored at the current frame (the pose is extrapolated and its covariance grows).
+        planar_z_std: standard deviation of height changes (m) the planar model ignores.
+        planar_tilt_std: standard deviation of roll and pitch (rad) the planar model ignores.
+    """
+
+    min_correspondences: int = 30
+    min_contrast: float = 2.0
+    max_lost_frames: int = 5
+    planar_z_std: float = 0.05
+    planar_tilt_std: float = 0.02
+
+    def validate(self) -> None:
+        self._require(self.min_correspondences >= 1, 'min_correspondences', 'at least 1')
+        self._require(self.min_contrast >= 0.0, 'min_contrast', 'a non-negative grey level')
+        self._require(self.max_lost_frames >= 1, 'max_lost_frames', 'at least 1')
+        self._require(self.planar_z_std > 0.0, 'planar_z_std', 'a positive length')
+        self._require(self.planar_tilt_std > 0.0, 'planar_tilt_std', 'a positive angle')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -375,6 +430,7 @@ class PlanarVoConfig(ConfigSection):
     voting: VotingConfig = dataclasses.field(default_factory=VotingConfig)
     keyframe: KeyframeConfig = dataclasses.field(default_factory=KeyframeConfig)
     scale: ScaleConfig = dataclasses.field(default_factory=ScaleConfig)
+    odometry: OdometryConfig = dataclasses.field(default_factory=OdometryConfig)
     ros: RosConfig = dataclasses.field(default_factory=RosConfig)
 
     @classmethod
