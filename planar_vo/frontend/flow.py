@@ -1,0 +1,192 @@
+"""Affine correspondences from dense optical flow (the ``'flow'`` method; the default).
+
+1. DIS optical flow (Kroeger et al., ECCV 2016; ``cv2.DISOpticalFlow``) from image 1 to image 2,
+   and, for the forward-backward check, from image 2 to image 1.
+2. Candidate points on a regular grid: in each ``grid_step`` cell, the pixel with the most
+   texture (smaller eigenvalue of the structure tensor), kept if above ``min_texture``. One
+   candidate per cell keeps the ACs spread over the image.
+3. Forward-backward consistency: ``|F(p1) + B(p1 + F(p1))|`` below ``fb_threshold`` pixels
+   rejects occlusions and flow failures.
+4. Initial affine: the Jacobian of the flow, ``A = I + dF/dp``, by central differences over
+   half a patch.
+5. Per-patch affine refinement (`planar_vo.frontend.affine_lk`): inverse-compositional affine
+   Lucas-Kanade on all patches at once; its Gauss-Newton covariance gives the quality weights.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import cv2
+import numpy as np
+
+from planar_vo.config import FrontendConfig
+from planar_vo.correspondences import AffineCorrespondences
+from planar_vo.frontend.affine_lk import refine_correspondences
+
+__all__ = ['DIS_PRESETS', 'FlowExtractor', 'flow_jacobian', 'sample_field', 'texture_grid']
+
+logger = logging.getLogger(__name__)
+
+DIS_PRESETS = {
+    'ultrafast': cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+    'fast': cv2.DISOPTICAL_FLOW_PRESET_FAST,
+    'medium': cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
+}
+
+
+def _structure_min_eig(gray: np.ndarray) -> np.ndarray:
+    """Smaller eigenvalue of the 3x3-averaged structure tensor of the half-resolution image.
+
+    Returned on the half-resolution grid, in (grey levels per full-resolution pixel)^2: the Sobel
+    filter is 8x the derivative and a half-resolution pixel spans two pixels, hence ``/ 16``.
+    """
+    small = cv2.pyrDown(gray)
+    gx, gy = cv2.spatialGradient(small)
+    gx = gx.astype(np.float32) * np.float32(1.0 / 16.0)
+    gy = gy.astype(np.float32) * np.float32(1.0 / 16.0)
+    a = cv2.boxFilter(gx * gx, -1, (3, 3))
+    b = cv2.boxFilter(gx * gy, -1, (3, 3))
+    c = cv2.boxFilter(gy * gy, -1, (3, 3))
+    return 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
+
+
+def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
+                 max_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Well-spread textured points: the most textured pixel of each ``step x step`` cell.
+
+    Args:
+        gray: 8-bit grey image ``(H, W)``.
+        step: cell size in pixels (rounded up to an even number: the search runs at half
+            resolution); enlarged when the image has more than ``max_points`` cells.
+        margin: pixels kept free along the borders.
+        min_texture: smaller structure-tensor eigenvalue required, (grey levels / pixel)^2.
+        max_points: cap on the number of cells.
+
+    Returns:
+        ``points`` ``(N, 2)`` int64 (even coordinates, full resolution) and their texture
+        ``(N,)``, in row-major cell order.
+    """
+    h, w = gray.shape
+    area = max(h - 2 * margin, 0) * max(w - 2 * margin, 0)
+    step = max(int(step), int(np.ceil(np.sqrt(area / max(max_points, 1)))))
+    half = max((step + 1) // 2, 1)
+    eig = _structure_min_eig(gray)
+    m = (margin + 1) // 2                              # half-resolution margin (even points)
+    rows = (eig.shape[0] - 2 * m) // half
+    cols = (eig.shape[1] - 2 * m) // half
+    # Keep every point's full-resolution margin: 2 * (m + rows*half - 1) <= h - 1 - margin.
+    while rows > 0 and 2 * (m + rows * half - 1) > h - 1 - margin:
+        rows -= 1
+    while cols > 0 and 2 * (m + cols * half - 1) > w - 1 - margin:
+        cols -= 1
+    if rows <= 0 or cols <= 0:
+        return np.zeros((0, 2), np.int64), np.zeros(0)
+    cells = eig[m:m + rows * half, m:m + cols * half].reshape(rows, half, cols, half)
+    cells = cells.transpose(0, 2, 1, 3).reshape(rows, cols, half * half)
+    best = cells.argmax(axis=-1)
+    value = np.take_along_axis(cells, best[..., None], axis=-1)[..., 0]
+    y = m + np.arange(rows)[:, None] * half + best // half
+    x = m + np.arange(cols)[None, :] * half + best % half
+    keep = value > min_texture
+    points = 2 * np.stack([x[keep], y[keep]], axis=1).astype(np.int64)
+    return points, value[keep].astype(np.float64)
+
+
+def sample_field(field: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a 2-channel float32 field ``(H, W, 2)`` at points ``(N, 2)``."""
+    if points.shape[0] == 0:
+        return np.zeros((0, 2), np.float32)
+    xy = points.astype(np.float32).reshape(-1, 1, 2)
+    return cv2.remap(field, xy, None, cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).reshape(-1, 2)
+
+
+def flow_jacobian(flow: np.ndarray, points: np.ndarray, h: int) -> np.ndarray:
+    """Local affines ``A = I + dF/dp`` of a flow field at integer points, by central differences.
+
+    Args:
+        flow: ``(H, W, 2)`` flow (image 1 -> image 2 displacement) in pixels.
+        points: integer points ``(N, 2)``, at least ``h`` pixels from the border.
+        h: half the difference baseline in pixels (DIS flow is smooth at its patch scale).
+
+    Returns:
+        ``A`` ``(N, 2, 2)`` with ``A[:, i, j] = d p2_i / d p1_j``.
+    """
+    x, y = points[:, 0], points[:, 1]
+    dx = (flow[y, x + h] - flow[y, x - h]) / (2.0 * h)
+    dy = (flow[y + h, x] - flow[y - h, x]) / (2.0 * h)
+    return np.eye(2)[None] + np.stack([dx, dy], axis=-1).astype(np.float64)
+
+
+class FlowExtractor:
+    """DIS-flow affine correspondences; keeps the DIS instances between frames (creating one
+    costs more than a flow computation).
+
+    Args:
+        config: front-end configuration (`FrontendConfig`).
+    """
+
+    def __init__(self, config: FrontendConfig) -> None:
+        self.config = config
+        self._forward = cv2.DISOpticalFlow_create(DIS_PRESETS[config.dis_preset])
+        self._backward = cv2.DISOpticalFlow_create(DIS_PRESETS[config.fb_preset])
+        self.stats: dict[str, float] = {}
+
+    def extract(self, gray1: np.ndarray, gray2: np.ndarray) -> AffineCorrespondences:
+        """ACs from image 1 to image 2 (grey ``uint8``, same size), pixels; weights in ``[0, 1]``.
+
+        Per-stage counts and times are left in ``self.stats`` (``candidates``,
+        ``fb_consistent``, ``accepted``; ``seconds_flow``, ``seconds_candidates``,
+        ``seconds_backward``, ``seconds_refine``).
+        """
+        cfg = self.config
+        clock = [time.perf_counter()]
+
+        def lap(name: str) -> None:
+            now = time.perf_counter()
+            stats[f'seconds_{name}'] = now - clock[0]
+            clock[0] = now
+
+        stats: dict[str, float] = {}
+        flow = self._forward.calc(gray1, gray2, None)
+        lap('flow')
+        h_diff = max(cfg.patch_radius // 2, 1)
+        margin = cfg.patch_radius + 1 + h_diff
+        p1, texture = texture_grid(gray1, cfg.grid_step, margin, cfg.min_texture,
+                                   cfg.max_correspondences)
+        x, y = p1[:, 0], p1[:, 1]
+        p2 = p1 + flow[y, x].astype(np.float64)
+        stats['candidates'] = float(len(p1))
+        lap('candidates')
+        if cfg.fb_threshold > 0.0 and len(p1):
+            back = self._backward.calc(gray2, gray1, None)
+            fb_error = np.linalg.norm(flow[y, x] + sample_field(back, p2), axis=1)
+            consistent = fb_error < cfg.fb_threshold
+            p1, p2, texture, fb_error = (p1[consistent], p2[consistent], texture[consistent],
+                                         fb_error[consistent])
+        else:
+            fb_error = np.zeros(len(p1))
+        stats['fb_consistent'] = float(len(p1))
+        lap('backward')
+        A = flow_jacobian(flow, p1, h_diff)
+        if cfg.refine_affine and len(p1):
+            refined = refine_correspondences(gray1, gray2, p1, p2, A, radius=cfg.patch_radius,
+                                             stride=cfg.patch_stride,
+                                             iterations=cfg.lk_iterations,
+                                             max_residual=cfg.max_residual)
+            ok = refined.ok
+            acs = AffineCorrespondences(p1[ok].astype(np.float64), refined.p2[ok], refined.A[ok],
+                                        refined.weights[ok])
+        else:
+            # Without refinement the flow Jacobian's quality is unknown: weight by texture and
+            # forward-backward agreement only.
+            scale = cfg.fb_threshold if cfg.fb_threshold > 0 else 1.0
+            weights = texture / (texture + 4.0 * max(cfg.min_texture, 1.0)) \
+                / (1.0 + (fb_error / scale) ** 2)
+            acs = AffineCorrespondences(p1.astype(np.float64), p2, A, weights)
+        stats['accepted'] = float(len(acs))
+        lap('refine')
+        self.stats = stats
+        return acs
