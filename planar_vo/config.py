@@ -236,7 +236,7 @@ class FrontendConfig(ConfigSection):
     lk_iterations: int = 3
     dis_preset: typing.Literal['ultrafast', 'fast', 'medium'] = 'fast'
     fb_preset: typing.Literal['ultrafast', 'fast', 'medium'] = 'ultrafast'
-    fb_threshold: float = 1.0
+    fb_threshold: float = 2.0
     min_texture: float = 4.0
     max_residual: float = 0.3
     refine_affine: bool = True

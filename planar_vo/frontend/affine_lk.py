@@ -49,10 +49,10 @@ def patch_offsets(radius: int, stride: int) -> np.ndarray:
     ``radius`` is the half-size in pixels and ``stride`` the sample spacing: a stride above 1
     keeps the patch's extent (the lever arm that determines ``A``) at a fraction of the cost.
     """
-    r = np.arange(-radius, radius + 1, stride)
-    if r[-1] != radius:          # keep the patch symmetric about its centre
-        r = np.concatenate([r, [radius]])
-        r = r - (r[0] + r[-1]) // 2
+    if (2 * radius) % stride == 0:     # e.g. radius 7, stride 2: -7, -5, ..., 7
+        r = np.arange(-radius, radius + 1, stride)
+    else:                              # symmetric about the centre, within the radius
+        r = stride * np.arange(-(radius // stride), radius // stride + 1)
     oy, ox = np.meshgrid(r, r, indexing='ij')
     return np.stack([ox.ravel(), oy.ravel()], axis=1).astype(np.int64)
 
