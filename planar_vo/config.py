@@ -214,7 +214,10 @@ class FrontendConfig(ConfigSection):
         patch_radius: half-size in pixels of the patch an affine is fitted on.
         patch_stride: spacing in pixels of the samples within a patch (2 keeps the patch's
             extent at a quarter of the cost).
-        lk_iterations: Gauss-Newton iterations of the affine Lucas-Kanade refinement.
+        lk_iterations: Gauss-Newton iterations of the affine Lucas-Kanade refinement on all
+            patches.
+        lk_max_iterations: further iterations, up to this total, only on the patches that have
+            not converged yet.
         dis_preset: DIS optical-flow preset of the forward flow, ``'ultrafast'``, ``'fast'`` or
             ``'medium'``.
         fb_preset: DIS preset of the backward flow used only for the forward-backward check.
@@ -234,6 +237,7 @@ class FrontendConfig(ConfigSection):
     patch_radius: int = 7
     patch_stride: int = 2
     lk_iterations: int = 3
+    lk_max_iterations: int = 6
     dis_preset: typing.Literal['ultrafast', 'fast', 'medium'] = 'fast'
     fb_preset: typing.Literal['ultrafast', 'fast', 'medium'] = 'ultrafast'
     fb_threshold: float = 2.0
@@ -249,6 +253,8 @@ class FrontendConfig(ConfigSection):
         self._require(1 <= self.patch_stride <= self.patch_radius, 'patch_stride',
                       'between 1 and patch_radius pixels')
         self._require(self.lk_iterations >= 1, 'lk_iterations', 'at least 1')
+        self._require(self.lk_max_iterations >= self.lk_iterations, 'lk_max_iterations',
+                      'at least lk_iterations')
         self._require(self.fb_threshold >= 0.0 and _finite(self.fb_threshold), 'fb_threshold',
                       'a non-negative number of pixels (0 disables)')
         self._require(self.min_texture >= 0.0 and _finite(self.min_texture), 'min_texture',

@@ -17,13 +17,21 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
 
 from planar_vo.config import FrontendConfig
 from planar_vo.correspondences import AffineCorrespondences
-from planar_vo.frontend.affine_lk import refine_correspondences
+from planar_vo.frontend.affine_lk import (
+    MAX_STEP,
+    patch_offsets,
+    prepare_template,
+    refine_affines,
+    score_refinement,
+    smooth_for_refinement,
+)
 
 __all__ = ['DIS_PRESETS', 'FlowExtractor', 'flow_jacobian', 'sample_field', 'texture_grid']
 
@@ -121,8 +129,12 @@ def flow_jacobian(flow: np.ndarray, points: np.ndarray, h: int) -> np.ndarray:
 
 
 class FlowExtractor:
-    """DIS-flow affine correspondences; keeps the DIS instances between frames (creating one
-    costs more than a flow computation).
+    """DIS-flow affine correspondences.
+
+    Keeps the DIS instances between frames (creating one costs more than a flow computation)
+    and a small thread pool: the two DIS flows run in worker threads (OpenCV releases the GIL)
+    while the calling thread picks the candidates and prepares the refinement's templates,
+    which need image 1 only.
 
     Args:
         config: front-end configuration (`FrontendConfig`).
@@ -132,16 +144,18 @@ class FlowExtractor:
         self.config = config
         self._forward = cv2.DISOpticalFlow_create(DIS_PRESETS[config.dis_preset])
         self._backward = cv2.DISOpticalFlow_create(DIS_PRESETS[config.fb_preset])
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix='planar_vo_dis')
         self.stats: dict[str, float] = {}
 
     def extract(self, gray1: np.ndarray, gray2: np.ndarray) -> AffineCorrespondences:
         """ACs from image 1 to image 2 (grey ``uint8``, same size), pixels; weights in ``[0, 1]``.
 
         Per-stage counts and times are left in ``self.stats`` (``candidates``,
-        ``fb_consistent``, ``accepted``; ``seconds_flow``, ``seconds_candidates``,
-        ``seconds_backward``, ``seconds_refine``).
+        ``fb_consistent``, ``accepted``; ``seconds_candidates`` (grid and templates, overlapped
+        with the flows), ``seconds_flow`` (waiting for the flows), ``seconds_refine``).
         """
         cfg = self.config
+        stats: dict[str, float] = {}
         clock = [time.perf_counter()]
 
         def lap(name: str) -> None:
@@ -149,40 +163,51 @@ class FlowExtractor:
             stats[f'seconds_{name}'] = now - clock[0]
             clock[0] = now
 
-        stats: dict[str, float] = {}
-        flow = self._forward.calc(gray1, gray2, None)
+        use_fb = cfg.fb_threshold > 0.0
+        forward = self._pool.submit(self._forward.calc, gray1, gray2, None)
+        backward = self._pool.submit(self._backward.calc, gray2, gray1, None) if use_fb else None
+        try:
+            h_diff = max(cfg.patch_radius // 2, 1)
+            margin = cfg.patch_radius + 1 + h_diff
+            p1, texture = texture_grid(gray1, cfg.grid_step, margin, cfg.min_texture,
+                                       cfg.max_correspondences)
+            template = image2 = None
+            if cfg.refine_affine and len(p1):
+                template = prepare_template(smooth_for_refinement(gray1), p1,
+                                            patch_offsets(cfg.patch_radius, cfg.patch_stride))
+                image2 = smooth_for_refinement(gray2)
+            stats['candidates'] = float(len(p1))
+            lap('candidates')
+            flow = forward.result()
+            back = backward.result() if use_fb else None
+        finally:
+            # Never leave a flow running on these images after an error.
+            forward.cancel()
+            if backward is not None:
+                backward.cancel()
         lap('flow')
-        h_diff = max(cfg.patch_radius // 2, 1)
-        margin = cfg.patch_radius + 1 + h_diff
-        p1, texture = texture_grid(gray1, cfg.grid_step, margin, cfg.min_texture,
-                                   cfg.max_correspondences)
         x, y = p1[:, 0], p1[:, 1]
         p2 = p1 + flow[y, x].astype(np.float64)
-        stats['candidates'] = float(len(p1))
-        lap('candidates')
-        if cfg.fb_threshold > 0.0 and len(p1):
-            back = self._backward.calc(gray2, gray1, None)
+        if use_fb and len(p1):
             fb_error = np.linalg.norm(flow[y, x] + sample_field(back, p2), axis=1)
-            consistent = fb_error < cfg.fb_threshold
-            p1, p2, texture, fb_error = (p1[consistent], p2[consistent], texture[consistent],
-                                         fb_error[consistent])
+            keep = fb_error < cfg.fb_threshold
+            p1, p2, texture, fb_error = p1[keep], p2[keep], texture[keep], fb_error[keep]
+            template = template.subset(keep) if template is not None else None
         else:
             fb_error = np.zeros(len(p1))
         stats['fb_consistent'] = float(len(p1))
-        lap('backward')
         A = flow_jacobian(flow, p1, h_diff)
-        if cfg.refine_affine and len(p1):
-            refined = refine_correspondences(gray1, gray2, p1, p2, A, radius=cfg.patch_radius,
-                                             stride=cfg.patch_stride,
-                                             iterations=cfg.lk_iterations,
-                                             max_residual=cfg.max_residual)
+        if template is not None:
+            result = refine_affines(template, image2, p2, A, iterations=cfg.lk_iterations,
+                                    max_iterations=cfg.lk_max_iterations, max_step=MAX_STEP)
+            refined = score_refinement(template, result, cfg.max_residual)
             ok = refined.ok
             acs = AffineCorrespondences(p1[ok].astype(np.float64), refined.p2[ok], refined.A[ok],
                                         refined.weights[ok])
         else:
             # Without refinement the flow Jacobian's quality is unknown: weight by texture and
             # forward-backward agreement only.
-            scale = cfg.fb_threshold if cfg.fb_threshold > 0 else 1.0
+            scale = cfg.fb_threshold if use_fb else 1.0
             weights = texture / (texture + 4.0 * max(cfg.min_texture, 1.0)) \
                 / (1.0 + (fb_error / scale) ** 2)
             acs = AffineCorrespondences(p1.astype(np.float64), p2, A, weights)

@@ -16,7 +16,7 @@ import numpy as np
 
 from planar_vo.config import FrontendConfig
 from planar_vo.correspondences import AffineCorrespondences
-from planar_vo.frontend.affine_lk import refine_correspondences
+from planar_vo.frontend.affine_lk import MAX_STEP, refine_correspondences
 
 __all__ = ['KLTExtractor']
 
@@ -86,6 +86,8 @@ class KLTExtractor:
             refined = refine_correspondences(gray1, gray2, p1, p2, A, radius=cfg.patch_radius,
                                              stride=cfg.patch_stride,
                                              iterations=cfg.lk_iterations,
+                                             max_iterations=cfg.lk_max_iterations,
+                                             max_step=MAX_STEP,
                                              max_residual=cfg.max_residual,
                                              levels=self._PYRAMID_LEVELS)
             keep = refined.ok
