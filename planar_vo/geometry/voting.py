@@ -225,22 +225,24 @@ def _whitened(r: np.ndarray, g: np.ndarray, h: np.ndarray, sp: float, sa: float)
     return r / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)
 
 
-def _robust_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray) -> tuple[float, float]:
+def _robust_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, quantile: float = 0.25
+                   ) -> tuple[float, float]:
     """Noise scales of points (normalised units) and affines from the peak's members' residuals.
 
     The members are the ACs whose candidates fell in the voted peak; with many outliers a good
-    share of them are outliers too, so the scales come from the lower quartile of the normalised
-    residuals (for ``|N(0, s^2)|`` the quartile is ``0.3186 s``), which tolerates up to three
-    quarters of contamination. Epipolar rows see point noise only: ``e1 = r1 / |dr1/dp|``.
+    share of them are outliers too, so by default the scales come from the lower quartile of the
+    normalised residuals (for ``|N(0, s^2)|`` the quartile is ``0.3186 s``), which tolerates up to
+    three quarters of contamination; for clean inliers ``quantile=0.5`` (the median) is used. Epipolar rows see point noise only: ``e1 = r1 / |dr1/dp|``.
     Affine rows see ``sqrt(sp^2 g + sa^2 h)``; ``sa`` comes from ``r / sqrt(h)`` with the point
     share removed.
     """
     if r.shape[0] < 4:
         return _POINT_SCALE_FLOOR, _AFFINE_SCALE_FLOOR
+    q = _HALF_NORMAL_Q25 if quantile == 0.25 else 1.0 / _MAD
     e1 = np.abs(r[:, 0]) / np.sqrt(g[:, 0] + 1e-300)
-    sp = max(float(np.quantile(e1, 0.25)) / _HALF_NORMAL_Q25, _POINT_SCALE_FLOOR)
+    sp = max(float(np.quantile(e1, quantile)) / q, _POINT_SCALE_FLOOR)
     ea = (np.abs(r[:, 1:]) / np.sqrt(h[:, 1:] + 1e-300)).ravel()
-    raw = float(np.quantile(ea, 0.25)) / _HALF_NORMAL_Q25
+    raw = float(np.quantile(ea, quantile)) / q
     point_share = sp * sp * float(np.median(g[:, 1:] / (h[:, 1:] + 1e-300)))
     sa = math.sqrt(max(raw * raw - point_share, 0.0))
     return sp, max(sa, _AFFINE_SCALE_FLOOR, 0.1 * raw)
@@ -368,23 +370,39 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     beta0, _, _, bw_b = _peak(b_v[near_alpha], w_v[near_alpha], config, exclusion)
 
     # Residual terms at the voted motion: the peak's members (near both modes) calibrate the
-    # noise scales, and the resulting whitening is kept for the refinement (the vote is already
-    # within a fraction of a degree, where the first-order standard deviations barely change).
+    # noise scales, and the resulting whitening is kept for a first refinement (the vote is
+    # within a degree, where the first-order standard deviations barely change).
     B = _ac_matrix(q1, q2, A)
     theta0 = alpha0 + beta0
     r, g, h = _residual_terms(q1, q2, A, B, theta0, beta0)
-    members = np.flatnonzero(valid)[near_alpha & (np.abs(wrap_angle(b_v - beta0)) <= 3.0 * bw_b)]
+    near_beta = np.abs(wrap_angle(b_v - beta0)) <= 3.0 * bw_b
+    members = np.flatnonzero(valid)[near_alpha & near_beta]
+    sp_cap = config.max_noise_factor * config.point_noise
+    sa_cap = config.max_noise_factor * config.affine_noise
     sp, sa = _robust_scales(r[members], g[members], h[members])
-    sp = min(sp, config.max_noise_factor * config.point_noise)
-    sa = min(sa, config.max_noise_factor * config.affine_noise)
+    sp, sa = min(sp, sp_cap), min(sa, sa_cap)
     Bw = B / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)[:, :, None]
     theta, beta, inliers, cov, rms = _select_and_refine(Bw, w, theta0, beta0, config, clusters)
+    if config.refine and np.count_nonzero(inliers) >= max(config.min_inliers, 4):
+        # Second round: noise scales from the inliers at the refined motion (clean, so the
+        # median is the right statistic), then the same selection and refinement again.
+        r, g, h = _residual_terms(q1, q2, A, B, theta, beta)
+        sp, sa = _robust_scales(r[inliers], g[inliers], h[inliers], quantile=0.5)
+        sp, sa = min(sp, sp_cap), min(sa, sa_cap)
+        Bw = B / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)[:, :, None]
+        theta, beta, inliers, cov, rms = _select_and_refine(Bw, w, theta, beta, config, clusters)
     motion = PlanarMotion(float(wrap_angle(theta - beta)), float(wrap_angle(beta)))
     num_inliers = int(np.count_nonzero(inliers))
     # The refined motion must stay in the voted peak: leaving it means the inliers' constraints
     # disagree with the votes they cast (a peak made of outliers, or a degenerate geometry).
+    # Alpha candidates are sharp; beta candidates can spread widely (forward motion), so beta is
+    # judged against the robust spread of the peak's own beta candidates.
+    beta_spread = bw_b
+    if near_alpha.any():
+        beta_spread = max(bw_b, _MAD * float(np.median(np.abs(
+            wrap_angle(b_v[near_alpha] - beta0)))))
     drift = max(abs(float(wrap_angle(motion.alpha - alpha0))) / (3.0 * bw),
-                abs(float(wrap_angle(motion.beta - beta0))) / (3.0 * max(bw_b, bw)))
+                abs(float(wrap_angle(motion.beta - beta0))) / (3.0 * beta_spread))
     flag = None
     if num_inliers < config.min_inliers:
         flag = 'too_few_inliers'
