@@ -349,7 +349,7 @@ class KeyframeConfig(ConfigSection):
             still: zero motion is output and no keyframe is made.
     """
 
-    min_parallax: float = 6.0
+    min_parallax: float = 3.0
     max_interval: int = 10
     stationary_parallax: float = 0.25
 
@@ -369,7 +369,10 @@ class ScaleConfig(ConfigSection):
             (road ACs at the known camera height ``mount.height``), ``'fixed'``
             (``fixed_speed``), or ``'unit'`` (unit steps between keyframes).
         fallback: source used while the primary gives nothing (``'ground'`` with no road ACs in
-            view, ``'speed'`` before the first message).
+            view, ``'speed'`` before the first message): ``'hold'`` keeps the speed of the last
+            metric step (for up to ``hold_seconds``, then unit steps), or ``'ground'``,
+            ``'fixed'``, ``'unit'``.
+        hold_seconds: how long ``'hold'`` may keep the last metric speed.
         speed_std: standard deviation of the speed source (m/s).
         fixed_speed: metres per second for ``'fixed'``.
         fixed_speed_std: its assumed standard deviation (m/s).
@@ -379,7 +382,8 @@ class ScaleConfig(ConfigSection):
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
-    fallback: typing.Literal['ground', 'fixed', 'unit'] = 'unit'
+    fallback: typing.Literal['hold', 'ground', 'fixed', 'unit'] = 'hold'
+    hold_seconds: float = 2.0
     speed_std: float = 0.1
     fixed_speed: float = 10.0
     fixed_speed_std: float = 3.0
@@ -387,6 +391,7 @@ class ScaleConfig(ConfigSection):
     ground_min_correspondences: int = 10
 
     def validate(self) -> None:
+        self._require(self.hold_seconds >= 0.0, 'hold_seconds', 'a non-negative duration (s)')
         self._require(self.speed_std > 0.0 and _finite(self.speed_std), 'speed_std',
                       'a positive speed in m/s')
         self._require(self.fixed_speed >= 0.0 and _finite(self.fixed_speed), 'fixed_speed',

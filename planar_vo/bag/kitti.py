@@ -33,13 +33,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from planar_vo.bag.images import CAMERA_INFO_TYPE, IMAGE_TYPE
-from planar_vo.bag.reader import TYPESTORE
-from planar_vo.bag.writer import ODOMETRY_TYPE, BagWriter
+from planar_vo.bag.camera_bag import (
+    CAMERA_INFO_TOPIC,
+    GROUND_TRUTH_TOPIC,
+    IMAGE_TOPIC,
+    CameraBagWriter,
+)
 from planar_vo.camera import CameraModel
 from planar_vo.errors import CameraModelError, InputError
 from planar_vo.geometry.frames import invert, mount_transform, quaternion_from_rotation
-from planar_vo.messages import ns_to_stamp_fields, seconds_to_ns
+from planar_vo.messages import seconds_to_ns
 
 __all__ = [
     'KittiImportSummary',
@@ -51,9 +54,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-IMAGE_TOPIC = '/camera/image_raw'
-CAMERA_INFO_TOPIC = '/camera/camera_info'
-GROUND_TRUTH_TOPIC = '/ground_truth/odom'
 DEFAULT_START = Decimal('1700000000')     # seconds; KITTI times start at 0
 
 
@@ -260,37 +260,18 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
     if seq.poses is not None:
         gt_poses, gt_twists = kitti_ground_truth(seq.poses, stamps, camera_height)
 
-    t = TYPESTORE.types
-    with BagWriter(out_path, storage=storage) as writer:
-        writer.add_topic(CAMERA_INFO_TOPIC, CAMERA_INFO_TYPE)
-        writer.add_topic(IMAGE_TOPIC, IMAGE_TYPE)
-        if seq.poses is not None:
-            writer.add_topic(GROUND_TRUTH_TOPIC, ODOMETRY_TYPE)
+    with CameraBagWriter(out_path, storage=storage, ground_truth=seq.poses is not None,
+                         camera_frame=camera_frame, odom_frame=odom_frame,
+                         base_frame=base_frame) as writer:
         for i, path in enumerate(tqdm(seq.images, desc='import', unit='frame', file=sys.stderr,
                                       disable=not progress, leave=False)):
             image = first if i == 0 else _read_png(path)
             if image.shape != (height, width):
                 raise InputError(f"images: expected every image {width}x{height}, got "
                                  f"{image.shape[1]}x{image.shape[0]} for '{path.name}'")
-            sec, nanosec = ns_to_stamp_fields(int(stamps[i]))
-            header = t['std_msgs/msg/Header'](
-                stamp=t['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
-                frame_id=camera_frame)
-            info = t[CAMERA_INFO_TYPE](
-                header=header, height=height, width=width, distortion_model='plumb_bob',
-                d=np.zeros(5), k=camera.K.reshape(9).copy(), r=np.eye(3).reshape(9),
-                p=seq.P0.reshape(12).copy(), binning_x=0, binning_y=0,
-                roi=t['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0,
-                                                          width=0, do_rectify=False))
-            msg = t[IMAGE_TYPE](header=header, height=height, width=width, encoding='mono8',
-                                is_bigendian=0, step=width, data=image.reshape(-1))
-            # CameraInfo first: a reader taking the latest info per image sees it for frame 0.
-            writer.write_message(CAMERA_INFO_TOPIC, int(stamps[i]), info)
-            writer.write_message(IMAGE_TOPIC, int(stamps[i]), msg)
-            if seq.poses is not None:
-                writer.write_odometry(GROUND_TRUTH_TOPIC, int(stamps[i]), gt_poses[i],
-                                      odom_frame=odom_frame, base_frame=base_frame,
-                                      twist=gt_twists[i])
+            writer.write_frame(int(stamps[i]), image, camera, projection=seq.P0,
+                               pose=None if seq.poses is None else gt_poses[i],
+                               twist=None if seq.poses is None else gt_twists[i])
     return KittiImportSummary(Path(out_path), n, camera, seq.poses is not None, int(stamps[0]),
                               int(stamps[-1]))
 

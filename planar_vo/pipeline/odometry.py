@@ -101,6 +101,7 @@ class VisualOdometry:
         self._last_out_pose = np.eye(4)
         self._twist = np.zeros(6)
         self._twist_cov = np.eye(6) * 1e6
+        self._held_speed = (float('nan'), float('inf'), float('-inf'))   # m/s, std, stamp
 
     @property
     def camera(self) -> CameraModel | None:
@@ -280,24 +281,37 @@ class VisualOdometry:
         """Step length (m), its variance and the source used, with the configured fallback."""
         cfg = self.config.scale
         dt = stamp - self._kf_stamp
-        for source in (cfg.source, cfg.fallback):
+        for source in (cfg.source, cfg.fallback, 'unit'):
             if source == 'speed':
                 d = self._speed.distance(self._kf_stamp, stamp)
                 if d is not None:
-                    return d, (cfg.speed_std * dt) ** 2, 'speed'
+                    return self._metric(d, (cfg.speed_std * dt) ** 2, 'speed', stamp, dt)
             elif source == 'ground':
                 g = ground_plane_scale(q1, q2, An, motion.alpha, motion.beta,
                                        self.config.mount.height, weights=stats.inliers,
                                        affine_tol=cfg.ground_affine_tolerance,
                                        min_count=cfg.ground_min_correspondences)
                 if math.isfinite(g.scale):
-                    return g.scale, g.std ** 2, 'ground'
+                    return self._metric(g.scale, g.std ** 2, 'ground', stamp, dt)
             elif source == 'fixed':
                 d = cfg.fixed_speed * dt
                 return d, (cfg.fixed_speed_std * dt) ** 2, 'fixed'
+            elif source == 'hold':
+                speed, std, when = self._held_speed
+                if math.isfinite(speed) and stamp - when <= cfg.hold_seconds:
+                    # Constant speed since the last metric step; its error grows with the gap.
+                    grow = 0.2 * speed * (stamp - when)
+                    return speed * dt, (std * dt) ** 2 + (grow * dt) ** 2, 'hold'
             else:
                 return 1.0, 1.0, 'unit'
         return 1.0, 1.0, 'unit'
+
+    def _metric(self, distance: float, variance: float, source: str, stamp: float, dt: float
+                ) -> tuple[float, float, str]:
+        """Remember the speed of a metric step (for ``'hold'``) and return it."""
+        if dt > 0:
+            self._held_speed = (distance / dt, math.sqrt(variance) / dt, stamp)
+        return distance, variance, source
 
     def _stationary(self, stamp: float, count: int) -> FrameResult:
         """The image has not moved: neither has the vehicle (no new keyframe, no drift)."""
