@@ -46,7 +46,8 @@ logger = logging.getLogger(__name__)
 NEAR = 0.05                  # near clipping distance (m) along the optical axis
 _TILE_PX = 16                # screen tiles used to bound each plane's pixels
 _TAPS = 2                    # anisotropic taps along the footprint's major axis
-_SKY = (200.0, 35.0)         # sky grey level at the horizon and its increase towards the zenith
+_TAP_OFFSETS = tuple((k + 0.5) / _TAPS - 0.5 for k in range(_TAPS))   # in footprint lengths
+_SKY = (195.0, 25.0)         # sky grey level at the horizon and its increase towards the zenith
 _CHUNK_PIXELS = 8192         # pixels shaded per block (keeps the temporaries in cache)
 
 
@@ -255,7 +256,7 @@ def _shade(world: StreetWorld, rays: _Rays, vis: _Visible, plane: np.ndarray,
     Works on blocks of rows small enough to stay in the CPU cache: the per-pixel work is a long
     chain of element-wise operations, memory-bound on whole images.
     """
-    bank = texture_bank(world.seed)
+    bank = texture_bank()
     tile = float(bank.size[0])
     dummy = np.zeros((1, 3, 3))
     g = np.concatenate([vis.g, dummy])                                # (K + 1, 3, 3)
@@ -361,25 +362,21 @@ def _shade_rows(bank: TextureBank, tab: _Tables, pid: np.ndarray, rays: _Rays, y
         scale0 = tab.scale[level]
         ax = ax * scale0 * near
         ay = ay * scale0 * near
-        col0 = tab.column[level]
-        col1 = tab.column[level + 1]
-        x0 = (u + f32(0.5)) * scale0 - f32(0.5)
-        y0 = (v + f32(0.5)) * scale0 - f32(0.5)
-        x1 = x0 * f32(0.5) - f32(0.25) + col1
-        y1 = y0 * f32(0.5) - f32(0.25) + row0
-        x0 += col0
-        y0 += row0
-        v0 = np.zeros(pid.shape, f32)
-        v1 = np.zeros(pid.shape, f32)
-        for tap in range(_TAPS):
-            k = f32((tap + 0.5) / _TAPS - 0.5)
-            v0 += cv2.remap(atlas, x0 + k * ax, y0 + k * ay, cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE)
-            k *= f32(0.5)
-            v1 += cv2.remap(atlas, x1 + k * ax, y1 + k * ay, cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE)
+        col = tab.column[level]
+        x = (u + f32(0.5)) * scale0 - f32(0.5) + col
+        y = (v + f32(0.5)) * scale0 - f32(0.5) + row0
+        k = f32(_TAP_OFFSETS[0])
+        both = cv2.remap(atlas, x + k * ax, y + k * ay, cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)
+        for k in _TAP_OFFSETS[1:]:
+            both += cv2.remap(atlas, x + f32(k) * ax, y + f32(k) * ay, cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
+        v0, v1 = both[..., 0], both[..., 1]
         total += f32(weight / _TAPS) * (v0 + frac * (v1 - v0))
     shade = tab.bias[pid] + tab.gain[pid] * total
+    # Soft saturation instead of clipping: no flat (texture-less) patches where a dark blob meets
+    # a dark surface; slope 1 at mid-grey.
+    shade = f32(127.5) + f32(127.5) * np.tanh((shade - f32(127.5)) * f32(1 / 127.5))
     if sky.any():
         # Plain sky, brighter towards the zenith: elevation of the ray in odom.
         sqx, sqy = rays.qx[ys][sky], rays.qy[ys][sky]

@@ -255,8 +255,8 @@ class _Builder:
         hx, hy = ex * length / 2, ey * width / 2
         corners = np.stack([centre_xy - hx - hy, centre_xy + hx - hy, centre_xy + hx + hy,
                             centre_xy - hx + hy])
-        gain = self.rng.uniform(0.7, 1.25)
-        bias = self.rng.uniform(85.0, 165.0)
+        gain = self.rng.uniform(0.7, 1.15)
+        bias = self.rng.uniform(100.0, 155.0)
         if not stacked:
             if self._blocked(corners):
                 self.skipped += 1
