@@ -103,6 +103,30 @@ def test_surfaces_are_textured_and_sky_is_plain(world, poses, camera):
     assert np.all(np.isinf(frame.depth[frame.kind == -1]))
 
 
+def test_rendering_is_anti_aliased_at_every_distance(world, poses):
+    # The image must equal a 2x supersampled render averaged down (a band-limited reference),
+    # near and far: an aliased far ground or facade would differ by about the texture's
+    # standard deviation there.
+    low = CameraModel.pinhole(640, 480, 500.0, cx=319.5, cy=239.5)
+    high = CameraModel.pinhole(1280, 960, 1000.0, cx=639.5, cy=479.5)   # same pixel centres
+    frame = render(world, low, poses[0], psf_sigma=0.0)
+    reference = cv2.resize(render(world, high, poses[0], psf_sigma=0.0).image.astype(np.float32),
+                           (640, 480), interpolation=cv2.INTER_AREA)
+    diff = np.abs(reference - frame.image)
+    plane = frame.plane.astype(np.float32)
+    interior = cv2.dilate(plane, np.ones((5, 5))) == cv2.erode(plane, np.ones((5, 5)))
+    checked = 0
+    for near, far in ((0, 10), (10, 20), (20, 40), (40, 80)):
+        for kind in (GROUND_KIND, FACADE_KIND):
+            sel = interior & (frame.kind == kind) & (frame.depth >= near) & (frame.depth < far)
+            if sel.sum() < 500:
+                continue
+            checked += 1
+            assert np.std(frame.image[sel]) > 10.0, (near, kind)
+            assert np.median(diff[sel]) < 3.0, (near, kind)
+    assert checked >= 5
+
+
 def test_textures_do_not_repeat_along_the_street(world, poses):
     # Ground patches 10.24 m apart (the detail tile's period) must differ: the coarse layer
     # and per-plane rotations break the repetition.

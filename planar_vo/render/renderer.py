@@ -45,6 +45,7 @@ logger = logging.getLogger(__name__)
 
 NEAR = 0.05                  # near clipping distance (m) along the optical axis
 _TILE_PX = 16                # screen tiles used to bound each plane's pixels
+_BATCH_TILES = 6             # planes covering at most this many tiles are z-buffered in a batch
 _TAPS = 2                    # anisotropic taps along the footprint's major axis
 _TAP_OFFSETS = tuple((k + 0.5) / _TAPS - 0.5 for k in range(_TAPS))   # in footprint lengths
 _SKY = (195.0, 25.0)         # sky grey level at the horizon and its increase towards the zenith
@@ -95,6 +96,9 @@ class _Rays:
     jq: tuple                  # dq/dp: four scalars (pinhole) or four (H, W) arrays
     tile_lo: np.ndarray        # (2, ny, nx) min qx, qy over each tile
     tile_hi: np.ndarray        # (2, ny, nx) max
+    tile_qx: np.ndarray        # (ny * nx, TILE_PX^2) float32 qx of each tile's pixels (NaN: none)
+    tile_qy: np.ndarray
+    tile_pix: np.ndarray       # (ny * nx, TILE_PX^2) flat pixel index of each tile's pixels
 
 
 @functools.lru_cache(maxsize=8)
@@ -123,7 +127,17 @@ def _rays(camera: CameraModel) -> _Rays:
             warnings.simplefilter('ignore', RuntimeWarning)
             lo[i] = np.nan_to_num(np.nanmin(blocks, axis=(1, 3)), nan=np.inf)
             hi[i] = np.nan_to_num(np.nanmax(blocks, axis=(1, 3)), nan=-np.inf)
-    return _Rays(qx, qy, qx.astype(np.float32), qy.astype(np.float32), valid, jq, lo, hi)
+    def by_tile(values: np.ndarray, fill) -> np.ndarray:
+        padded = np.full((ny * _TILE_PX, nx * _TILE_PX), fill, dtype=values.dtype)
+        padded[:H, :W] = values
+        return np.ascontiguousarray(padded.reshape(ny, _TILE_PX, nx, _TILE_PX).swapaxes(1, 2)
+                                    .reshape(ny * nx, _TILE_PX * _TILE_PX))
+
+    qx32, qy32 = qx.astype(np.float32), qy.astype(np.float32)
+    tile_qx = by_tile(np.where(valid, qx32, np.nan), np.nan)
+    tile_qy = by_tile(np.where(valid, qy32, np.nan), np.nan)
+    tile_pix = by_tile(np.arange(H * W).reshape(H, W), 0)
+    return _Rays(qx, qy, qx32, qy32, valid, jq, lo, hi, tile_qx, tile_qy, tile_pix)
 
 
 @dataclass(frozen=True)
@@ -225,8 +239,12 @@ def _zbuffer(rays: _Rays, vis: _Visible) -> np.ndarray:
            & (hi[1][None] >= vis.qlo[:, 1, None, None]))
     rows, cols = hit.any(axis=2), hit.any(axis=1)
     g = vis.g.astype(np.float32)
+    size = vis.size.astype(np.float32)
     wmax = np.float32(1.0 / NEAR)
-    for k in np.flatnonzero(rows.any(axis=1)):
+    tiles = rows.sum(axis=1) * cols.sum(axis=1)
+    # Large planes one by one on their tile rectangle; then all small ones in one batch (their
+    # per-plane call overhead would dominate).
+    for k in np.flatnonzero(tiles > _BATCH_TILES):
         r = np.flatnonzero(rows[k])
         c = np.flatnonzero(cols[k])
         ys = slice(r[0] * _TILE_PX, (r[-1] + 1) * _TILE_PX)
@@ -241,10 +259,33 @@ def _zbuffer(rays: _Rays, vis: _Visible) -> np.ndarray:
         m &= iw <= wmax
         m &= aw >= 0
         m &= bw >= 0
-        m &= aw <= iw * np.float32(vis.size[k, 0])
-        m &= bw <= iw * np.float32(vis.size[k, 1])
+        m &= aw <= iw * size[k, 0]
+        m &= bw <= iw * size[k, 1]
         np.copyto(wb, iw, where=m)
         plane[ys, xs][m] = k
+    small = np.flatnonzero((tiles > 0) & (tiles <= _BATCH_TILES))
+    if small.size:
+        kk, ty, tx = np.nonzero(hit[small])
+        k = small[kk]
+        tile = ty * hit.shape[2] + tx
+        qx, qy = rays.tile_qx[tile], rays.tile_qy[tile]                     # (P, TILE_PX^2)
+        gk = g[k][..., None]
+        iw = qx * gk[:, 2, 0] + qy * gk[:, 2, 1] + gk[:, 2, 2]
+        aw = qx * gk[:, 0, 0] + qy * gk[:, 0, 1] + gk[:, 0, 2]
+        bw = qx * gk[:, 1, 0] + qy * gk[:, 1, 1] + gk[:, 1, 2]
+        m = ((iw <= wmax) & (aw >= 0) & (bw >= 0) & (aw <= iw * size[k, :1])
+             & (bw <= iw * size[k, 1:]))
+        i, j = np.nonzero(m)
+        pix, w_new, k_new = rays.tile_pix[tile[i], j], iw[i, j], k[i]
+        flat_w, flat_plane = wbuf.reshape(-1), plane.reshape(-1)
+        keep = w_new > flat_w[pix]
+        pix, w_new, k_new = pix[keep], w_new[keep], k_new[keep]
+        # Nearest candidate per pixel: sort by pixel, then inverse depth; take each group's last.
+        order = np.lexsort((w_new, pix))
+        pix, w_new, k_new = pix[order], w_new[order], k_new[order]
+        last = np.append(pix[1:] != pix[:-1], pix.size > 0)[:pix.size]
+        flat_w[pix[last]] = w_new[last]
+        flat_plane[pix[last]] = k_new[last]
     plane[~rays.valid] = K
     return plane
 
