@@ -378,10 +378,23 @@ def test_concatenate_chains_segments_without_duplicates():
     (lambda: Trajectory(np.zeros(2), np.broadcast_to(np.eye(4), (2, 4, 4))),
      r'stamps: expected strictly increasing times'),
     (lambda: StreetWorld.along(np.zeros((3, 3))), r'path: expected shape \(N, 2\), got \(3, 3\)'),
+    (lambda: StreetWorld.along(straight(), setback=(9.0, 7.0)),
+     r'setback: expected a range 0 <= low <= high \(m\), got \(9.0, 7.0\)'),
+    (lambda: StreetWorld.along(straight(), parked_car_probability=2),
+     r'parked_car_probability: expected a probability in \[0, 1\], got 2'),
+    (lambda: render(None, CAMERAS['pinhole'], np.eye(4)),
+     r'world: expected a StreetWorld, got NoneType'),
 ])
-def test_trajectory_and_world_errors(call, match):
+def test_bad_input_raises_typed_errors(call, match):
     with pytest.raises(InputError, match=match):
         call()
+
+
+def test_open_ground_world_has_only_ground_and_cars(drive, poses):
+    world = StreetWorld.along(drive, seed=2, buildings=False, parked_car_probability=0.0)
+    assert len(world) == 1 and world.kind[0] == GROUND_KIND
+    frame = render(world, CAMERAS['pinhole'], poses[0])
+    assert set(np.unique(frame.kind)) == {-1, GROUND_KIND}
 
 
 # -- mounts ----------------------------------------------------------------------------------

@@ -78,6 +78,7 @@ class RenderedFrame:
 
     @functools.cached_property
     def depth(self) -> np.ndarray:
+        """Depth along the optical axis (m), float64 ``(H, W)``; inf where no plane is seen."""
         rays = _rays(self.camera)
         g = self._inverse_depth[self.plane]
         with np.errstate(divide='ignore'):
@@ -117,17 +118,9 @@ def _rays(camera: CameraModel) -> _Rays:
     else:
         jq = tuple(float(x) for x in Jq[0].ravel())
     ny, nx = -(-H // _TILE_PX), -(-W // _TILE_PX)
-    lo = np.empty((2, ny, nx))
-    hi = np.empty((2, ny, nx))
-    for i, c in enumerate((qx, qy)):
-        padded = np.full((ny * _TILE_PX, nx * _TILE_PX), np.nan)
-        padded[:H, :W] = np.where(valid, c, np.nan)
-        blocks = padded.reshape(ny, _TILE_PX, nx, _TILE_PX)
-        with warnings.catch_warnings():                 # all-NaN tiles: no valid pixel
-            warnings.simplefilter('ignore', RuntimeWarning)
-            lo[i] = np.nan_to_num(np.nanmin(blocks, axis=(1, 3)), nan=np.inf)
-            hi[i] = np.nan_to_num(np.nanmax(blocks, axis=(1, 3)), nan=-np.inf)
+
     def by_tile(values: np.ndarray, fill) -> np.ndarray:
+        """``(H, W)`` -> ``(tiles, TILE_PX^2)``, padding partial tiles with ``fill``."""
         padded = np.full((ny * _TILE_PX, nx * _TILE_PX), fill, dtype=values.dtype)
         padded[:H, :W] = values
         return np.ascontiguousarray(padded.reshape(ny, _TILE_PX, nx, _TILE_PX).swapaxes(1, 2)
@@ -137,6 +130,11 @@ def _rays(camera: CameraModel) -> _Rays:
     tile_qx = by_tile(np.where(valid, qx32, np.nan), np.nan)
     tile_qy = by_tile(np.where(valid, qy32, np.nan), np.nan)
     tile_pix = by_tile(np.arange(H * W).reshape(H, W), 0)
+    with warnings.catch_warnings():                     # all-NaN tiles: no valid pixel
+        warnings.simplefilter('ignore', RuntimeWarning)
+        lo = np.stack([np.nanmin(t, axis=1) for t in (tile_qx, tile_qy)]).reshape(2, ny, nx)
+        hi = np.stack([np.nanmax(t, axis=1) for t in (tile_qx, tile_qy)]).reshape(2, ny, nx)
+    lo, hi = np.nan_to_num(lo, nan=np.inf), np.nan_to_num(hi, nan=-np.inf)
     return _Rays(qx, qy, qx32, qy32, valid, jq, lo, hi, tile_qx, tile_qy, tile_pix)
 
 
@@ -208,6 +206,8 @@ def render(world: StreetWorld, camera: CameraModel, T_odom_camera: np.ndarray, *
         A `RenderedFrame` with the image, plane ids, kinds and depths.
     """
     T = as_array('T_odom_camera', T_odom_camera, (4, 4))
+    if not isinstance(world, StreetWorld):
+        raise InputError(f'world: expected a StreetWorld, got {type(world).__name__}')
     if not isinstance(camera, CameraModel):
         raise InputError(f'camera: expected a CameraModel, got {type(camera).__name__}')
     if not (np.isfinite(psf_sigma) and 0.0 <= psf_sigma <= 10.0):
@@ -299,17 +299,19 @@ def _shade(world: StreetWorld, rays: _Rays, vis: _Visible, plane: np.ndarray,
     """
     bank = texture_bank()
     tile = float(bank.size[0])
-    dummy = np.zeros((1, 3, 3))
-    g = np.concatenate([vis.g, dummy])                                # (K + 1, 3, 3)
-    # Detail texel coordinates, [d w] = (M @ g) [q, 1]. Both layers are periodic with the tile,
-    # so whole tiles are taken out of each plane's offsets at the texel nearest the camera:
-    # the coordinates stay small and float32 keeps them to ~1e-4 texel near the camera.
+    # Plane coordinates relative to the point nearest the camera, (a - a0, b - b0), and texture
+    # offsets with whole tiles removed there (both layers are periodic with the tile): all
+    # terms stay small, so float32 keeps the texel coordinates to ~1e-4 texel near the camera.
+    g = vis.g.copy()
+    g[:, :2] -= vis.nearest[:, :, None] * g[:, 2:3]
+    g = np.concatenate([g, np.zeros((1, 3, 3))])                      # (K + 1, 3, 3)
     M = world.texture_map[vis.index].copy()
-    nearest = (M[:, :, :2] @ vis.nearest[:, :, None])[..., 0] + M[:, :, 2]
-    M[:, :, 2] -= tile * np.round(nearest / tile)
-    shift = world.texture_map[vis.index, :, 2] - M[:, :, 2]           # whole tiles removed
-    coarse = world.coarse_offset[vis.index] + shift @ COARSE_FROM_DETAIL.T
+    M[:, :, 2] += (M[:, :, :2] @ vis.nearest[:, :, None])[..., 0]
+    whole = tile * np.round(M[:, :, 2] / tile)
+    M[:, :, 2] -= whole
+    coarse = world.coarse_offset[vis.index] + whole @ COARSE_FROM_DETAIL.T
     coarse -= tile * np.floor(coarse / tile)
+    # Detail texel coordinates: [s w, t w] = (M @ g) [q, 1].
     st = np.einsum('kij,kjl->ilk', np.concatenate([M, np.zeros((1, 2, 3))]), g)
     levels = np.arange(bank.levels + 1)
     tables = _Tables(

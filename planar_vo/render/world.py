@@ -110,7 +110,8 @@ class StreetWorld:
               building_width: tuple[float, float] = (8.0, 24.0),
               building_depth: tuple[float, float] = (8.0, 16.0),
               building_height: tuple[float, float] = (5.0, 22.0),
-              gap: tuple[float, float] = (0.0, 6.0), parked_car_probability: float = 0.5,
+              gap: tuple[float, float] = (0.0, 6.0), buildings: bool = True,
+              parked_car_probability: float = 0.5,
               car_offset: float = 3.8, clearance: float = 2.5,
               max_range: float = 250.0) -> StreetWorld:
         """A street around a drive: ground, buildings on both sides, parked cars at the kerbs.
@@ -122,12 +123,29 @@ class StreetWorld:
             setback: range of the facades' distance from the path centre line (m).
             building_width, building_depth, building_height: ranges of box sizes (m).
             gap: range of the gaps between neighbouring buildings (m).
+            buildings: False for an open ground plane with (optionally) parked cars only.
             parked_car_probability: chance of a parked car at each kerb slot (6 m).
             car_offset: distance of parked cars' centres from the path centre line (m).
             clearance: nothing is placed within this distance of the path centre line (m),
                 except the ground.
             max_range: drawing range (see the class attributes).
         """
+        for name, value in (('margin', margin), ('clearance', clearance),
+                            ('car_offset', car_offset)):
+            if not (np.isfinite(value) and value >= 0.0):
+                raise InputError(f'{name}: expected a non-negative distance (m), got {value!r}')
+        for name, (lo, hi) in (('setback', setback), ('building_width', building_width),
+                               ('building_depth', building_depth),
+                               ('building_height', building_height), ('gap', gap)):
+            if not (np.isfinite([lo, hi]).all() and 0.0 <= lo <= hi):
+                raise InputError(f'{name}: expected a range 0 <= low <= high (m), got '
+                                 f'{(lo, hi)!r}')
+        if not 0.0 <= parked_car_probability <= 1.0:
+            raise InputError(f'parked_car_probability: expected a probability in [0, 1], got '
+                             f'{parked_car_probability!r}')
+        if building_width[0] <= 0.0:
+            raise InputError(f'building_width: expected a positive minimum width (m), got '
+                             f'{building_width!r}')
         lines = _street_lines(path, margin)
         rng = np.random.default_rng([seed, 0x5731])
         builder = _Builder(rng, np.concatenate([line for line, _ in lines]), clearance)
@@ -140,7 +158,7 @@ class StreetWorld:
             arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(centre, axis=0),
                                                                   axis=1))])
             for side in (1.0, -1.0):
-                s = rng.uniform(0.0, building_width[1])
+                s = rng.uniform(0.0, building_width[1]) if buildings else np.inf
                 while s < arc[-1]:
                     width = rng.uniform(*building_width)
                     depth = rng.uniform(*building_depth)
