@@ -127,19 +127,25 @@ def test_rendering_is_anti_aliased_at_every_distance(world, poses):
     assert checked >= 5
 
 
-def test_textures_do_not_repeat_along_the_street(world, poses):
-    # Ground patches 10.24 m apart (the detail tile's period) must differ: the coarse layer
-    # and per-plane rotations break the repetition.
+def test_ground_texture_does_not_repeat_with_the_detail_tile(world, poses):
+    # Shift the camera by one period of the ground's detail tile (a lattice vector of its
+    # texel coordinates): that layer looks identical, but the coarse and macro layers, rotated
+    # and incommensurate, must make the image differ. A small shift is the control.
+    from planar_vo.render.textures import TILE
     cam = CAMERAS['pinhole']
-    p = np.array([[320.0, 400.0]])
-    X, plane = backproject(world, cam, poses[0], p)
-    assert plane[0] == 0 and abs(X[0, 2]) < 1e-9
-    a = render(world, cam, poses[0]).image[380:420, 300:340].astype(float)
-    # Move the camera 10.24 m forward along the street: same view geometry of the ground.
-    T = poses[0].copy()
-    T[:3, 3] += T[:3, :3] @ [0.0, 0.0, 10.24]
-    b = render(world, cam, T).image[380:420, 300:340].astype(float)
-    assert np.mean(np.abs(a - b)) > 10.0
+    M = world.texture_map[0, :, :2]                          # ground: (a, b) = odom (x, y) + c
+    rows, cols = slice(300, 470), slice(100, 540)            # near ground ahead
+    base = render(world, cam, poses[0], psf_sigma=0.0).image[rows, cols].astype(float)
+
+    def shifted(dxy):
+        T = poses[0].copy()
+        T[:2, 3] += dxy
+        return render(world, cam, T, psf_sigma=0.0).image[rows, cols].astype(float)
+
+    period = np.linalg.solve(M, [TILE, 0.0])
+    assert 8.0 < np.linalg.norm(period) < 13.0
+    assert np.mean(np.abs(shifted(period) - base)) > 8.0
+    assert np.mean(np.abs(shifted(period * 1e-5) - base)) < 1.0
 
 
 # -- exact ground truth ----------------------------------------------------------------------

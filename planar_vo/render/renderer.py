@@ -33,6 +33,8 @@ from planar_vo.geometry.frames import invert
 from planar_vo.render.textures import (
     COARSE_FROM_DETAIL,
     LAYER_WEIGHT,
+    MACRO_AMPLITUDE,
+    MACRO_WAVES,
     PAD,
     TextureBank,
     texture_bank,
@@ -311,6 +313,8 @@ def _shade(world: StreetWorld, rays: _Rays, vis: _Visible, plane: np.ndarray,
     M[:, :, 2] -= whole
     coarse = world.coarse_offset[vis.index] + whole @ COARSE_FROM_DETAIL.T
     coarse -= tile * np.floor(coarse / tile)
+    # Macro waves are functions of the original detail coordinates d = d' + whole.
+    phase = np.remainder(whole @ MACRO_WAVES.T, 2 * np.pi)          # (K, waves)
     # Detail texel coordinates: [s w, t w] = (M @ g) [q, 1].
     st = np.einsum('kij,kjl->ilk', np.concatenate([M, np.zeros((1, 2, 3))]), g)
     levels = np.arange(bank.levels + 1)
@@ -318,6 +322,7 @@ def _shade(world: StreetWorld, rays: _Rays, vis: _Visible, plane: np.ndarray,
         gn=np.ascontiguousarray(g[:, 2].T).astype(np.float32),
         st=st.astype(np.float32),
         coarse=np.append(coarse, [[0.0, 0.0]], axis=0).T.astype(np.float32),
+        phase=np.append(phase, np.zeros((1, len(MACRO_WAVES))), axis=0).T.astype(np.float32),
         row0=np.append(bank.y0[world.material[vis.index]] + PAD, PAD).astype(np.float32),
         gain=np.append(world.gain[vis.index], 0.0).astype(np.float32),
         bias=np.append(world.bias[vis.index], 0.0).astype(np.float32),
@@ -342,6 +347,7 @@ class _Tables:
     gn: np.ndarray                 # (3, K + 1): inverse depth w = gn . [q, 1]
     st: np.ndarray                 # (2, 3, K + 1): detail texels [s w, t w] = st . [q, 1]
     coarse: np.ndarray             # (2, K + 1): coarse-layer offsets
+    phase: np.ndarray              # (waves, K + 1): macro-wave phases
     row0: np.ndarray               # (K + 1,) atlas row of the plane's material block
     gain: np.ndarray
     bias: np.ndarray
@@ -377,11 +383,17 @@ def _shade_rows(bank: TextureBank, tab: _Tables, pid: np.ndarray, rays: _Rays, y
     lx = sx * sx + tx * tx
     ly = sy * sy + ty * ty
     x_major = lx >= ly
+    major2 = np.maximum(lx, ly)
     lam = f32(0.5) * np.log2(np.maximum(np.maximum(np.minimum(lx, ly),
-                                                   np.maximum(lx, ly) * f32(1.0 / _TAPS ** 2)),
-                                        f32(1e-12)))
+                                                   major2 * f32(1.0 / _TAPS ** 2)), f32(1e-12)))
     ax = np.where(x_major, sx, sy)
     ay = np.where(x_major, tx, ty)
+    # Macro waves, prefiltered: a Gaussian of the footprint's major length scales a wave of
+    # wave number k by exp(-k^2 major^2 / 2).
+    macro = np.zeros(pid.shape, f32)
+    for (kx, ky), phase in zip(MACRO_WAVES.astype(f32), tab.phase):
+        macro += np.cos(kx * coords[0] + ky * coords[1] + phase[pid]) * np.exp(
+            f32(-0.5 * (kx * kx + ky * ky)) * major2)
     C = COARSE_FROM_DETAIL
     layers = (
         (coords[0], coords[1], lam, ax, ay),
@@ -416,7 +428,7 @@ def _shade_rows(bank: TextureBank, tab: _Tables, pid: np.ndarray, rays: _Rays, y
                               borderMode=cv2.BORDER_REPLICATE)
         v0, v1 = both[..., 0], both[..., 1]
         total += f32(weight / _TAPS) * (v0 + frac * (v1 - v0))
-    shade = tab.bias[pid] + tab.gain[pid] * total
+    shade = tab.bias[pid] + tab.gain[pid] * (total + f32(MACRO_AMPLITUDE) * macro)
     # Soft saturation instead of clipping: no flat (texture-less) patches where a dark blob meets
     # a dark surface; slope 1 at mid-grey.
     shade = f32(127.5) + f32(127.5) * np.tanh((shade - f32(127.5)) * f32(1 / 127.5))

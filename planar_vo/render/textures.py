@@ -31,6 +31,8 @@ __all__ = [
     'GROUND',
     'LAYERS',
     'LAYER_WEIGHT',
+    'MACRO_AMPLITUDE',
+    'MACRO_WAVES',
     'MATERIALS',
     'TextureBank',
     'VEHICLE',
@@ -51,6 +53,15 @@ COARSE_FROM_DETAIL = _COARSE_RATIO * np.array([[np.cos(_COARSE_ANGLE), -np.sin(_
                                                [np.sin(_COARSE_ANGLE), np.cos(_COARSE_ANGLE)]])
 # Weight of each layer (grey levels per unit standard deviation) in a surface's brightness.
 LAYER_WEIGHT = (24.0, 26.0)
+# Macro layer: smooth brightness waves over the detail texel coordinates (periods of about 37,
+# 83 and 191 m, incommensurate with the coarse tile's ~120 m), evaluated analytically and
+# attenuated by the pixel footprint (a Gaussian prefilter), so even the far field where only the
+# coarse layer survives never repeats.
+_MACRO_PERIODS = np.array([3700.0, 8300.0, 19100.0])          # detail texels
+_MACRO_ANGLES = np.array([0.3, 1.9, 4.1])
+MACRO_WAVES = (2 * np.pi / _MACRO_PERIODS)[:, None] * np.stack(
+    [np.cos(_MACRO_ANGLES), np.sin(_MACRO_ANGLES)], -1)        # (waves, 2) rad per texel
+MACRO_AMPLITUDE = 9.0                                          # grey levels per wave
 PAD = 4          # wrapped border per level: centre in [-0.5, T), taps +-1 texel, bilinear +1
 
 # Per material and layer: noise spectral exponent (amplitude ~ 1/f^beta), noise weight, and the
