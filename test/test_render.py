@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from planar_vo.camera import CameraModel
+from planar_vo.config import MountConfig
 from planar_vo.errors import InputError
 from planar_vo.geometry import ac_residuals, camera_displacement, solve_1ac, wrap_angle
 from planar_vo.geometry.frames import invert, mount_transform, yaw_of
@@ -410,6 +411,8 @@ def test_pitched_rolled_mount_renders_and_poses_reflect_it(world, drive):
     T_bc = mount_transform(x=1.2, y=-0.3, height=1.6, roll=roll, pitch=pitch)
     cams = drive.camera_poses(T_bc)
     np.testing.assert_allclose(cams, drive.poses @ T_bc)
+    config = MountConfig(x=1.2, y=-0.3, height=1.6, roll=roll, pitch=pitch)
+    np.testing.assert_allclose(drive.camera_poses(config), cams)
     optical = cams[:, :3, 2]                                 # optical axis in odom
     np.testing.assert_allclose(optical[:, 2], -np.sin(pitch), atol=1e-12)
     np.testing.assert_allclose(cams[:, 2, 3], 1.6)
