@@ -53,3 +53,12 @@ def ros_env(tmp_path_factory) -> dict[str, str]:
         'PATH': str(Path(sys.executable).parent) + os.pathsep + os.environ.get('PATH', ''),
     })
     return env
+
+
+@pytest.fixture(scope='session')
+def evo_env(tmp_path_factory) -> dict[str, str]:
+    """Environment for running evo (a pinned test-only tool): a private HOME for its settings."""
+    if not (Path(sys.executable).parent / 'evo_ape').exists():
+        pytest.fail('evo is a pinned test dependency (Makefile PINS); run `make venv`')
+    home = tmp_path_factory.mktemp('evo_home')           # evo writes ~/.evo/settings.json
+    return {**os.environ, 'HOME': str(home), 'MPLBACKEND': 'Agg'}

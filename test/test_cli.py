@@ -25,8 +25,8 @@ def test_help_lists_examples(capsys):
     assert 'examples:' in out and 'demo' in out
 
 
-def test_demo_prints_accuracy_table(capsys):
-    assert main(['demo', '--trials', '5', '--sigmas', '0', '1']) == 0
+def test_demo_solvers_prints_accuracy_table(capsys):
+    assert main(['demo', '--solvers', '--trials', '5', '--sigmas', '0', '1']) == 0
     out = capsys.readouterr().out
     lines = [line for line in out.splitlines() if line.startswith('| 0.00 | 1AC |')]
     assert len(lines) == 1
@@ -35,7 +35,7 @@ def test_demo_prints_accuracy_table(capsys):
 
 
 def test_known_error_is_one_line_and_exit_1(capsys):
-    assert main(['demo', '--trials', '0']) == 1
+    assert main(['demo', '--solvers', '--trials', '0']) == 1
     err = capsys.readouterr().err.strip()
     assert err == 'planar_vo demo: error: trials: expected at least 1, got 0'
 

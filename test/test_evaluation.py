@@ -5,15 +5,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
-import zipfile
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from evo_tools import evo_ape_stats, run_evo
 
 from planar_vo.bag import OdometryBagWriter
 from planar_vo.cli import main
@@ -30,7 +26,6 @@ from planar_vo.evaluation import (
 from planar_vo.geometry.frames import planar_pose, rotation_rpy
 
 T0 = 1_700_000_000_123_456_789
-EVO_BIN = Path(sys.executable).parent
 
 
 def _drive(rng, n=60) -> Trajectory:
@@ -220,28 +215,6 @@ def test_evaluate_needs_matching_stamps(rng):
 
 # -- evo cross-checks (evo is GPL: run as a tool, never imported) -------------------------------
 
-@pytest.fixture(scope='session')
-def evo_env(tmp_path_factory) -> dict[str, str]:
-    if not (EVO_BIN / 'evo_ape').exists():
-        pytest.fail('evo is a pinned test dependency (Makefile PINS); run `make venv`')
-    home = tmp_path_factory.mktemp('evo_home')           # evo writes ~/.evo/settings.json
-    return {**os.environ, 'HOME': str(home), 'MPLBACKEND': 'Agg'}
-
-
-def _evo(env, tool: str, *args: str, cwd: Path) -> str:
-    proc = subprocess.run([str(EVO_BIN / tool), *args], capture_output=True, text=True,
-                          timeout=120, env=env, cwd=cwd)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    return proc.stdout
-
-
-def _evo_ape_stats(env, tmp_path: Path, *args: str) -> dict:
-    out = tmp_path / f'evo_{len(list(tmp_path.glob("evo_*.zip")))}.zip'
-    _evo(env, 'evo_ape', *args, '--save_results', str(out), '--no_warnings', cwd=tmp_path)
-    with zipfile.ZipFile(out) as z:
-        return json.loads(z.read('stats.json'))
-
-
 def _noisy_estimate(rng, gt: Trajectory, scale: float) -> Trajectory:
     est = gt.transformed(_rotation(rng), np.array([3.0, -1.0, 0.5]), scale=scale)
     return Trajectory(est.stamps_ns, est.positions + rng.normal(0, 0.2, est.positions.shape),
@@ -254,7 +227,7 @@ def test_ate_equals_evo_ape(tmp_path, rng, evo_env, align, flags):
     est = _noisy_estimate(rng, gt, scale=1.3)
     write_tum(tmp_path / 'gt.tum', gt)
     write_tum(tmp_path / 'est.tum', est)
-    evo = _evo_ape_stats(evo_env, tmp_path, 'tum', 'gt.tum', 'est.tum', *flags)
+    evo = evo_ape_stats(evo_env, tmp_path, 'tum', 'gt.tum', 'est.tum', *flags)
     ours = evaluate(read_tum(tmp_path / 'gt.tum'), read_tum(tmp_path / 'est.tum'),
                     align=align).metrics()['ate_m']
     assert ours['rmse'] > 0.1                                  # a real error, not a trivial 0
@@ -272,9 +245,9 @@ def test_evo_reads_our_bags_and_agrees_on_ate(tmp_path, rng, evo_env, storage):
         for stamp, T_est, T_gt in zip(gt.stamps_ns, est.poses, gt.poses):
             writer.write(int(stamp), T_est)
             writer.write_odometry('/ground_truth/odom', int(stamp), T_gt)
-    out = _evo(evo_env, 'evo_traj', 'bag2', str(bag), '--all_topics', cwd=tmp_path)
+    out = run_evo(evo_env, 'evo_traj', 'bag2', str(bag), '--all_topics', cwd=tmp_path)
     assert out.count('40 poses') == 2 and 'name:\t/odom' in out
-    evo = _evo_ape_stats(evo_env, tmp_path, 'bag2', str(bag), '/ground_truth/odom', '/odom',
+    evo = evo_ape_stats(evo_env, tmp_path, 'bag2', str(bag), '/ground_truth/odom', '/odom',
                          '-a')
     ours = evaluate(read_bag_trajectory(bag, '/ground_truth/odom'),
                     read_bag_trajectory(bag, '/odom')).metrics()['ate_m']

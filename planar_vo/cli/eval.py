@@ -10,9 +10,7 @@ with --out-dir, metrics.json and PNG plots are written there.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-from pathlib import Path
 
 from planar_vo.evaluation.align import ALIGNMENTS
 
@@ -50,20 +48,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
-def _json_ready(value):
-    """NaN/inf -> None (JSON has no NaN), recursively."""
-    if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError
-    from planar_vo.evaluation import evaluate, load_trajectory, save_plots
+    from planar_vo.evaluation import evaluate, load_trajectory, write_report
     from planar_vo.evaluation.trajectory import is_bag_path
 
     if any(not (math.isfinite(s) and s > 0) for s in args.segments):
@@ -81,13 +68,6 @@ def run(args: argparse.Namespace) -> int:
     print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
     print(evaluation.format_table())
     if args.out_dir:
-        out = Path(args.out_dir)
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise InputError(f"out-dir: cannot create '{out}' ({err.strerror})") from err
-        metrics = {'estimate': str(args.est), 'reference': str(gt_path), **evaluation.metrics()}
-        (out / 'metrics.json').write_text(json.dumps(_json_ready(metrics), indent=2) + '\n')
-        written = save_plots(evaluation, out)
-        print(f"wrote {out / 'metrics.json'}, " + ', '.join(p.name for p in written))
+        written = write_report(evaluation, args.out_dir, estimate=args.est, reference=gt_path)
+        print(f'wrote {written[0]}, ' + ', '.join(p.name for p in written[1:]))
     return 0

@@ -16,6 +16,7 @@ from planar_vo.evaluation.metrics import (
     yaw_heading_errors,
 )
 from planar_vo.evaluation.plots import save_plots
+from planar_vo.evaluation.report import write_report
 from planar_vo.evaluation.trajectory import (
     Trajectory,
     associate,
@@ -38,6 +39,7 @@ __all__ = [
     'rpe_by_distance',
     'rpe_per_frame',
     'save_plots',
+    'write_report',
     'statistics',
     'umeyama',
     'write_tum',

@@ -25,7 +25,7 @@ many frames for online self-calibration.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -793,6 +793,8 @@ class FocalCalibrator:
         Returns whether the frame was informative (it revealed the focal length).
         """
         self.frames_seen += 1
+        if len(p1) < self.config.min_inliers:
+            return False                    # nothing to learn from this pair
         motion, stats = vote_planar_motion_focal(p1, p2, A, weights, self.config,
                                                  focal_range=self.focal_range)
         if not stats.reliable or not math.isfinite(stats.focal_std):

@@ -29,7 +29,7 @@ import numpy as np
 from planar_vo.camera import CameraModel
 from planar_vo.config import PlanarVoConfig
 from planar_vo.correspondences import AffineCorrespondences
-from planar_vo.errors import CameraModelError, ImageError, PlanarVoError
+from planar_vo.errors import ImageError, PlanarVoError
 from planar_vo.geometry.camera import normalize_affines, normalize_points
 from planar_vo.geometry.frames import R_BASE_OPTICAL, invert, mount_transform, rotation_rpy, se3
 from planar_vo.geometry.voting import FocalCalibrator, vote_planar_motion
@@ -167,7 +167,8 @@ class VisualOdometry:
             return self._drop(stamp, DropReason.NO_CAMERA_INFO,
                               'no camera intrinsics yet (no CameraInfo and camera.fx = 0)')
         if camera.size != (gray.shape[1], gray.shape[0]):
-            self._keyframe = None
+            # A stray frame of another size: drop it, keep tracking (a new camera model with
+            # the new size resets the keyframe in _resolve_camera).
             return self._drop(stamp, DropReason.SIZE_CHANGED,
                               f'image is {gray.shape[1]}x{gray.shape[0]} but the camera model is '
                               f'{camera.width}x{camera.height}')
