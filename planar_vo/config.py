@@ -188,7 +188,13 @@ class MountConfig(ConfigSection):
     Attributes:
         x, y, height: camera position in ``base_link`` (metres); ``height`` above the ground.
         roll, pitch, yaw: camera orientation offsets (radians).
-        estimate_tilt: estimate pitch and roll online from the motion (real mounts are not level).
+        estimate_tilt: estimate pitch and roll online from the motion (real mounts are not
+            level): general poses of keyframe pairs are fitted with a motion plane, and its
+            pitch and roll replace the ones above once precise.
+        tilt_tolerance: the estimated tilt is adopted once the pitch standard deviation is
+            below this (radians).
+        tilt_max_pairs: frame pairs used for the tilt estimate (the five-point solver runs on
+            each, so this bounds the extra cost).
     """
 
     x: float = 0.0
@@ -198,6 +204,8 @@ class MountConfig(ConfigSection):
     pitch: float = 0.0
     yaw: float = 0.0
     estimate_tilt: bool = False
+    tilt_tolerance: float = 0.002
+    tilt_max_pairs: int = 100
 
     def validate(self) -> None:
         self._require(_finite(self.x, self.y, self.height, self.roll, self.pitch, self.yaw),
@@ -205,6 +213,8 @@ class MountConfig(ConfigSection):
         self._require(self.height > 0.0, 'height', 'a positive height above the ground (m)')
         for name in ('roll', 'pitch', 'yaw'):
             self._require(abs(getattr(self, name)) <= math.pi, name, 'an angle in [-pi, pi] rad')
+        self._require(self.tilt_tolerance > 0.0, 'tilt_tolerance', 'a positive angle (rad)')
+        self._require(self.tilt_max_pairs >= 10, 'tilt_max_pairs', 'at least 10')
 
 
 @dataclasses.dataclass(frozen=True)

@@ -269,3 +269,17 @@ def test_lost_tracking_re_anchors_with_inflated_covariance():
     assert r2.pose_covariance[0, 0] > last.pose_covariance[0, 0] + 0.5
     # Tracking resumes from the new anchor.
     assert vo.process(images[7], float(trajectory.stamps[7])).reason is not None or True
+
+
+def test_mount_tilt_is_estimated_and_used():
+    # The camera is pitched 3 degrees and rolled 1 degree, the configuration says level: the
+    # tilt estimate from the drive must find the pitch and level the camera with it.
+    pitch, roll = np.deg2rad(3.0), np.deg2rad(1.0)
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT, 'estimate_tilt': True,
+                                                 'tilt_tolerance': float(np.deg2rad(0.2))}})
+    trajectory, results, vo = _run('left', config, pitch=pitch, roll=roll)
+    estimate = vo.tilt_estimate
+    assert estimate is not None
+    assert abs(estimate.pitch - pitch) < np.deg2rad(0.2)
+    assert abs(estimate.roll - roll) < np.deg2rad(0.5)
+    assert all(r.ok for r in results[1:])

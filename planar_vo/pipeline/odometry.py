@@ -73,18 +73,52 @@ class VisualOdometry:
         self._speed = SpeedIntegrator()
         self._calibrator = FocalCalibrator() if self.config.camera.estimate_focal else None
         mount = self.config.mount
-        self._T_base_camera = mount_transform(mount.x, mount.y, mount.height, mount.roll,
-                                              mount.pitch, mount.yaw)
+        self._set_tilt(mount.pitch, mount.roll)
+        # Mount-tilt estimation: general poses of keyframe pairs (five-point) feed it during a
+        # calibration phase; its pitch and roll then replace the configured ones.
+        self._tilt = None
+        if mount.estimate_tilt:
+            from planar_vo.frontend import MountTiltEstimator
+
+            self._tilt = MountTiltEstimator()
+        self.tilt_estimate = None
+        self.counters: dict[str, int] = {}
+        self.reset()
+
+    # -- state ---------------------------------------------------------------------------------
+
+    def _set_tilt(self, pitch: float, roll: float) -> None:
+        """Levelling for a camera pitched and rolled by ``pitch``, ``roll`` (MountConfig sense)."""
+        mount = self.config.mount
+        self._T_base_camera = mount_transform(mount.x, mount.y, mount.height, roll, pitch,
+                                              mount.yaw)
         # The level camera: same centre, optical axes rotated by the mount's yaw only.
         self._T_base_level = se3(rotation_rpy(0.0, 0.0, mount.yaw) @ R_BASE_OPTICAL,
                                  self._T_base_camera[:3, 3])
         # Levelling rotation, level <- camera, applied to the ideal normalised rays.
         self._R_level_camera = (invert(self._T_base_level) @ self._T_base_camera)[:3, :3]
         self._level = not np.allclose(self._R_level_camera, np.eye(3), atol=1e-12)
-        self.counters: dict[str, int] = {}
-        self.reset()
 
-    # -- state ---------------------------------------------------------------------------------
+    def _calibrate_tilt(self, q1: np.ndarray, q2: np.ndarray) -> None:
+        """Feed one pair to the mount-tilt estimator; adopt its estimate when precise."""
+        cfg = self.config.mount
+        if self._tilt is None or len(self._tilt) >= cfg.tilt_max_pairs:
+            return
+        step = max(1, len(q1) // 400)             # the five-point needs a few hundred points
+        if not self._tilt.add_acs(q1[::step], q2[::step]) or len(self._tilt) % 10:
+            return
+        estimate = self._tilt.estimate()
+        if estimate.pitch_std <= cfg.tilt_tolerance:
+            # Each angle is adopted only when it is precise: driving straight reveals the pitch
+            # (translations lie in the plane) but hardly the roll (that needs turns).
+            self.tilt_estimate = estimate
+            roll = estimate.roll if estimate.roll_std <= cfg.tilt_tolerance else cfg.roll
+            self._set_tilt(estimate.pitch, roll)
+            log.info('mount tilt estimated from %d pairs: pitch %.3f +- %.3f deg, roll %.3f +- '
+                     '%.3f deg (%s)', estimate.frames, np.rad2deg(estimate.pitch),
+                     np.rad2deg(estimate.pitch_std), np.rad2deg(estimate.roll),
+                     np.rad2deg(estimate.roll_std),
+                     'used' if roll == estimate.roll else 'not precise yet: configured roll kept')
 
     def reset(self) -> None:
         """Forget the keyframe and the trajectory (pose back to the identity)."""
@@ -271,6 +305,8 @@ class VisualOdometry:
         q1 = normalize_points(camera.K, ideal.p1)
         q2 = normalize_points(camera.K, ideal.p2)
         An = normalize_affines(camera.K, camera.K, ideal.A)
+        if self._tilt is not None:
+            self._calibrate_tilt(q1, q2)
         if self._level:
             q1, q2, An = _rotate(self._R_level_camera, q1, q2, An)
         motion, stats = vote_planar_motion(q1, q2, An, ideal.weights, self.config.voting)
