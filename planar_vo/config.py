@@ -239,8 +239,8 @@ class FrontendConfig(ConfigSection):
     grid_step: int = 10
     patch_radius: int = 7
     patch_stride: int = 2
-    lk_iterations: int = 3
-    lk_max_iterations: int = 6
+    lk_iterations: int = 2
+    lk_max_iterations: int = 4
     dis_preset: typing.Literal['ultrafast', 'fast', 'medium'] = 'ultrafast'
     fb_preset: typing.Literal['ultrafast', 'fast', 'medium'] = 'ultrafast'
     fb_threshold: float = 2.0
