@@ -35,7 +35,7 @@ from planar_vo.frontend.affine_lk import (
     smooth_for_refinement,
 )
 from planar_vo.frontend.asift import asift_views, keypoint_frames
-from planar_vo.frontend.flow import texture_grid
+from planar_vo.frontend.flow import neighbour_predictions, texture_grid
 from planar_vo.geometry import solve_1ac
 from planar_vo.geometry.camera import (
     apply_homography,
@@ -264,7 +264,7 @@ def test_unknown_method_is_rejected(mild_pair):
 
 
 @pytest.mark.parametrize(('field', 'value', 'match'), [
-    ('patch_stride', 9, r'patch_stride: expected between 1 and patch_radius'),
+    ('patch_stride', 10, r'patch_stride: expected between 1 and patch_radius'),
     ('fb_threshold', -1.0, r'fb_threshold: expected a non-negative number'),
     ('match_ratio', 1.5, r'match_ratio: expected in \(0, 1\]'),
     ('lk_iterations', 0, r'lk_iterations: expected at least 1'),
@@ -331,17 +331,35 @@ def test_patch_offsets_are_symmetric(radius, stride, count):
 
 def test_texture_grid_one_point_per_cell_inside_the_margin(mild_pair):
     g1, _ = mild_pair
-    points, texture = texture_grid(g1, 16, 12, 1.0, 10000)
+    grid = texture_grid(g1, 16, 12, 1.0, 10000)
+    points = grid.points
     assert np.all(points >= 12) and np.all(points[:, 0] <= W - 13) and np.all(
         points[:, 1] <= H - 13)
     cells = {(x // 16, y // 16) for x, y in points - 12}
     assert len(cells) == len(points) > 150
-    assert np.all(texture > 1.0)
+    # The reported cell of each point is the one it lies in.
+    np.testing.assert_array_equal(grid.cells, (points - 12)[:, ::-1] // 16)
+    assert np.all(grid.texture > 1.0)
     flat = np.full_like(g1, 90)
-    assert len(texture_grid(flat, 16, 12, 1.0, 10000)[0]) == 0
+    assert len(texture_grid(flat, 16, 12, 1.0, 10000)) == 0
     # The cap enlarges the cells instead of dropping well-spread points.
-    capped, _ = texture_grid(g1, 16, 12, 1.0, 50)
+    capped = texture_grid(g1, 16, 12, 1.0, 50)
     assert 25 <= len(capped) <= 50
+
+
+def test_neighbour_predictions_extrapolate_the_neighbours_affine(mild_pair):
+    g1, _ = mild_pair
+    grid = texture_grid(g1, 16, 12, 1.0, 10000)
+    p1 = grid.points.astype(np.float64)
+    p2 = apply_homography(MILD, p1)
+    A = homography_jacobian(MILD, p1)
+    accepted = np.arange(len(p1)) % 2 == 0
+    index, q, J = neighbour_predictions(grid, accepted, ~accepted, p2, A)
+    assert len(index) > 0.9 * np.count_nonzero(~accepted)
+    assert not accepted[index].any()
+    # One cell (16 px) of first-order extrapolation of a mild homography: sub-pixel.
+    assert np.median(np.linalg.norm(q - p2[index], axis=1)) < 0.1
+    assert np.median(np.linalg.norm(J - A[index], axis=(1, 2))) < 0.01
 
 
 # --------------------------------------------------------------------------------------------
