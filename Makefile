@@ -15,6 +15,8 @@ PIP    := $(PY) -m pip install --quiet --disable-pip-version-check
 SOURCES := $(shell find planar_vo resource config -type f -not -name '*.pyc')
 
 # Exact versions for a reproducible environment (setup.py carries the compatible ranges).
+# Test-only tools: pytest, pytest-timeout, and evo (GPL; the tests run its evo_ape/evo_traj
+# executables to cross-check planar_vo.evaluation; the package never imports it).
 PINS := \
 	setuptools==80.9.0 \
 	ros-jazzy-rclpy==7.1.6 \
@@ -25,8 +27,10 @@ PINS := \
 	rosbags==0.11.9 \
 	PyYAML==6.0.3 \
 	tqdm==4.70.1 \
+	matplotlib==3.10.8 \
 	pytest==9.0.3 \
-	pytest-timeout==2.4.0
+	pytest-timeout==2.4.0 \
+	evo==1.38.1
 
 .PHONY: demo test venv clean
 

@@ -25,7 +25,7 @@ ROS = [
     'ros-jazzy-common-interfaces>=5.3,<6',
     'ros-jazzy-rmw-fastrtps-cpp>=8.4,<9',
 ]
-TEST = ['pytest>=8,<10']
+TEST = ['pytest>=8,<10', 'evo>=1.38,<2']
 BENCH = ['matplotlib>=3.8,<4', 'poselib>=2.0.4,<3', 'scipy>=1.11,<2']
 
 setup(
@@ -51,6 +51,7 @@ setup(
         'rosbags>=0.11,<0.12',
         'PyYAML>=6,<7',
         'tqdm>=4.66,<5',
+        'matplotlib>=3.8,<4',
     ],
     extras_require={'ros': ROS, 'test': TEST, 'bench': BENCH},
     zip_safe=True,

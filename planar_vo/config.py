@@ -10,6 +10,7 @@ radians. Sections:
 - `FrontendConfig`: how affine correspondences are extracted.
 - `VotingConfig`: histogram voting, inlier selection and refinement.
 - `KeyframeConfig`, `ScaleConfig`: keyframe selection and the source of metric scale.
+- `OdometryConfig`: frame checks and the planar-model covariance terms.
 - `RosConfig`: topics, frames and publishing (used by the node only).
 """
 
@@ -30,6 +31,7 @@ __all__ = [
     'FrontendConfig',
     'KeyframeConfig',
     'MountConfig',
+    'OdometryConfig',
     'PlanarVoConfig',
     'RosConfig',
     'ScaleConfig',
@@ -37,6 +39,7 @@ __all__ = [
     'describe',
     'flatten',
     'load_config',
+    'to_ros_yaml',
 ]
 
 
@@ -154,6 +157,8 @@ class CameraConfig(ConfigSection):
         distortion: coefficients in the ROS order for that model.
         estimate_focal: self-calibrate the focal length online with 1ACf voting (the
             principal point is assumed at ``(cx, cy)``, or the image centre when those are 0).
+        focal_tolerance: the calibration is used once its relative standard deviation is below
+            this; until then a provisional focal length is used.
     """
 
     fx: float = 0.0
@@ -163,11 +168,13 @@ class CameraConfig(ConfigSection):
     distortion_model: typing.Literal['none', 'plumb_bob', 'equidistant'] = 'none'
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
+    focal_tolerance: float = 0.02
 
     def validate(self) -> None:
         self._require(_finite(self.fx, self.fy, self.cx, self.cy), 'fx', 'finite intrinsics')
         self._require(self.fx >= 0.0 and self.fy >= 0.0, 'fx', 'fx, fy >= 0 (0 = from CameraInfo)')
         self._require(_finite(*self.distortion), 'distortion', 'finite coefficients')
+        self._require(0.0 < self.focal_tolerance < 1.0, 'focal_tolerance', 'in (0, 1)')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -281,28 +288,54 @@ class VotingConfig(ConfigSection):
             ``'ransac'`` (1AC-RANSAC with local optimisation, for comparison).
         bins: histogram bins over the full circle for each angle.
         kernel_bins: standard deviation of the voting kernel, in bins.
-        inlier_threshold: threshold on the normalised residual of the three AC constraints.
+        refine_candidates: refine each AC's candidate by constrained least squares before voting.
+        inlier_chi2: inlier threshold on the sum of the three squared whitened AC residuals
+            (chi-square with 3 degrees of freedom; 11.34 is its 99% quantile).
         min_inliers: fewer inliers than this flags the estimate as unreliable.
-        refine: least-squares refinement of ``(alpha, beta)`` on the inliers.
-        ransac_iterations, ransac_confidence: for ``method = 'ransac'``.
+        ambiguity_ratio: a separate alpha peak at least this high relative to the winner flags
+            the estimate as ambiguous.
+        min_sharpness: minimum fraction of the vote weight in the winning alpha peak.
+        refine: least-squares refinement of ``(alpha, beta)`` on all inliers' constraints.
+        point_noise: point noise in normalised units (pixels / focal length): RANSAC's noise
+            level; voting estimates the noise from the data, capped at ``max_noise_factor`` times
+            this.
+        affine_noise: affine noise (unitless): RANSAC's level and voting's cap, as above.
+        max_noise_factor: cap of the data-driven noise scales relative to the two levels above.
+        covariance_grid: ACs are grouped in a grid x grid partition of the image for the
+            cluster-robust covariance (neighbouring ACs share errors).
+        ransac_iterations: maximum RANSAC iterations.
+        ransac_confidence: RANSAC confidence for the adaptive iteration count.
         seed: random seed of RANSAC (histogram voting is deterministic).
     """
 
     method: typing.Literal['histogram', 'ransac'] = 'histogram'
     bins: int = 720
     kernel_bins: float = 1.5
-    inlier_threshold: float = 2e-3
+    refine_candidates: bool = False
+    inlier_chi2: float = 11.34
     min_inliers: int = 20
+    ambiguity_ratio: float = 0.8
+    min_sharpness: float = 0.05
     refine: bool = True
-    ransac_iterations: int = 200
+    point_noise: float = 1e-3
+    affine_noise: float = 0.02
+    max_noise_factor: float = 5.0
+    covariance_grid: int = 6
+    ransac_iterations: int = 500
     ransac_confidence: float = 0.999
     seed: int = 0
 
     def validate(self) -> None:
         self._require(self.bins >= 36, 'bins', 'at least 36')
         self._require(self.kernel_bins > 0.0, 'kernel_bins', 'a positive width in bins')
-        self._require(self.inlier_threshold > 0.0, 'inlier_threshold', 'a positive number')
+        self._require(self.inlier_chi2 > 0.0, 'inlier_chi2', 'a positive number')
         self._require(self.min_inliers >= 1, 'min_inliers', 'at least 1')
+        self._require(0.0 < self.ambiguity_ratio <= 1.0, 'ambiguity_ratio', 'in (0, 1]')
+        self._require(0.0 <= self.min_sharpness < 1.0, 'min_sharpness', 'in [0, 1)')
+        self._require(self.point_noise > 0.0, 'point_noise', 'a positive number')
+        self._require(self.affine_noise > 0.0, 'affine_noise', 'a positive number')
+        self._require(self.max_noise_factor >= 1.0, 'max_noise_factor', 'at least 1')
+        self._require(self.covariance_grid >= 1, 'covariance_grid', 'at least 1')
         self._require(self.ransac_iterations >= 1, 'ransac_iterations', 'at least 1')
         self._require(0.0 < self.ransac_confidence < 1.0, 'ransac_confidence', 'in (0, 1)')
 
@@ -312,16 +345,22 @@ class KeyframeConfig(ConfigSection):
     """Keyframe selection by parallax: small baselines carry little information.
 
     Attributes:
-        min_parallax: median AC displacement (pixels) that makes a new keyframe.
-        max_interval: force a keyframe after this many frames (seconds would drift with rate).
+        min_parallax: median AC displacement (pixels) from the keyframe that makes a frame the
+            new keyframe.
+        max_interval: a frame becomes the keyframe after at most this many frames.
+        stationary_parallax: below this median displacement (pixels) the vehicle is standing
+            still: zero motion is output and no keyframe is made.
     """
 
-    min_parallax: float = 4.0
+    min_parallax: float = 6.0
     max_interval: int = 10
+    stationary_parallax: float = 0.25
 
     def validate(self) -> None:
         self._require(self.min_parallax >= 0.0, 'min_parallax', 'a non-negative pixel count')
         self._require(self.max_interval >= 1, 'max_interval', 'at least 1 frame')
+        self._require(0.0 <= self.stationary_parallax <= self.min_parallax, 'stationary_parallax',
+                      'a pixel count in [0, min_parallax]')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -330,20 +369,63 @@ class ScaleConfig(ConfigSection):
 
     Attributes:
         source: ``'speed'`` (a TwistStamped/Odometry topic, e.g. wheel odometry), ``'ground'``
-            (ground-plane ACs at the known camera height), ``'fixed'`` (``fixed_speed``), or
-            ``'unit'`` (unit steps between keyframes).
+            (road ACs at the known camera height ``mount.height``), ``'fixed'``
+            (``fixed_speed``), or ``'unit'`` (unit steps between keyframes).
+        fallback: source used while the primary gives nothing (``'ground'`` with no road ACs in
+            view, ``'speed'`` before the first message).
+        speed_std: standard deviation of the speed source (m/s).
         fixed_speed: metres per second for ``'fixed'``.
-        fallback: source used while the primary gives nothing (``'ground'`` with no ground
-            ACs, ``'speed'`` before the first message).
+        fixed_speed_std: its assumed standard deviation (m/s).
+        ground_affine_tolerance: a road AC's affine must match the ground homography within
+            this relative Frobenius distance.
+        ground_min_correspondences: fewer road ACs give no ground scale.
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
-    fixed_speed: float = 10.0
     fallback: typing.Literal['ground', 'fixed', 'unit'] = 'unit'
+    speed_std: float = 0.1
+    fixed_speed: float = 10.0
+    fixed_speed_std: float = 3.0
+    ground_affine_tolerance: float = 0.05
+    ground_min_correspondences: int = 10
 
     def validate(self) -> None:
+        self._require(self.speed_std > 0.0 and _finite(self.speed_std), 'speed_std',
+                      'a positive speed in m/s')
         self._require(self.fixed_speed >= 0.0 and _finite(self.fixed_speed), 'fixed_speed',
                       'a non-negative speed in m/s')
+        self._require(self.fixed_speed_std > 0.0, 'fixed_speed_std', 'a positive speed in m/s')
+        self._require(self.ground_affine_tolerance > 0.0, 'ground_affine_tolerance',
+                      'a positive number')
+        self._require(self.ground_min_correspondences >= 1, 'ground_min_correspondences',
+                      'at least 1')
+
+
+@dataclasses.dataclass(frozen=True)
+class OdometryConfig(ConfigSection):
+    """Frame checks and the parts of the pose that planar motion does not estimate.
+
+    Attributes:
+        min_correspondences: fewer ACs than this drop the frame (too_few_correspondences).
+        min_contrast: grey-level standard deviation below which a frame is blank.
+        max_lost_frames: after this many frames in a row without an update, tracking is
+            re-anchored at the current frame (the pose is extrapolated and its covariance grows).
+        planar_z_std: standard deviation of height changes (m) the planar model ignores.
+        planar_tilt_std: standard deviation of roll and pitch (rad) the planar model ignores.
+    """
+
+    min_correspondences: int = 30
+    min_contrast: float = 2.0
+    max_lost_frames: int = 5
+    planar_z_std: float = 0.05
+    planar_tilt_std: float = 0.02
+
+    def validate(self) -> None:
+        self._require(self.min_correspondences >= 1, 'min_correspondences', 'at least 1')
+        self._require(self.min_contrast >= 0.0, 'min_contrast', 'a non-negative grey level')
+        self._require(self.max_lost_frames >= 1, 'max_lost_frames', 'at least 1')
+        self._require(self.planar_z_std > 0.0, 'planar_z_std', 'a positive length')
+        self._require(self.planar_tilt_std > 0.0, 'planar_tilt_std', 'a positive angle')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -386,6 +468,7 @@ class PlanarVoConfig(ConfigSection):
     voting: VotingConfig = dataclasses.field(default_factory=VotingConfig)
     keyframe: KeyframeConfig = dataclasses.field(default_factory=KeyframeConfig)
     scale: ScaleConfig = dataclasses.field(default_factory=ScaleConfig)
+    odometry: OdometryConfig = dataclasses.field(default_factory=OdometryConfig)
     ros: RosConfig = dataclasses.field(default_factory=RosConfig)
 
     @classmethod
@@ -482,3 +565,26 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
         return PlanarVoConfig.from_dict(data)
     except ConfigError as err:
         raise ConfigError(f'{path}: {err}') from None
+
+
+def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = 'planar_vo') -> str:
+    """The configuration as a commented ROS 2 parameter file (the form of
+    ``config/planar_vo.yaml``, which is this function's output for the defaults)."""
+    import textwrap
+
+    import yaml
+
+    config = PlanarVoConfig() if config is None else config
+    docs = describe()
+    out = ['# planar_vo parameters, in ROS 2 parameter-file form (ros2 run planar_vo planar_vo_node',
+           '#   --ros-args --params-file FILE). The planar_vo command reads the same file with',
+           '# --config. Mirrors planar_vo.config.PlanarVoConfig; units are SI and radians.',
+           f'{node_name}:', '  ros__parameters:']
+    for section, values in config.to_dict().items():
+        out.append(f'    {section}:')
+        for key, value in values.items():
+            for line in textwrap.wrap(docs[f'{section}.{key}'].replace('``', ''), 86):
+                out.append(f'      # {line}')
+            text = yaml.safe_dump(value, default_flow_style=True).strip()
+            out.append(f'      {key}: {text.removesuffix("...").strip()}')
+    return '\n'.join(out) + '\n'

@@ -34,9 +34,12 @@ __all__ = [
     'PAPER_IMAGE_SIZE',
     'PAPER_PRINCIPAL_POINT',
     'ACSet',
+    'outlier_mask',
     'paper_trial',
+    'plane_index',
     'random_exact_acs',
     'random_planar_motion',
+    'shared_motion_acs',
 ]
 
 PAPER_FOCAL = 600.0
@@ -197,7 +200,8 @@ def _small_rotation(rng: np.random.Generator, sigma_deg: float) -> np.ndarray:
 def paper_trial(rng: np.random.Generator, sigma: float, *, n_points: int = 50,
                 motion: str = 'general', tilt_sigma_deg: float = 0.0,
                 focal: float = PAPER_FOCAL, max_yaw_deg: float = 30.0,
-                plane_depth: tuple[float, float] = (4.0, 8.0)) -> ACSet:
+                plane_depth: tuple[float, float] = (4.0, 8.0), window: float | None = None,
+                _motion=None) -> ACSet:
     """One trial of the paper's synthetic protocol (Hajder and Barath, section 4.2).
 
     A random plane (its normal within 60 degrees of the optical axis, through a point on the axis
@@ -218,6 +222,8 @@ def paper_trial(rng: np.random.Generator, sigma: float, *, n_points: int = 50,
         focal: focal length in pixels (principal point stays at (300, 300)).
         max_yaw_deg: range of ``alpha`` for general motion.
         plane_depth: range of the plane's depth along the optical axis, in translation units.
+        window: if given, the points are drawn in a random ``window x window`` pixel square of
+            image 1 (a surface covers a region of the image) instead of the whole image.
 
     Returns:
         An `ACSet` whose ``alpha``, ``beta``, ``R``, ``t`` are shared by all points.
@@ -230,7 +236,9 @@ def paper_trial(rng: np.random.Generator, sigma: float, *, n_points: int = 50,
     K = paper_intrinsics(focal)
     width, height = PAPER_IMAGE_SIZE
     while True:
-        if motion == 'forward':
+        if _motion is not None:
+            alpha, beta = np.float64(_motion.alpha), np.float64(_motion.beta)
+        elif motion == 'forward':
             alpha, beta = np.float64(0.0), np.float64(-np.pi / 2)
         else:
             alpha, beta = random_planar_motion(rng, max_yaw_deg=max_yaw_deg)
@@ -241,7 +249,12 @@ def paper_trial(rng: np.random.Generator, sigma: float, *, n_points: int = 50,
         normal = _random_unit_normals(rng, 1, np.array([[0.0, 0.0, -1.0]]), 60.0)[0]
         distance = float(normal @ np.array([0.0, 0.0, rng.uniform(*plane_depth)]))
         # Draw many pixels, keep those whose plane point is visible in both views.
-        pix = rng.uniform((0.0, 0.0), (width, height), (20 * n_points, 2))
+        if window is None:
+            lo, hi = np.zeros(2), np.array([width, height], float)
+        else:
+            lo = rng.uniform(0.0, 1.0, 2) * (np.array([width, height]) - window)
+            hi = lo + window
+        pix = rng.uniform(lo, hi, (20 * n_points, 2))
         ray = np.column_stack([normalize_points(K, pix), np.ones(len(pix))])
         depth = distance / (ray @ normal)
         X1 = ray * depth[:, None]
@@ -261,3 +274,88 @@ def paper_trial(rng: np.random.Generator, sigma: float, *, n_points: int = 50,
     A = homography_jacobian(fit_homography(p1, p2), p1) if sigma > 0 else A_true.copy()
     return ACSet(K=K, p1=p1, p2=p2, A=A, alpha=np.asarray(alpha), beta=np.asarray(beta), R=R,
                  t=t, p1_true=p1_true, p2_true=p2_true, A_true=A_true)
+
+
+def shared_motion_acs(rng: np.random.Generator, n: int, sigma: float, *,
+                      outlier_ratio: float = 0.0, motion: str = 'general',
+                      alpha: float | None = None, beta: float | None = None,
+                      points_per_plane: int = 50, max_yaw_deg: float = 30.0,
+                      window: float | None = None) -> ACSet:
+    """N ACs under ONE planar motion, from many random planes, with mismatches mixed in.
+
+    The ACs come in groups of ``points_per_plane`` from independent `paper_trial` scenes that
+    share the motion (so each group's affines come from the homography fitted to its own noisy
+    points, as in the paper's protocol). A fraction ``outlier_ratio`` of the ACs (chosen at
+    random) is then replaced by mismatches: ``p2`` uniform in image 2 and ``A`` an affine drawn
+    around the identity (``I + N(0, 0.3^2)``), the kind of garbage a matcher produces.
+
+    Args:
+        rng: random generator.
+        n: number of ACs (>= 1).
+        sigma: point noise in pixels.
+        outlier_ratio: fraction of mismatches, in ``[0, 1)``.
+        motion: ``'general'`` or ``'forward'`` (ignored when ``alpha``/``beta`` are given).
+        alpha, beta: the motion (radians); random when None.
+        points_per_plane: ACs per plane (>= 4).
+        window: side in pixels of the image square each plane's points are drawn in (None: the
+            whole image). ACs of one plane share the error of its fitted homography, so their
+            errors are correlated in a region of the image, as those of real neighbouring ACs are.
+
+    Returns:
+        An `ACSet` with shared ``alpha``/``beta``; ``A_true``/``p2_true`` are the exact values
+        of the inliers (mismatches keep their garbage there too); see `outlier_mask`.
+    """
+    if n < 1 or not (0.0 <= outlier_ratio < 1.0):
+        raise InputError(f'n >= 1 and 0 <= outlier_ratio < 1 expected, got n={n}, '
+                         f'outlier_ratio={outlier_ratio}')
+    if alpha is None or beta is None:
+        if motion == 'forward':
+            alpha, beta = 0.0, -np.pi / 2
+        else:
+            alpha, beta = (float(v) for v in random_planar_motion(rng, max_yaw_deg=max_yaw_deg))
+    groups = []
+    remaining = n
+    while remaining > 0:
+        m = max(points_per_plane, 4)
+        trial = _trial_with_motion(rng, sigma, m, float(alpha), float(beta), window)
+        groups.append(trial)
+        remaining -= m
+    cat = {k: np.concatenate([getattr(g, k) for g in groups])[:n]
+           for k in ('p1', 'p2', 'A', 'p1_true', 'p2_true', 'A_true')}
+    K = groups[0].K
+    outliers = rng.permutation(n)[:int(round(outlier_ratio * n))]
+    width, height = PAPER_IMAGE_SIZE
+    cat['p2'][outliers] = rng.uniform((0.0, 0.0), (width, height), (outliers.size, 2))
+    cat['A'][outliers] = np.eye(2) + rng.normal(0.0, 0.3, (outliers.size, 2, 2))
+    mask = np.zeros(n, bool)
+    mask[outliers] = True
+    acs = ACSet(K=K, alpha=np.asarray(alpha), beta=np.asarray(beta), R=rotation_y(alpha),
+                t=translation_direction(beta), **cat)
+    object.__setattr__(acs, '_outliers', mask)
+    object.__setattr__(acs, '_planes', np.repeat(np.arange(len(groups)), max(points_per_plane, 4))[:n])
+    return acs
+
+
+def outlier_mask(acs: ACSet) -> np.ndarray:
+    """Which ACs of a `shared_motion_acs` set are mismatches (all False for other sets)."""
+    return getattr(acs, '_outliers', np.zeros(len(acs.p1), bool))
+
+
+def plane_index(acs: ACSet) -> np.ndarray:
+    """The plane each AC of a `shared_motion_acs` set came from (ACs of one plane share the error
+    of its fitted homography); zeros for other sets."""
+    return getattr(acs, '_planes', np.zeros(len(acs.p1), np.intp))
+
+
+def _trial_with_motion(rng: np.random.Generator, sigma: float, n_points: int, alpha: float,
+                       beta: float, window: float | None) -> ACSet:
+    """A `paper_trial` whose motion is given instead of drawn."""
+    state = _FixedMotion(alpha, beta)
+    return paper_trial(rng, sigma, n_points=n_points, motion='general', window=window,
+                       _motion=state)
+
+
+@dataclass(frozen=True)
+class _FixedMotion:
+    alpha: float
+    beta: float

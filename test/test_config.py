@@ -6,7 +6,14 @@ from pathlib import Path
 
 import pytest
 
-from planar_vo.config import PlanarVoConfig, VotingConfig, describe, flatten, load_config
+from planar_vo.config import (
+    PlanarVoConfig,
+    VotingConfig,
+    describe,
+    flatten,
+    load_config,
+    to_ros_yaml,
+)
 from planar_vo.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -14,6 +21,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_yaml_file_mirrors_dataclass_defaults():
     assert load_config(ROOT / 'config' / 'planar_vo.yaml') == PlanarVoConfig()
+    # The shipped file is exactly the generated one (regenerate with to_ros_yaml()).
+    assert (ROOT / 'config' / 'planar_vo.yaml').read_text() == to_ros_yaml()
+
+
+def test_generated_yaml_round_trips(tmp_path):
+    config = PlanarVoConfig.from_dict({'voting': {'bins': 360}, 'camera': {'distortion': [0.1]}})
+    path = tmp_path / 'p.yaml'
+    path.write_text(to_ros_yaml(config))
+    assert load_config(path) == config
 
 
 def test_every_parameter_has_a_description():
@@ -43,7 +59,8 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
 
 
 @pytest.mark.parametrize(('data', 'match'), [
-    ({'voting': {'binz': 3}}, r'unknown configuration key\(s\) voting.binz; known keys: bins'),
+    ({'voting': {'binz': 3}}, r'unknown configuration key\(s\) voting.binz; known keys: affine_noise, '
+                                     r'ambiguity_ratio, bins'),
     ({'votes': {}}, r'unknown configuration key\(s\) votes'),
     ({'voting': {'bins': 'x'}}, r"voting.bins: expected int, got str 'x'"),
     ({'voting': {'bins': 10}}, r'voting.bins: expected at least 36, got 10'),

@@ -14,6 +14,13 @@ from planar_vo.geometry.minimal import (
     solve_2pc,
     solve_3pc,
 )
+from planar_vo.geometry.voting import (
+    FocalCalibrator,
+    PlanarMotion,
+    VotingStats,
+    vote_planar_motion,
+    vote_planar_motion_focal,
+)
 from planar_vo.geometry.planar import (
     angle_difference,
     camera_displacement,
@@ -25,6 +32,9 @@ from planar_vo.geometry.planar import (
 )
 
 __all__ = [
+    'FocalCalibrator',
+    'PlanarMotion',
+    'VotingStats',
     'ac_residuals',
     'angle_difference',
     'camera_displacement',
@@ -37,5 +47,7 @@ __all__ = [
     'solve_2pc',
     'solve_3pc',
     'translation_direction',
+    'vote_planar_motion',
+    'vote_planar_motion_focal',
     'wrap_angle',
 ]

@@ -115,6 +115,60 @@ def _null_vectors(B: np.ndarray) -> np.ndarray:
                      _det3(c0, c1, c3), -_det3(c0, c1, c2)], axis=-1)
 
 
+def _ac_null_vectors(q1: np.ndarray, q2: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """`_null_vectors` of the AC matrices, expanded symbolically (``B[1, 2] = 0``, ``B[2, 2] = 1``).
+
+    Same signed minors as the generic version with the structure of ``B`` folded in and the
+    shared 2x2 minors ``P, Q, S`` of rows 2-3 computed once: about a third of the operations.
+    """
+    u1, v1, u2, v2 = q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1]
+    a1, a2, a3, a4 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
+    b11, b12, b13, b14 = -v2, u1 * v2, v1, -u2 * v1
+    b21, b22, b24 = -a3, v2 + a3 * u1, -a1 * v1
+    b31, b32, b34 = -a4, a4 * u1, -u2 - a2 * v1
+    P = b22 * b34 - b24 * b32
+    Q = b21 * b34 - b24 * b31
+    S = b21 * b32 - b22 * b31
+    return np.stack([-b12 * b24 - b13 * P + b14 * b22,
+                     b11 * b24 + b13 * Q - b14 * b21,
+                     b11 * P - b12 * Q + b14 * S,
+                     -b11 * b22 + b12 * b21 - b13 * S], axis=-1)
+
+
+def _cheirality_flip(q1: np.ndarray, q2: np.ndarray, alpha: np.ndarray, beta: np.ndarray
+                     ) -> np.ndarray:
+    """True where ``t`` must be flipped for the point to lie in front of both cameras.
+
+    Scalar form of `_depths` for one point per motion: with ``m = q2 x Ry(alpha) q1`` the depths
+    are ``lambda1 = -(q2 x t) . m / |m|^2`` and ``lambda2 = (t x Ry q1) . m / |m|^2``; only their
+    signs matter, so the positive ``|m|^2`` is dropped.
+    """
+    u1, v1, u2, v2 = q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1]
+    ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
+    rx, rz = ca * u1 + sa, ca - sa * u1                     # Ry q1 = (rx, v1, rz)
+    mx, my, mz = v2 * rz - v1, rx - u2 * rz, u2 * v1 - v2 * rx
+    n1 = -(v2 * sb * mx + (cb - u2 * sb) * my - v2 * cb * mz)
+    n2 = -sb * v1 * mx + (sb * rx - cb * rz) * my + cb * v1 * mz
+    score = np.sign(n1) + np.sign(n2)
+    return (score < 0) | ((score == 0) & (n1 + n2 < 0))
+
+
+def _solve_1ac_unchecked(q1: np.ndarray, q2: np.ndarray, A: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """`solve_1ac` without input checks or refinement (for estimators that checked already)."""
+    n = _ac_null_vectors(q1, q2, A)
+    degenerate = ((n[:, 0] == 0.0) & (n[:, 1] == 0.0)) | ((n[:, 2] == 0.0) & (n[:, 3] == 0.0))
+    theta = np.arctan2(n[:, 1], n[:, 0])
+    beta = np.arctan2(n[:, 3], n[:, 2])
+    alpha = theta - beta
+    beta = np.where(_cheirality_flip(q1, q2, alpha, beta), beta + np.pi, beta)
+    alpha = np.remainder(alpha + np.pi, 2.0 * np.pi) - np.pi
+    beta = np.remainder(beta + np.pi, 2.0 * np.pi) - np.pi
+    alpha[degenerate] = np.nan
+    beta[degenerate] = np.nan
+    return alpha, beta
+
+
 # --------------------------------------------------------------------------------------------
 # Angles, sign and refinement
 # --------------------------------------------------------------------------------------------
@@ -225,12 +279,13 @@ def solve_1ac(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, *, refine: bool = F
         InputError: wrong shapes, non-finite values, no items, or mismatched lengths.
     """
     q1, q2, A = _check_ac('q1', q1, 'q2', q2, A)
+    if not refine:
+        return _solve_1ac_unchecked(q1, q2, A)
     B = _ac_matrix(q1, q2, A)
-    n = _null_vectors(B)
+    n = _ac_null_vectors(q1, q2, A)
     degenerate = (np.hypot(n[:, 0], n[:, 1]) == 0.0) | (np.hypot(n[:, 2], n[:, 3]) == 0.0)
     theta, beta = _angles_from_x(n)
-    if refine:
-        theta, beta = _refine_constrained(B, theta, beta, iterations)
+    theta, beta = _refine_constrained(B, theta, beta, iterations)
     alpha, beta = _fix_sign(q1, q2, theta, beta)
     nan = np.full_like(alpha, np.nan)
     return np.where(degenerate, nan, alpha), np.where(degenerate, nan, beta)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from planar_vo.pipeline.odometry import VisualOdometry
 from planar_vo.pipeline.types import DropReason, FrameResult
 
-__all__ = ['DropReason', 'FrameResult']
+__all__ = ['DropReason', 'FrameResult', 'VisualOdometry']

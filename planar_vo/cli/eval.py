@@ -1,0 +1,93 @@
+"""``planar_vo eval``: compare an estimated trajectory with ground truth.
+
+EST and GT are TUM files or bags (directory, .mcap or .db3). A bag written by ``planar_vo
+replay`` holds both: the estimate on /odom and the copied ground truth, which is used when --gt
+is not given. Poses are associated by stamp, the estimate is aligned (Umeyama SE(3) by default),
+and ATE, RPE per frame and per distance, and per-frame yaw-change and heading errors are printed;
+with --out-dir, metrics.json and PNG plots are written there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+from planar_vo.evaluation.align import ALIGNMENTS
+
+EXAMPLES = """examples:
+  planar_vo eval drive_vo                         estimate and ground truth from one bag
+  planar_vo eval est.tum --gt gt.tum --align sim3 --out-dir eval_out
+  planar_vo eval drive_vo --gt kitti06 --gt-topic /ground_truth/odom --segments 5 10 20
+"""
+
+DEFAULT_EST_TOPIC = '/odom'
+DEFAULT_GT_TOPIC = '/ground_truth/odom'
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        'eval', help='trajectory errors (ATE, RPE, yaw and heading) against ground truth',
+        description=__doc__, epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('est', metavar='EST', help='estimate: TUM file or bag')
+    parser.add_argument('--gt', metavar='GT',
+                        help='ground truth: TUM file or bag (default: GT topic of the EST bag)')
+    parser.add_argument('--est-topic', default=DEFAULT_EST_TOPIC, metavar='TOPIC',
+                        help=f'estimate topic in a bag (default: {DEFAULT_EST_TOPIC})')
+    parser.add_argument('--gt-topic', default=DEFAULT_GT_TOPIC, metavar='TOPIC',
+                        help=f'ground-truth topic in a bag (default: {DEFAULT_GT_TOPIC})')
+    parser.add_argument('--align', choices=ALIGNMENTS, default='se3',
+                        help='alignment of the estimate (default: se3)')
+    parser.add_argument('--max-diff', type=float, default=0.02, metavar='SEC',
+                        help='maximum stamp difference for association (default: 0.02)')
+    parser.add_argument('--segments', type=float, nargs='+', default=[5.0, 10.0, 20.0],
+                        metavar='M', help='RPE segment lengths in metres (default: 5 10 20)')
+    parser.add_argument('--out-dir', metavar='DIR',
+                        help='write metrics.json and trajectory/ate/yaw_heading PNGs here')
+    parser.set_defaults(run=run)
+    return parser
+
+
+def _json_ready(value):
+    """NaN/inf -> None (JSON has no NaN), recursively."""
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def run(args: argparse.Namespace) -> int:
+    from planar_vo.errors import InputError
+    from planar_vo.evaluation import evaluate, load_trajectory, save_plots
+    from planar_vo.evaluation.trajectory import is_bag_path
+
+    if any(not (math.isfinite(s) and s > 0) for s in args.segments):
+        raise InputError(f'segments: expected positive lengths in metres, got {args.segments}')
+    est = load_trajectory(args.est, args.est_topic, role='est-topic')
+    gt_path = args.gt
+    if gt_path is None:
+        if not is_bag_path(args.est):
+            raise InputError('gt: expected --gt GT when EST is a TUM file, got none')
+        gt_path = args.est
+    ref = load_trajectory(gt_path, args.gt_topic, role='gt-topic')
+    evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
+                          segment_lengths=tuple(args.segments))
+    print(f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''))
+    print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
+    print(evaluation.format_table())
+    if args.out_dir:
+        out = Path(args.out_dir)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise InputError(f"out-dir: cannot create '{out}' ({err.strerror})") from err
+        metrics = {'estimate': str(args.est), 'reference': str(gt_path), **evaluation.metrics()}
+        (out / 'metrics.json').write_text(json.dumps(_json_ready(metrics), indent=2) + '\n')
+        written = save_plots(evaluation, out)
+        print(f"wrote {out / 'metrics.json'}, " + ', '.join(p.name for p in written))
+    return 0

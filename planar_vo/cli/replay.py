@@ -1,0 +1,60 @@
+"""``planar_vo replay``: run the visual odometry over a bag offline, odometry into a new bag.
+
+Reads the images (raw or compressed) and camera info of IN, feeds them with the optional speed
+topic through ``planar_vo.pipeline.VisualOdometry``, and writes ``nav_msgs/Odometry`` on /odom
+(stamped with each image's header stamp) into OUT together with the ground-truth topics of IN
+(Odometry, Path, TF, poses), ready for ``planar_vo eval OUT``.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+STORAGES = ('mcap', 'sqlite3')       # planar_vo.bag.writer.STORAGES (rosbags not imported here)
+
+EXAMPLES = """examples:
+  planar_vo replay drive.mcap --out drive_vo
+  planar_vo replay drive_bag --out drive_vo --image-topic /cam/image_raw/compressed \\
+      --speed-topic /vehicle/twist --tum drive_vo.tum --config config/planar_vo.yaml
+  planar_vo eval drive_vo --out-dir drive_eval
+"""
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        'replay', help='run the visual odometry over a bag, odometry into a new bag',
+        description=__doc__, epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('input', metavar='IN', help='input bag (directory, .mcap or .db3)')
+    parser.add_argument('--out', required=True, metavar='OUT',
+                        help='output bag directory (must not exist)')
+    parser.add_argument('--image-topic', metavar='TOPIC',
+                        help='sensor_msgs/Image or CompressedImage topic (default: the only one)')
+    parser.add_argument('--camera-info-topic', metavar='TOPIC',
+                        help='sensor_msgs/CameraInfo topic (default: the only one, if any)')
+    parser.add_argument('--speed-topic', metavar='TOPIC',
+                        help='TwistStamped or Odometry topic giving the speed for metric scale')
+    parser.add_argument('--tum', metavar='FILE', help='also write the odometry as a TUM file')
+    parser.add_argument('--config', metavar='YAML',
+                        help='configuration file (default: built-in defaults, as in '
+                             'config/planar_vo.yaml)')
+    parser.add_argument('--storage', choices=list(STORAGES), default='mcap',
+                        help='output storage format (default: mcap)')
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    parser.set_defaults(run=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    from planar_vo.bag.replay import replay_bag
+    from planar_vo.config import load_config
+    from planar_vo.pipeline import VisualOdometry
+
+    config = load_config(args.config)
+    summary = replay_bag(
+        args.input, args.out, VisualOdometry(config), image_topic=args.image_topic,
+        camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
+        tum_path=args.tum, storage=args.storage, odom_frame=config.ros.odom_frame,
+        base_frame=config.ros.base_frame, progress=not args.no_progress)
+    print(summary.format())
+    return 0

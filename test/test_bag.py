@@ -1,0 +1,438 @@
+"""planar_vo.bag: reading (both storages, every failure mode), writing, and replay plumbing
+driven by a test double (the real pipeline is tested end to end elsewhere)."""
+
+from __future__ import annotations
+
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+from bagdata import (
+    TS,
+    camera_info_msg,
+    compressed_msg,
+    corrupt_mid_way,
+    image_msg,
+    odometry_msg,
+    storage_file,
+    twist_msg,
+    write_bag,
+)
+
+from planar_vo.bag import (
+    OdometryBagWriter,
+    iter_camera_frames,
+    iter_messages,
+    open_bag,
+    replay_bag,
+)
+from planar_vo.camera import CameraModel
+from planar_vo.errors import BagError
+from planar_vo.evaluation import read_tum
+from planar_vo.geometry.frames import planar_pose
+from planar_vo.messages import pose_from_message, stamp_to_ns
+from planar_vo.pipeline.types import DropReason, FrameResult
+
+STORAGES = ['mcap', 'sqlite3']
+IMAGE = 'sensor_msgs/msg/Image'
+INFO = 'sensor_msgs/msg/CameraInfo'
+ODOM = 'nav_msgs/msg/Odometry'
+T0 = 1_700_000_000_123_456_789            # odd nanoseconds: any float round trip would show
+
+
+def _one_line_error(excinfo) -> str:
+    text = str(excinfo.value)
+    assert '\n' not in text
+    return text
+
+
+# -- opening ------------------------------------------------------------------------------------
+
+@pytest.fixture
+def small_bag(tmp_path, rng):
+    def make(storage='mcap', name='small'):
+        frames = [rng.integers(0, 256, (24, 32), dtype=np.uint8) for _ in range(3)]
+        entries = []
+        for i, img in enumerate(frames):
+            stamp = T0 + i * 100_000_007
+            entries.append(('/cam/camera_info', INFO, stamp, camera_info_msg(stamp, 32, 24, 30.0)))
+            entries.append(('/cam/image_raw', IMAGE, stamp, image_msg(img, 'mono8', stamp)))
+        return write_bag(tmp_path / f'{name}_{storage}', storage, entries), frames
+    return make
+
+
+@pytest.mark.parametrize('storage', STORAGES)
+def test_open_directory_and_single_file(small_bag, storage):
+    bag_dir, frames = small_bag(storage)
+    for path in (bag_dir, storage_file(bag_dir)):
+        with open_bag(path) as bag:
+            assert bag.topics == {'/cam/camera_info': INFO, '/cam/image_raw': IMAGE}
+            got = list(iter_camera_frames(bag))
+        assert [f.stamp_ns for f in got] == [T0 + i * 100_000_007 for i in range(3)]
+        for frame, img in zip(got, frames):
+            np.testing.assert_array_equal(frame.image, img)
+            assert frame.error is None and frame.frame_id == 'camera'
+            assert frame.camera == CameraModel.pinhole(32, 24, 30.0, cx=16.0, cy=12.0)
+
+
+def test_open_missing_path(tmp_path):
+    with pytest.raises(BagError, match=r"bag: '.*nothing' does not exist") as exc:
+        with open_bag(tmp_path / 'nothing'):
+            pass
+    _one_line_error(exc)
+
+
+def test_open_not_a_bag(tmp_path):
+    text = tmp_path / 'notes.txt'
+    text.write_text('hello')
+    with pytest.raises(BagError, match=r"is not a bag: expected a rosbag2 directory or a "
+                                       r"\.mcap/\.db3 file, got a '\.txt' file"):
+        with open_bag(text):
+            pass
+    with pytest.raises(BagError, match=r"is not a bag: expected a directory with metadata\.yaml"):
+        with open_bag(tmp_path):
+            pass
+    junk = tmp_path / 'junk.mcap'
+    junk.write_bytes(b'not an mcap file at all')
+    with pytest.raises(BagError, match=r"bag: cannot open '.*junk\.mcap': corrupt, truncated or "
+                                       r'not a ROS 2 bag \(.*magic') as exc:
+        with open_bag(junk):
+            pass
+    _one_line_error(exc)
+
+
+@pytest.mark.parametrize('storage, cut, detail', [
+    ('mcap', 1000, r'AnyReaderError: File end magic is invalid\.'),
+    ('sqlite3', 4096, r'AnyReaderError: .*database disk image is malformed'),
+])
+def test_open_truncated_bag(small_bag, storage, cut, detail):
+    bag_dir, _ = small_bag(storage)
+    file = storage_file(bag_dir)
+    file.write_bytes(file.read_bytes()[:-cut])
+    with pytest.raises(BagError, match=r"bag: cannot open '.*': corrupt, truncated or not a ROS 2 "
+                                       rf'bag \({detail}\)') as exc:
+        with open_bag(bag_dir):
+            pass
+    _one_line_error(exc)
+
+
+def _big_image_bag(path, storage, rng, n=40, extra=()):
+    """Over 1 MiB of images (MCAP: several chunks), for damage found part-way through."""
+    images = [rng.integers(0, 256, (240, 320), dtype=np.uint8) for _ in range(n)]
+    entries = []
+    for i, img in enumerate(images):
+        stamp = T0 + i * 100_000_000
+        entries.append(('/cam/image_raw', IMAGE, stamp, image_msg(img, 'mono8', stamp)))
+        entries += [e(i, stamp) for e in extra]
+    return write_bag(path, storage, entries), images
+
+
+@pytest.mark.parametrize('storage', STORAGES)
+def test_corruption_found_mid_way_keeps_earlier_frames(tmp_path, rng, storage):
+    bag_dir, images = _big_image_bag(tmp_path / 'big', storage, rng)
+    corrupt_mid_way(bag_dir, images[25][120].tobytes())
+    got = []
+    with pytest.raises(BagError, match=r"bag '.*big': corrupt or truncated, reading failed after "
+                                       r'\d+ messages \(\w+: .+\)') as exc:
+        with open_bag(bag_dir) as bag:
+            for frame in iter_camera_frames(bag):
+                got.append(frame)
+    _one_line_error(exc)
+    assert 5 <= len(got) < 40
+    for frame in got:
+        np.testing.assert_array_equal(frame.image, images[frame.index])
+
+
+# -- topics -------------------------------------------------------------------------------------
+
+def test_unknown_topic_lists_available(small_bag):
+    bag_dir, _ = small_bag()
+    with open_bag(bag_dir) as bag:
+        with pytest.raises(BagError, match=r"topic: '/nope' is not a topic of '.*'; available "
+                                           r'topics: /cam/camera_info \(sensor_msgs/msg/'
+                                           r'CameraInfo\), /cam/image_raw \(sensor_msgs/msg/Image'
+                                           r'\)'):
+            list(iter_messages(bag, '/nope'))
+        with pytest.raises(BagError, match=r"image_topic: '/cam/missing' is not a topic of"):
+            list(iter_camera_frames(bag, image_topic='/cam/missing'))
+        with pytest.raises(BagError, match=r"image_topic: '/cam/camera_info' in '.*' has type "
+                                           r'sensor_msgs/msg/CameraInfo, expected sensor_msgs/'
+                                           r'msg/Image or sensor_msgs/msg/CompressedImage'):
+            list(iter_camera_frames(bag, image_topic='/cam/camera_info'))
+
+
+def test_ambiguous_and_missing_image_topic(tmp_path, rng):
+    img = rng.integers(0, 256, (4, 5), dtype=np.uint8)
+    two = write_bag(tmp_path / 'two', 'mcap', [
+        ('/left/image_raw', IMAGE, 1, image_msg(img, 'mono8', 1)),
+        ('/right/image_raw', IMAGE, 2, image_msg(img, 'mono8', 2)),
+        ('/left/camera_info', INFO, 1, camera_info_msg(1, 5, 4, 10.0)),
+        ('/right/camera_info', INFO, 2, camera_info_msg(2, 5, 4, 20.0)),
+    ])
+    with open_bag(two) as bag:
+        with pytest.raises(BagError, match=r"image_topic: '.*two' has several candidate topics "
+                                           r'\(/left/image_raw, /right/image_raw\); choose one'):
+            next(iter_camera_frames(bag))
+        # with the image topic chosen, the camera info next to it is picked
+        frames = list(iter_camera_frames(bag, image_topic='/right/image_raw'))
+        assert len(frames) == 1 and frames[0].camera.fx == 20.0
+    none = write_bag(tmp_path / 'none', 'mcap', [('/odom', ODOM, 1, odometry_msg(1, 0.0))])
+    with open_bag(none) as bag:
+        with pytest.raises(BagError, match=r'image_topic: no sensor_msgs/msg/Image or sensor_msgs/'
+                                           r"msg/CompressedImage topic in '.*none'; topics: /odom "
+                                           r'\(nav_msgs/msg/Odometry\)'):
+            next(iter_camera_frames(bag))
+
+
+@pytest.mark.parametrize('storage', STORAGES)
+def test_frames_report_bad_images_and_bad_camera_info_without_stopping(tmp_path, rng, storage):
+    gray = rng.integers(0, 256, (24, 32), dtype=np.uint8)
+    ok, png = cv2.imencode('.png', gray)
+    bad_info = camera_info_msg(T0 + 2, 32, 24, 30.0, k=np.zeros((3, 3)))
+    entries = [
+        ('/cam/image', IMAGE, T0, image_msg(gray, 'mono8', T0)),           # before the info
+        ('/cam/camera_info', INFO, T0 + 1, camera_info_msg(T0 + 1, 32, 24, 30.0)),
+        ('/cam/image', IMAGE, T0 + 10, image_msg(gray, 'yuv422', T0 + 10)),   # bad encoding
+        ('/cam/camera_info', INFO, T0 + 11, bad_info),                      # K all zeros
+        ('/cam/image', IMAGE, T0 + 20, image_msg(np.dstack([gray] * 3), 'rgb8', T0 + 20,
+                                                 pad=3)),
+        ('/cam/image_compressed_is_other_topic', 'sensor_msgs/msg/CompressedImage', T0 + 21,
+         compressed_msg(png.tobytes(), 'png', T0 + 21)),
+        ('/cam/image', IMAGE, T0 + 30, image_msg(gray, 'mono8', T0 + 30)),
+    ]
+    bag_dir = write_bag(tmp_path / 'mixed', storage, entries)
+    with open_bag(bag_dir) as bag:
+        frames = list(iter_camera_frames(bag, image_topic='/cam/image'))
+        compressed = list(iter_camera_frames(bag, '/cam/image_compressed_is_other_topic'))
+    assert [f.index for f in frames] == [0, 1, 2, 3]
+    assert [f.stamp_ns for f in frames] == [T0, T0 + 10, T0 + 20, T0 + 30]
+    assert frames[0].camera.fx == 30.0            # the first CameraInfo, logged just after
+    assert frames[1].image is None and "got 'yuv422'" in frames[1].error
+    assert frames[1].camera.fx == 30.0
+    assert 'K is all zeros' in frames[2].camera_error                  # reported once...
+    assert frames[3].camera_error is None
+    assert frames[2].camera.fx == 30.0 and frames[3].camera.fx == 30.0  # ...last good one kept
+    for f in (frames[0], frames[2], frames[3]):
+        np.testing.assert_array_equal(f.image, gray)
+    np.testing.assert_array_equal(compressed[0].image, gray)
+    assert compressed[0].camera.fx == 30.0                             # the only CameraInfo
+
+
+# -- writing ------------------------------------------------------------------------------------
+
+def _read_odometry(path, topic='/odom'):
+    with open_bag(path) as bag:
+        return [item for item in iter_messages(bag, topic)]
+
+
+@pytest.mark.parametrize('storage', STORAGES)
+def test_odometry_writer_round_trip(tmp_path, rng, storage):
+    out = tmp_path / 'odom'
+    poses = [planar_pose(*rng.normal(size=3)) for _ in range(4)]
+    covs = [np.diag(rng.uniform(0.1, 1.0, 6)) for _ in range(4)]
+    twists = [rng.normal(size=6) for _ in range(4)]
+    stamps = [T0 + i * 33_333_333 for i in range(4)]
+    with OdometryBagWriter(out, storage=storage, odom_frame='world', base_frame='car') as w:
+        for s, T, C, v in zip(stamps, poses, covs, twists):
+            w.write(s, T, C, v, 2 * C, log_time_ns=s + 7)
+        assert w.count == 4
+    items = _read_odometry(out)
+    assert [i.stamp_ns for i in items] == stamps
+    assert [i.log_time_ns for i in items] == [s + 7 for s in stamps]
+    for item, T, C, v in zip(items, poses, covs, twists):
+        msg = item.msg
+        assert msg.header.frame_id == 'world' and msg.child_frame_id == 'car'
+        np.testing.assert_allclose(pose_from_message(msg), T, atol=1e-15)
+        np.testing.assert_array_equal(msg.pose.covariance.reshape(6, 6), C)
+        np.testing.assert_array_equal(msg.twist.covariance.reshape(6, 6), 2 * C)
+        lin, ang = msg.twist.twist.linear, msg.twist.twist.angular
+        np.testing.assert_array_equal([lin.x, lin.y, lin.z, ang.x, ang.y, ang.z], v)
+
+
+def test_writer_refuses_to_overwrite(tmp_path):
+    existing = tmp_path / 'existing'
+    existing.mkdir()
+    (existing / 'keep.txt').write_text('precious')
+    with pytest.raises(BagError, match=r"out: '.*existing' already exists; refusing to overwrite "
+                                       r'it'):
+        OdometryBagWriter(existing)
+    assert [p.name for p in existing.iterdir()] == ['keep.txt']
+    assert (existing / 'keep.txt').read_text() == 'precious'
+    afile = tmp_path / 'file.mcap'
+    afile.write_bytes(b'x')
+    with pytest.raises(BagError, match=r'already exists'):
+        OdometryBagWriter(afile)
+    assert afile.read_bytes() == b'x'
+    with pytest.raises(BagError, match=r"storage: expected one of \['mcap', 'sqlite3'\], got "
+                                       r"'zip'"):
+        OdometryBagWriter(tmp_path / 'new', storage='zip')
+    assert not (tmp_path / 'new').exists()
+
+
+@pytest.mark.parametrize('storage', STORAGES)
+def test_writer_closes_properly_on_exception(tmp_path, storage):
+    out = tmp_path / 'partial'
+    with pytest.raises(RuntimeError, match='boom'):
+        with OdometryBagWriter(out, storage=storage) as w:
+            for i in range(3):
+                w.write(T0 + i, planar_pose(float(i), 0.0, 0.0))
+            raise RuntimeError('boom')
+    items = _read_odometry(out)
+    assert [i.stamp_ns for i in items] == [T0, T0 + 1, T0 + 2]
+
+
+# -- replay -------------------------------------------------------------------------------------
+
+class ConstantVelocityDouble:
+    """TEST DOUBLE standing in for planar_vo.pipeline.VisualOdometry: not visual odometry.
+
+    The first frame initialises (FIRST_FRAME); every later frame moves the pose along x by the
+    last fed speed times the elapsed time and turns it by 0.01 rad; it records what it saw.
+    """
+
+    def __init__(self):
+        self.speed, self.x, self.yaw, self.last = 1.0, 0.0, 0.0, None
+        self.speeds, self.calls, self.poses = [], [], []
+
+    def add_speed(self, stamp, speed):
+        self.speeds.append((stamp, speed))
+        self.speed = speed
+
+    def process(self, image, stamp, camera):
+        self.calls.append((stamp, image.shape, camera, list(self.speeds)))
+        if self.last is None:
+            self.last = stamp
+            return FrameResult(stamp, False, np.eye(4), np.eye(6), reason=DropReason.FIRST_FRAME)
+        self.x += self.speed * (stamp - self.last)
+        self.yaw += 0.01
+        self.last = stamp
+        pose = planar_pose(self.x, 0.0, self.yaw)
+        self.poses.append(pose)
+        return FrameResult(stamp, True, pose, np.eye(6) * 0.5, twist=np.arange(6.0),
+                           twist_covariance=np.eye(6) * 0.25)
+
+
+def _replay_input(path, storage, rng, n=10, bad=(4,)):
+    images = [rng.integers(0, 256, (24, 32), dtype=np.uint8) for _ in range(n)]
+    entries = [('/note', 'std_msgs/msg/String', T0 - 5, TS.types['std_msgs/msg/String'](
+        data='not copied'))]
+    stamps = []
+    for i, img in enumerate(images):
+        stamp = T0 + i * 100_000_007
+        stamps.append(stamp)
+        log = stamp + 5_000_000
+        entries.append(('/cam/camera_info', INFO, log - 1, camera_info_msg(stamp, 32, 24, 30.0)))
+        entries.append(('/cam/image_raw', IMAGE, log, image_msg(img, 'yuv422' if i in bad else
+                                                                'mono8', stamp)))
+        entries.append(('/ground_truth/odom', ODOM, log + 1, odometry_msg(stamp, 0.3 * i)))
+        entries.append(('/vehicle/twist', 'geometry_msgs/msg/TwistStamped', log + 2,
+                        twist_msg(stamp + 50_000_000, 2.0 + i)))
+    return write_bag(path, storage, entries), stamps
+
+
+@pytest.mark.parametrize('in_storage, out_storage', [('mcap', 'sqlite3'), ('sqlite3', 'mcap')])
+def test_replay_writes_odometry_counts_drops_and_copies_ground_truth(
+        tmp_path, rng, capsys, in_storage, out_storage):
+    in_bag, stamps = _replay_input(tmp_path / 'in', in_storage, rng)
+    double = ConstantVelocityDouble()
+    tum = tmp_path / 'vo.tum'
+    summary = replay_bag(in_bag, tmp_path / 'out', double, speed_topic='/vehicle/twist',
+                         tum_path=tum, storage=out_storage, progress=True)
+    assert summary.frames_in == 10 and summary.odometry_out == 8
+    assert summary.dropped == {'first_frame': 1, 'bad_image': 1}
+    assert summary.copied == {'/ground_truth/odom': 10}
+    assert summary.image_topic == '/cam/image_raw'
+    assert summary.camera_info_topic == '/cam/camera_info'
+    assert summary.throughput > 0 and 'frames/s' in summary.format()
+    assert 'replay' in capsys.readouterr().err                     # the progress bar
+
+    # the processor saw decoded images, the camera, and exactly the speeds stamped before
+    ok_stamps = [s for i, s in enumerate(stamps) if i != 4]
+    speed_stamps = [s + 50_000_000 for s in stamps]
+    assert [c[0] for c in double.calls] == [s / 1_000_000_000 for s in ok_stamps]
+    for stamp, shape, camera, speeds in double.calls:
+        assert shape == (24, 32) and camera.fx == 30.0
+        assert len(speeds) == sum(1 for s in speed_stamps if s / 1_000_000_000 <= stamp)
+        assert all(t <= stamp for t, _ in speeds)
+    assert summary.speed_messages == len(double.speeds) == 9
+
+    with open_bag(tmp_path / 'out') as out:
+        assert out.topics == {'/ground_truth/odom': ODOM, '/odom': ODOM}
+        odom = list(iter_messages(out, '/odom'))
+        gt_out = [m.rawdata for m in out.messages(['/ground_truth/odom'])]
+        gt_conn = out.connection('/ground_truth/odom')
+    with open_bag(in_bag) as bag:
+        gt_in = [m.rawdata for m in bag.messages(['/ground_truth/odom'])]
+        in_conn = bag.connection('/ground_truth/odom')
+    assert [bytes(b) for b in gt_out] == [bytes(b) for b in gt_in]
+    assert (gt_conn.msgdef, gt_conn.digest) == (in_conn.msgdef, in_conn.digest)
+    # odometry stamped with the exact header stamps of the processed images
+    assert [m.stamp_ns for m in odom] == ok_stamps[1:]
+    for item, pose in zip(odom, double.poses):
+        np.testing.assert_allclose(pose_from_message(item.msg), pose, atol=1e-15)
+        np.testing.assert_array_equal(item.msg.pose.covariance, np.eye(6).ravel() * 0.5)
+        assert item.msg.twist.twist.linear.y == 1.0 and item.msg.twist.covariance[0] == 0.25
+    # the TUM file holds the same poses with full-precision stamps
+    traj = read_tum(tum)
+    assert traj.stamps_ns.tolist() == ok_stamps[1:]
+    np.testing.assert_allclose(traj.poses, np.array(double.poses), atol=1e-15)
+
+
+def test_replay_refuses_existing_outputs(tmp_path, rng):
+    in_bag, _ = _replay_input(tmp_path / 'in', 'mcap', rng, n=2)
+    (tmp_path / 'out').mkdir()
+    with pytest.raises(BagError, match=r"out: '.*out' already exists; refusing to overwrite"):
+        replay_bag(in_bag, tmp_path / 'out', ConstantVelocityDouble(), progress=False)
+    (tmp_path / 'vo.tum').write_text('keep')
+    with pytest.raises(BagError, match=r"tum: '.*vo\.tum' already exists; refusing to overwrite"):
+        replay_bag(in_bag, tmp_path / 'out2', ConstantVelocityDouble(), tum_path=tmp_path /
+                   'vo.tum', progress=False)
+    assert not (tmp_path / 'out2').exists() and (tmp_path / 'vo.tum').read_text() == 'keep'
+    with pytest.raises(BagError, match=r"copy_topics: '/nope' is not a topic of"):
+        replay_bag(in_bag, tmp_path / 'out3', ConstantVelocityDouble(), copy_topics=['/nope'],
+                   progress=False)
+    with pytest.raises(BagError, match=r"speed_topic: '/cam/image_raw' in .* has type "
+                                       r'sensor_msgs/msg/Image, expected geometry_msgs/msg/'
+                                       r'TwistStamped or'):
+        replay_bag(in_bag, tmp_path / 'out4', ConstantVelocityDouble(),
+                   speed_topic='/cam/image_raw', progress=False)
+
+
+@pytest.mark.parametrize('storage', STORAGES)
+def test_replay_of_a_bag_corrupt_mid_way_keeps_what_was_written(tmp_path, rng, storage):
+    gt = (lambda i, stamp: ('/ground_truth/odom', ODOM, stamp + 1, odometry_msg(stamp, 0.1 * i)))
+    in_bag, images = _big_image_bag(tmp_path / 'in', storage, rng, extra=(gt,))
+    corrupt_mid_way(in_bag, images[25][120].tobytes())
+    double = ConstantVelocityDouble()
+    with pytest.raises(BagError, match=r"bag '.*in': corrupt or truncated, reading failed after "
+                                       r'\d+ messages .*; (\d+) odometry messages written to '
+                                       r'.*out were kept') as exc:
+        replay_bag(in_bag, tmp_path / 'out', double, tum_path=tmp_path / 'vo.tum',
+                   progress=False)
+    kept = int(_one_line_error(exc).split('; ')[-1].split()[0])
+    assert kept == len(double.poses) >= 5
+    odom = _read_odometry(tmp_path / 'out')                  # the output is a complete bag
+    assert len(odom) == kept
+    assert [m.stamp_ns for m in odom] == [T0 + i * 100_000_000 for i in range(1, kept + 1)]
+    assert len(read_tum(tmp_path / 'vo.tum')) == kept
+    assert len(_read_odometry(tmp_path / 'out', '/ground_truth/odom')) >= kept
+
+
+def test_frames_without_camera_info_topic_have_no_camera(tmp_path, rng):
+    img = rng.integers(0, 256, (4, 5), dtype=np.uint8)
+    bag_dir = write_bag(tmp_path / 'nocam', 'sqlite3', [('/img', IMAGE, 1, image_msg(img, 'mono8',
+                                                                                     1))])
+    with open_bag(bag_dir) as bag:
+        (frame,) = iter_camera_frames(bag)
+    assert frame.camera is None and frame.camera_error is None
+    np.testing.assert_array_equal(frame.image, img)
+
+
+def test_storage_file_suffixes(small_bag):
+    """A bag copied as a single file opens like its directory."""
+    bag_dir, frames = small_bag('sqlite3')
+    single = bag_dir.parent / 'copy.db3'
+    shutil.copy(storage_file(bag_dir), single)
+    with open_bag(single) as bag:
+        assert stamp_to_ns(next(iter_messages(bag, '/cam/image_raw')).msg.header.stamp) == T0

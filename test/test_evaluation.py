@@ -1,0 +1,361 @@
+"""planar_vo.evaluation: TUM I/O, association, Umeyama alignment, ATE/RPE/yaw/heading metrics on
+exact synthetic trajectories, plots and the eval CLI; cross-checked against evo (run as a tool)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from planar_vo.bag import OdometryBagWriter
+from planar_vo.cli import main
+from planar_vo.errors import BagError, InputError
+from planar_vo.evaluation import (
+    Trajectory,
+    associate,
+    evaluate,
+    read_bag_trajectory,
+    read_tum,
+    umeyama,
+    write_tum,
+)
+from planar_vo.geometry.frames import planar_pose, rotation_rpy
+
+T0 = 1_700_000_000_123_456_789
+EVO_BIN = Path(sys.executable).parent
+
+
+def _drive(rng, n=60) -> Trajectory:
+    """A wiggly planar drive with small height changes, 10 Hz."""
+    yaw = np.cumsum(rng.normal(0.0, 0.05, n))
+    step = rng.uniform(0.8, 1.2, n)
+    x = np.cumsum(step * np.cos(yaw))
+    y = np.cumsum(step * np.sin(yaw))
+    poses = planar_pose(x, y, yaw, z=rng.normal(0.0, 0.05, n))
+    return Trajectory.from_poses(T0 + np.arange(n, dtype=np.int64) * 100_000_000, poses)
+
+
+def _rotation(rng) -> np.ndarray:
+    return rotation_rpy(*rng.uniform(-math.pi / 2, math.pi / 2, 3))
+
+
+# -- trajectories and TUM -----------------------------------------------------------------------
+
+def test_tum_round_trip_is_exact(tmp_path, rng):
+    traj = _drive(rng, 7)
+    write_tum(tmp_path / 't.tum', traj)
+    text = (tmp_path / 't.tum').read_text()
+    assert text.splitlines()[1].startswith('1700000000.123456789 ')
+    back = read_tum(tmp_path / 't.tum')
+    np.testing.assert_array_equal(back.stamps_ns, traj.stamps_ns)
+    np.testing.assert_array_equal(back.positions, traj.positions)
+    np.testing.assert_array_equal(back.quaternions, traj.quaternions)
+
+
+GOOD = '1.0 0 0 0 0 0 0 1'
+
+
+@pytest.mark.parametrize('lines, match', [
+    ([GOOD, '2.0 1 2 3 0 0 0'], r't\.tum line 2: expected 8 values \'timestamp tx ty tz qx qy qz '
+                                r"qw', got 7"),
+    (['# header', '', GOOD, '2.0 1 2 x 0 0 0 1'], r"t\.tum line 4: expected 8 numbers, got "
+                                                   r"'2\.0 1 2 x 0 0 0 1'"),
+    ([GOOD, '2.0 1 2 nan 0 0 0 1'], r't\.tum line 2: expected finite values'),
+    ([GOOD, '2.0 1 2 3 0 0 0 0'], r't\.tum line 2: expected a non-zero quaternion'),
+    ([GOOD, '1.0 1 2 3 0 0 0 1'], r't\.tum line 2: expected increasing timestamps, got 1\.0 '
+                                  r'after 1\.000000000'),
+    (['# nothing here'], r"tum: '.*t\.tum' contains no poses"),
+])
+def test_tum_errors_name_the_line(tmp_path, lines, match):
+    (tmp_path / 't.tum').write_text('\n'.join(lines) + '\n')
+    with pytest.raises(InputError, match=match):
+        read_tum(tmp_path / 't.tum')
+
+
+def test_trajectory_validation():
+    with pytest.raises(InputError, match=r'quaternions: expected non-zero quaternions, got a '
+                                         r'zero one at index 1'):
+        Trajectory(np.array([0, 1]), np.zeros((2, 3)), np.array([[0, 0, 0, 1], [0, 0, 0, 0]]))
+    with pytest.raises(InputError, match=r'positions: expected shape \(2, 3\), got \(3, 3\)'):
+        Trajectory(np.array([0, 1]), np.zeros((3, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+    with pytest.raises(InputError, match=r'stamps_ns: expected a 1-D integer array, got float64'):
+        Trajectory(np.array([0.5, 1.0]), np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+
+
+def test_associate_nearest_one_to_one():
+    ms = 1_000_000
+    a = np.array([0, 10, 20, 30, 40]) * ms
+    b = np.array([3, 12, 14, 29, 100]) * ms
+    ia, ib = associate(a, b, max_diff=0.005)
+    assert ia.tolist() == [0, 1, 3] and ib.tolist() == [0, 1, 3]
+    # two stamps of a compete for one stamp of b: the closer wins
+    ia, ib = associate(np.array([0, 4]) * ms, np.array([3]) * ms, max_diff=0.01)
+    assert ia.tolist() == [1] and ib.tolist() == [0]
+    assert associate(a, b, max_diff=0.0)[0].size == 0
+
+
+# -- alignment ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('with_scale', [False, True])
+def test_umeyama_recovers_exact_transform(rng, with_scale):
+    src = rng.normal(size=(20, 3))
+    R, t, s = _rotation(rng), rng.normal(size=3), (1.7 if with_scale else 1.0)
+    dst = s * src @ R.T + t
+    R_, t_, s_ = umeyama(src, dst, with_scale=with_scale)
+    np.testing.assert_allclose(R_, R, atol=1e-12)
+    np.testing.assert_allclose(t_, t, atol=1e-12)
+    assert abs(s_ - s) < 1e-12
+
+
+def test_umeyama_never_returns_a_reflection(rng):
+    src = rng.normal(size=(10, 3))
+    R, _, _ = umeyama(src, src * np.array([1.0, 1.0, -1.0]))
+    assert np.isclose(np.linalg.det(R), 1.0)
+    with pytest.raises(InputError, match=r'src: expected points that are not all identical'):
+        umeyama(np.zeros((5, 3)), rng.normal(size=(5, 3)))
+    with pytest.raises(InputError, match=r'arguments must have the same number of items'):
+        umeyama(src, src[:5])
+
+
+# -- metrics on exact synthetic trajectories ----------------------------------------------------
+
+def _assert_all_zero(ev, atol=1e-9):
+    m = ev.metrics()
+    assert m['ate_m']['max'] < atol
+    assert m['rpe_frame']['translation_m']['max'] < atol
+    assert m['rpe_frame']['rotation_deg']['max'] < atol
+    assert m['yaw_change_error_deg']['max'] < atol and m['heading_error_deg']['max'] < atol
+    for seg in m['rpe_distance'].values():
+        assert seg['segments'] > 0 and seg['translation_percent'] < atol
+
+
+def test_identical_trajectories_have_zero_error(rng):
+    gt = _drive(rng)
+    for align in ('se3', 'sim3', 'origin', 'none'):
+        _assert_all_zero(evaluate(gt, gt, align=align))
+
+
+def test_alignment_removes_a_known_rigid_offset_exactly(rng):
+    gt = _drive(rng)
+    R, t = _rotation(rng), np.array([5.0, -3.0, 2.0])
+    est = gt.transformed(R, t)
+    ev = evaluate(gt, est, align='se3')
+    _assert_all_zero(ev)
+    np.testing.assert_allclose(ev.alignment.R, R.T, atol=1e-12)     # the inverse transform
+    _assert_all_zero(evaluate(gt, est, align='origin'))
+    # without alignment a pure translation is the ATE of every pose
+    ev = evaluate(gt, gt.transformed(np.eye(3), t), align='none')
+    np.testing.assert_allclose(ev.ate, np.linalg.norm(t), rtol=1e-12)
+    assert ev.metrics()['rpe_frame']['translation_m']['max'] < 1e-9
+
+
+def test_sim3_recovers_a_known_scale(rng):
+    gt = _drive(rng)
+    est = gt.transformed(_rotation(rng), np.array([1.0, 2.0, 3.0]), scale=0.37)
+    ev = evaluate(gt, est, align='sim3')
+    _assert_all_zero(ev)
+    assert abs(ev.alignment.scale - 1.0 / 0.37) < 1e-10
+    assert evaluate(gt, est, align='se3').metrics()['ate_m']['rmse'] > 1.0
+
+
+@pytest.mark.parametrize('align', ['none', 'se3'])
+def test_known_yaw_drift_and_heading_offset_give_expected_errors(align):
+    """Ground truth drives straight at 1 m/frame; the estimate turns an extra `w` per frame and
+    steps at heading `h` in its own frame: yaw-change error w, heading error h, RPE as derived."""
+    n, w, h = 41, math.radians(0.5), math.radians(2.0)
+    stamps = T0 + np.arange(n, dtype=np.int64) * 100_000_000
+    gt = Trajectory.from_poses(stamps, planar_pose(np.arange(n, dtype=float), 0.0, 0.0))
+    yaw = w * np.arange(n)
+    step = np.array([math.cos(h), math.sin(h)])
+    xy = [np.zeros(2)]
+    for k in range(1, n):
+        c, s = math.cos(yaw[k - 1]), math.sin(yaw[k - 1])
+        xy.append(xy[-1] + np.array([[c, -s], [s, c]]) @ step)
+    xy = np.array(xy)
+    est = Trajectory.from_poses(stamps, planar_pose(xy[:, 0], xy[:, 1], yaw))
+    ev = evaluate(gt, est, align=align, segment_lengths=(5.0, 10.0))
+    np.testing.assert_allclose(ev.yaw_change_error_deg, math.degrees(w), atol=1e-9)
+    np.testing.assert_allclose(ev.heading_error_deg, math.degrees(h), atol=1e-9)
+    np.testing.assert_allclose(ev.rpe_rotation_deg, math.degrees(w), atol=1e-9)
+    np.testing.assert_allclose(ev.rpe_translation, 2 * math.sin(h / 2), atol=1e-9)
+    m = ev.metrics()
+    assert abs(m['yaw_change_error_deg']['bias'] - math.degrees(w)) < 1e-9
+    for length in (5, 10):
+        # independent derivation: the estimate's motion over `length` frames, in its own frame
+        shift = sum(np.array([[math.cos(k * w), -math.sin(k * w)],
+                              [math.sin(k * w), math.cos(k * w)]]) @ step for k in range(length))
+        expected_t = 100.0 * np.linalg.norm(shift - [length, 0.0]) / length
+        seg = m['rpe_distance'][f'{length}m']
+        assert seg['segments'] == n - length
+        assert abs(seg['translation_percent'] - expected_t) < 1e-9
+        assert abs(seg['rotation_deg_per_m'] - math.degrees(w)) < 1e-9
+
+
+def test_heading_undefined_when_standing_still(rng):
+    stamps = T0 + np.arange(4, dtype=np.int64) * 100_000_000
+    gt = Trajectory.from_poses(stamps, planar_pose(np.array([0.0, 1.0, 1.0, 2.0]), 0.0, 0.0))
+    ev = evaluate(gt, gt, align='none')
+    assert np.isnan(ev.heading_error_deg).tolist() == [False, True, False]
+    assert ev.metrics()['heading_error_deg']['count'] == 2
+
+
+def test_evaluate_needs_matching_stamps(rng):
+    gt = _drive(rng, 5)
+    late = Trajectory(gt.stamps_ns + 10**9, gt.positions, gt.quaternions)
+    with pytest.raises(InputError, match=r'association: expected at least 2 poses matched within '
+                                         r'0\.02 s, got 0 \(estimate 5 poses 1700000001\.123\.\.'):
+        evaluate(gt, late)
+    with pytest.raises(InputError, match=r"align: expected one of \['se3', 'sim3', 'origin', "
+                                         r"'none'\], got 'affine'"):
+        evaluate(gt, gt, align='affine')
+
+
+# -- evo cross-checks (evo is GPL: run as a tool, never imported) -------------------------------
+
+@pytest.fixture(scope='session')
+def evo_env(tmp_path_factory) -> dict[str, str]:
+    if not (EVO_BIN / 'evo_ape').exists():
+        pytest.fail('evo is a pinned test dependency (Makefile PINS); run `make venv`')
+    home = tmp_path_factory.mktemp('evo_home')           # evo writes ~/.evo/settings.json
+    return {**os.environ, 'HOME': str(home), 'MPLBACKEND': 'Agg'}
+
+
+def _evo(env, tool: str, *args: str, cwd: Path) -> str:
+    proc = subprocess.run([str(EVO_BIN / tool), *args], capture_output=True, text=True,
+                          timeout=120, env=env, cwd=cwd)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return proc.stdout
+
+
+def _evo_ape_stats(env, tmp_path: Path, *args: str) -> dict:
+    out = tmp_path / f'evo_{len(list(tmp_path.glob("evo_*.zip")))}.zip'
+    _evo(env, 'evo_ape', *args, '--save_results', str(out), '--no_warnings', cwd=tmp_path)
+    with zipfile.ZipFile(out) as z:
+        return json.loads(z.read('stats.json'))
+
+
+def _noisy_estimate(rng, gt: Trajectory, scale: float) -> Trajectory:
+    est = gt.transformed(_rotation(rng), np.array([3.0, -1.0, 0.5]), scale=scale)
+    return Trajectory(est.stamps_ns, est.positions + rng.normal(0, 0.2, est.positions.shape),
+                      est.quaternions)
+
+
+@pytest.mark.parametrize('align, flags', [('se3', ['-a']), ('sim3', ['-as'])])
+def test_ate_equals_evo_ape(tmp_path, rng, evo_env, align, flags):
+    gt = _drive(rng)
+    est = _noisy_estimate(rng, gt, scale=1.3)
+    write_tum(tmp_path / 'gt.tum', gt)
+    write_tum(tmp_path / 'est.tum', est)
+    evo = _evo_ape_stats(evo_env, tmp_path, 'tum', 'gt.tum', 'est.tum', *flags)
+    ours = evaluate(read_tum(tmp_path / 'gt.tum'), read_tum(tmp_path / 'est.tum'),
+                    align=align).metrics()['ate_m']
+    assert ours['rmse'] > 0.1                                  # a real error, not a trivial 0
+    for key in ('rmse', 'mean', 'median', 'std', 'min', 'max'):
+        assert abs(ours[key] - evo[key]) < 1e-6, key
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_evo_reads_our_bags_and_agrees_on_ate(tmp_path, rng, evo_env, storage):
+    gt = _drive(rng, 40)
+    est = _noisy_estimate(rng, gt, scale=1.0)
+    bag = tmp_path / 'vo'
+    with OdometryBagWriter(bag, storage=storage) as writer:
+        writer.add_topic('/ground_truth/odom', 'nav_msgs/msg/Odometry')
+        for stamp, T_est, T_gt in zip(gt.stamps_ns, est.poses, gt.poses):
+            writer.write(int(stamp), T_est)
+            writer.write_odometry('/ground_truth/odom', int(stamp), T_gt)
+    out = _evo(evo_env, 'evo_traj', 'bag2', str(bag), '--all_topics', cwd=tmp_path)
+    assert out.count('40 poses') == 2 and 'name:\t/odom' in out
+    evo = _evo_ape_stats(evo_env, tmp_path, 'bag2', str(bag), '/ground_truth/odom', '/odom',
+                         '-a')
+    ours = evaluate(read_bag_trajectory(bag, '/ground_truth/odom'),
+                    read_bag_trajectory(bag, '/odom')).metrics()['ate_m']
+    for key in ('rmse', 'mean', 'median', 'max'):
+        assert abs(ours[key] - evo[key]) < 1e-6, key
+
+
+# -- bags and the CLI ---------------------------------------------------------------------------
+
+def _bag_with(tmp_path, rng, topics=('/odom', '/ground_truth/odom')):
+    gt = _drive(rng, 30)
+    est = gt.transformed(np.eye(3), np.array([0.5, 0.0, 0.0]))
+    path = tmp_path / 'both'
+    with OdometryBagWriter(path, topic=topics[0]) as writer:
+        for name in topics[1:]:
+            writer.add_topic(name, 'nav_msgs/msg/Odometry')
+        for stamp, T_est, T_gt in zip(gt.stamps_ns, est.poses, gt.poses):
+            writer.write(int(stamp), T_est)
+            for name in topics[1:]:
+                writer.write_odometry(name, int(stamp), T_gt)
+    return path, gt, est
+
+
+def test_read_bag_trajectory_exact_and_errors(tmp_path, rng):
+    path, gt, est = _bag_with(tmp_path, rng)
+    got = read_bag_trajectory(path, '/ground_truth/odom')
+    np.testing.assert_array_equal(got.stamps_ns, gt.stamps_ns)
+    np.testing.assert_allclose(got.poses, gt.poses, atol=1e-14)
+    with pytest.raises(BagError, match=r"gt-topic: '/gt' is not a topic of '.*both'; available "
+                                       r'topics: /ground_truth/odom \(nav_msgs/msg/Odometry\), '
+                                       r'/odom \(nav_msgs/msg/Odometry\)'):
+        read_bag_trajectory(path, '/gt', role='gt-topic')
+
+
+def test_cli_eval_tum_files_writes_metrics_and_plots(tmp_path, rng, capsys):
+    gt = _drive(rng)
+    est = _noisy_estimate(rng, gt, scale=1.0)
+    write_tum(tmp_path / 'gt.tum', gt)
+    write_tum(tmp_path / 'est.tum', est)
+    out = tmp_path / 'eval'
+    assert main(['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'gt.tum'),
+                 '--out-dir', str(out), '--segments', '5', '10']) == 0
+    printed = capsys.readouterr().out
+    assert 'ATE (m) rmse' in printed and 'RPE 5m segments' in printed
+    metrics = json.loads((out / 'metrics.json').read_text())
+    expected = evaluate(gt, est, segment_lengths=(5.0, 10.0)).metrics()
+    assert metrics['ate_m'] == pytest.approx(expected['ate_m'])
+    assert set(metrics['rpe_distance']) == {'5m', '10m', 'all'}
+    assert metrics['poses']['matched'] == 60
+    for name in ('trajectory.png', 'ate.png', 'yaw_heading.png'):
+        img = cv2.imread(str(out / name))
+        assert img is not None and img.shape[0] > 300 and img.std() > 5, name
+
+
+def test_cli_eval_bag_with_both_topics(tmp_path, rng, capsys):
+    path, gt, est = _bag_with(tmp_path, rng)
+    assert main(['eval', str(path), '--align', 'none']) == 0
+    printed = capsys.readouterr().out
+    assert f'reference: {path} (/ground_truth/odom)' in printed
+    row = next(line for line in printed.splitlines() if line.startswith('| ATE (m)'))
+    assert row.split('|')[2].split('/')[0].strip() == '0.500000'      # the known offset
+
+
+def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
+    gt = _drive(rng, 5)
+    write_tum(tmp_path / 'est.tum', gt)
+    (tmp_path / 'bad.tum').write_text('1.0 0 0 0 0 0 0 1\n2.0 0 0\n')
+    cases = [
+        (['eval', str(tmp_path / 'est.tum')],
+         'gt: expected --gt GT when EST is a TUM file, got none'),
+        (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'bad.tum')],
+         "bad.tum line 2: expected 8 values 'timestamp tx ty tz qx qy qz qw', got 3"),
+        (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'missing.tum')],
+         'missing.tum\' does not exist'),
+        (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'), '--segments',
+          '0'], 'segments: expected positive lengths in metres, got [0.0]'),
+    ]
+    path, _, _ = _bag_with(tmp_path, rng, topics=('/odom',))
+    cases.append((['eval', str(path)], "gt-topic: '/ground_truth/odom' is not a topic of"))
+    for argv, expected in cases:
+        assert main(argv) == 1
+        err = capsys.readouterr().err.strip()
+        assert err.startswith('planar_vo eval: error: ') and '\n' not in err, err
+        assert expected in err, err

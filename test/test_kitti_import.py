@@ -1,0 +1,180 @@
+"""KITTI odometry folder -> bag: images, intrinsics, exact stamps and REP-103 ground truth
+(forward driving is +x, a left turn is +yaw), on a tiny synthetic sequence folder."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from planar_vo.bag import import_kitti, iter_camera_frames, iter_messages, open_bag
+from planar_vo.camera import CameraModel
+from planar_vo.cli import main
+from planar_vo.errors import BagError, InputError
+from planar_vo.geometry.frames import yaw_of
+from planar_vo.messages import pose_from_message
+
+P0 = np.array([[50.0, 0.0, 19.5, 0.0], [0.0, 50.0, 14.5, 0.0], [0.0, 0.0, 1.0, 0.0]])
+TURN = math.radians(10.0)
+START_NS = 1_700_000_000 * 10**9
+
+
+def _ry(a: float) -> np.ndarray:
+    """The paper's Ry (camera frame, y down)."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def _camera_poses() -> np.ndarray:
+    """T_w_cam in KITTI's camera-0 frame: two metres straight ahead along z, then a left turn
+    (the camera yaws towards -x, i.e. Ry(-TURN)) while moving 0.9 m forward and 0.1 m left."""
+    poses = np.tile(np.eye(4), (4, 1, 1))
+    poses[1, :3, 3] = [0.0, 0.0, 1.0]
+    poses[2, :3, 3] = [0.0, 0.0, 2.0]
+    poses[3, :3, :3] = _ry(-TURN)
+    poses[3, :3, 3] = [-0.1, 0.0, 2.9]
+    return poses
+
+
+def _write_sequence(folder, rng, *, label=True, times=('0.0', '0.1', '0.2', '3.000000e-01'),
+                    poses=True, image_dir='image_0', n=4):
+    (folder / image_dir).mkdir(parents=True)
+    images = []
+    for i in range(n):
+        img = rng.integers(0, 256, (30, 40), dtype=np.uint8)
+        cv2.imwrite(str(folder / image_dir / f'{i:06d}.png'), img)
+        images.append(img)
+    p0 = ' '.join(f'{v:e}' for v in P0.ravel())
+    (folder / 'calib.txt').write_text(f"{'P0: ' if label else ''}{p0}\n"
+                                      f"{'P1: ' if label else ''}{p0}\n")
+    if times is not None:
+        (folder / 'times.txt').write_text('\n'.join(times) + '\n')
+    if poses:
+        rows = [' '.join(f'{v:.9e}' for v in T[:3].ravel()) for T in _camera_poses()[:n]]
+        (folder / 'poses.txt').write_text('\n'.join(rows) + '\n')
+    return images
+
+
+@pytest.mark.parametrize('storage, label, image_dir', [
+    ('mcap', True, 'image_0'), ('sqlite3', False, 'image_l')])
+def test_import_writes_images_intrinsics_stamps_and_rep103_ground_truth(
+        tmp_path, rng, storage, label, image_dir):
+    images = _write_sequence(tmp_path / 'seq', rng, label=label, image_dir=image_dir)
+    summary = import_kitti(tmp_path / 'seq', tmp_path / 'bag', storage=storage,
+                           camera_height=1.65)
+    assert summary.frames == 4 and summary.ground_truth
+    stamps = [START_NS + k * 100_000_000 for k in range(4)]
+    with open_bag(tmp_path / 'bag') as bag:
+        assert bag.topics == {'/camera/camera_info': 'sensor_msgs/msg/CameraInfo',
+                              '/camera/image_raw': 'sensor_msgs/msg/Image',
+                              '/ground_truth/odom': 'nav_msgs/msg/Odometry'}
+        frames = list(iter_camera_frames(bag))
+        infos = list(iter_messages(bag, '/camera/camera_info'))
+        gt = list(iter_messages(bag, '/ground_truth/odom'))
+    assert [f.stamp_ns for f in frames] == stamps == [g.stamp_ns for g in gt]
+    for frame, img in zip(frames, images):
+        np.testing.assert_array_equal(frame.image, img)
+        assert frame.camera == CameraModel(40, 30, P0[:, :3])
+    info = infos[0].msg
+    np.testing.assert_array_equal(info.p, P0.ravel())
+    assert (info.width, info.height) == (40, 30) and not np.any(info.d)
+
+    poses = np.array([pose_from_message(g.msg) for g in gt])
+    np.testing.assert_allclose(poses[0], np.eye(4), atol=1e-12)
+    # forward driving is +x in odom, height stays 0
+    np.testing.assert_allclose(poses[1][:3, 3], [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(poses[2][:3, 3], [2.0, 0.0, 0.0], atol=1e-12)
+    # the left turn is positive yaw, the leftward step positive y
+    np.testing.assert_allclose(poses[3][:3, 3], [2.9, 0.1, 0.0], atol=1e-9)
+    np.testing.assert_allclose(yaw_of(poses[:, :3, :3]), [0, 0, 0, TURN], atol=1e-9)
+    assert gt[3].msg.header.frame_id == 'odom' and gt[3].msg.child_frame_id == 'base_link'
+    # twist: finite differences over 0.1 s in base_link
+    assert math.isclose(gt[1].msg.twist.twist.linear.x, 10.0, rel_tol=1e-9)
+    assert math.isclose(gt[0].msg.twist.twist.linear.x, 10.0, rel_tol=1e-9)
+    assert math.isclose(gt[3].msg.twist.twist.angular.z, TURN / 0.1, rel_tol=1e-9)
+    v3 = gt[3].msg.twist.twist.linear
+    assert math.isclose(math.hypot(v3.x, v3.y), math.hypot(0.9, 0.1) / 0.1, rel_tol=1e-9)
+
+
+def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
+    _write_sequence(tmp_path / 'seq', rng, times=('0', '1.036624e-01', '0.207793512', '0.31'),
+                    poses=False)
+    summary = import_kitti(tmp_path / 'seq', tmp_path / 'bag', start='12.000000001')
+    assert not summary.ground_truth
+    with open_bag(tmp_path / 'bag') as bag:
+        assert '/ground_truth/odom' not in bag.topics
+        stamps = [f.stamp_ns for f in iter_camera_frames(bag)]
+    assert stamps == [12_000_000_001, 12_103_662_401, 12_207_793_513, 12_310_000_001]
+    _write_sequence(tmp_path / 'seq2', rng, times=None, poses=False)
+    import_kitti(tmp_path / 'seq2', tmp_path / 'bag2', rate_hz=4.0, start=0)
+    with open_bag(tmp_path / 'bag2') as bag:
+        assert [f.stamp_ns for f in iter_camera_frames(bag)] == [0, 250_000_000, 500_000_000,
+                                                                  750_000_000]
+
+
+@pytest.mark.parametrize('damage, match', [
+    (lambda d: (d / 'calib.txt').unlink(), r"sequence: '.*seq' has no calib\.txt"),
+    (lambda d: (d / 'calib.txt').write_text('P0: 1 2 3\n'),
+     r"calib\.txt line 1: expected P0 as 12 numbers, got '1 2 3'"),
+    (lambda d: (d / 'calib.txt').write_text('P1: ' + ' 1' * 12 + '\n'),
+     r"calib\.txt line 1: expected P0 first, got 'P1:'"),
+    (lambda d: (d / 'calib.txt').write_text(' 0' * 12 + '\n'),
+     r'calib\.txt: P0 does not hold valid intrinsics'),
+    (lambda d: (d / 'times.txt').write_text('0\n0.1\nabc\n0.3\n'),
+     r"times\.txt line 3: expected seconds, got 'abc'"),
+    (lambda d: (d / 'times.txt').write_text('0\n0.1\n0.1\n0.3\n'),
+     r'times\.txt line 3: expected increasing times, got 0\.1 after 0\.1'),
+    (lambda d: (d / 'times.txt').write_text('0\n0.1\n'),
+     r'times\.txt: expected one time per image \(4\), got 2'),
+    (lambda d: (d / 'times.txt').unlink(), r"has no times\.txt \(give a frame rate instead\)"),
+    (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n1 2 3\n'),
+     r"poses\.txt line 2: expected a 3x4 pose as 12 numbers, got '1 2 3'"),
+    (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n'),
+     r'poses\.txt: expected one pose per image \(4\), got 1'),
+    (lambda d: cv2.imwrite(str(d / 'image_0' / '000002.png'), np.zeros((31, 40), np.uint8)),
+     r"images: expected every image 40x30, got 40x31 for '000002\.png'"),
+    (lambda d: (d / 'image_0' / '000001.png').write_bytes(b'not a png'),
+     r"images: cannot read '.*000001\.png' as an image"),
+    (lambda d: [p.unlink() for p in (d / 'image_0').iterdir()],
+     r"sequence: '.*image_0' contains no \.png images"),
+    (lambda d: (d / 'image_0').rename(d / 'pictures'),
+     r"sequence: '.*seq' has no image_0/ or image_l/ folder"),
+])
+def test_malformed_sequence_errors(tmp_path, rng, damage, match):
+    _write_sequence(tmp_path / 'seq', rng)
+    damage(tmp_path / 'seq')
+    with pytest.raises(InputError, match=match):
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag')
+
+
+def test_argument_errors_and_existing_output(tmp_path, rng):
+    _write_sequence(tmp_path / 'seq', rng)
+    with pytest.raises(InputError, match=r'camera_height: expected a positive height in metres, '
+                                         r'got -1'):
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag', camera_height=-1.0)
+    with pytest.raises(InputError, match=r'rate_hz: expected a positive frame rate, got 0'):
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag', rate_hz=0.0)
+    with pytest.raises(InputError, match=r"start: expected a number of seconds, got 'soon'"):
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag', start='soon')
+    with pytest.raises(InputError, match=r"sequence: '.*nowhere' is not a directory"):
+        import_kitti(tmp_path / 'nowhere', tmp_path / 'bag')
+    (tmp_path / 'bag').mkdir()
+    with pytest.raises(BagError, match=r'already exists; refusing to overwrite'):
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag')
+    assert list((tmp_path / 'bag').iterdir()) == []
+
+
+def test_cli_import_kitti(tmp_path, rng, capsys):
+    _write_sequence(tmp_path / 'seq', rng)
+    out = tmp_path / 'out'
+    assert main(['import-kitti', str(tmp_path / 'seq'), '--out', str(out), '--storage',
+                 'sqlite3', '--no-progress']) == 0
+    printed = capsys.readouterr().out
+    assert 'wrote 4 frames (40x30, fx 50.00, 0.30 s)' in printed and '/ground_truth/odom' in printed
+    assert main(['import-kitti', str(tmp_path / 'seq'), '--out', str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith('planar_vo import-kitti: error: out: ') and '\n' not in err
+    assert err.endswith('already exists; refusing to overwrite it (remove it or choose another '
+                        'path)')
