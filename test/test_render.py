@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from planar_vo.camera import CameraModel
+from planar_vo.config import MountConfig
 from planar_vo.errors import InputError
 from planar_vo.geometry import ac_residuals, camera_displacement, solve_1ac, wrap_angle
 from planar_vo.geometry.frames import invert, mount_transform, yaw_of
@@ -103,19 +104,49 @@ def test_surfaces_are_textured_and_sky_is_plain(world, poses, camera):
     assert np.all(np.isinf(frame.depth[frame.kind == -1]))
 
 
-def test_textures_do_not_repeat_along_the_street(world, poses):
-    # Ground patches 10.24 m apart (the detail tile's period) must differ: the coarse layer
-    # and per-plane rotations break the repetition.
+def test_rendering_is_anti_aliased_at_every_distance(world, poses):
+    # The image must equal a 2x supersampled render averaged down (a band-limited reference),
+    # near and far: an aliased far ground or facade would differ by about the texture's
+    # standard deviation there.
+    low = CameraModel.pinhole(640, 480, 500.0, cx=319.5, cy=239.5)
+    high = CameraModel.pinhole(1280, 960, 1000.0, cx=639.5, cy=479.5)   # same pixel centres
+    frame = render(world, low, poses[0], psf_sigma=0.0)
+    reference = cv2.resize(render(world, high, poses[0], psf_sigma=0.0).image.astype(np.float32),
+                           (640, 480), interpolation=cv2.INTER_AREA)
+    diff = np.abs(reference - frame.image)
+    plane = frame.plane.astype(np.float32)
+    interior = cv2.dilate(plane, np.ones((5, 5))) == cv2.erode(plane, np.ones((5, 5)))
+    checked = 0
+    for near, far in ((0, 10), (10, 20), (20, 40), (40, 80)):
+        for kind in (GROUND_KIND, FACADE_KIND):
+            sel = interior & (frame.kind == kind) & (frame.depth >= near) & (frame.depth < far)
+            if sel.sum() < 500:
+                continue
+            checked += 1
+            assert np.std(frame.image[sel]) > 10.0, (near, kind)
+            assert np.median(diff[sel]) < 3.0, (near, kind)
+    assert checked >= 5
+
+
+def test_ground_texture_does_not_repeat_with_the_detail_tile(world, poses):
+    # Shift the camera by one period of the ground's detail tile (a lattice vector of its
+    # texel coordinates): that layer looks identical, but the coarse and macro layers, rotated
+    # and incommensurate, must make the image differ. A small shift is the control.
+    from planar_vo.render.textures import TILE
     cam = CAMERAS['pinhole']
-    p = np.array([[320.0, 400.0]])
-    X, plane = backproject(world, cam, poses[0], p)
-    assert plane[0] == 0 and abs(X[0, 2]) < 1e-9
-    a = render(world, cam, poses[0]).image[380:420, 300:340].astype(float)
-    # Move the camera 10.24 m forward along the street: same view geometry of the ground.
-    T = poses[0].copy()
-    T[:3, 3] += T[:3, :3] @ [0.0, 0.0, 10.24]
-    b = render(world, cam, T).image[380:420, 300:340].astype(float)
-    assert np.mean(np.abs(a - b)) > 10.0
+    M = world.texture_map[0, :, :2]                          # ground: (a, b) = odom (x, y) + c
+    rows, cols = slice(300, 470), slice(100, 540)            # near ground ahead
+    base = render(world, cam, poses[0], psf_sigma=0.0).image[rows, cols].astype(float)
+
+    def shifted(dxy):
+        T = poses[0].copy()
+        T[:2, 3] += dxy
+        return render(world, cam, T, psf_sigma=0.0).image[rows, cols].astype(float)
+
+    period = np.linalg.solve(M, [TILE, 0.0])
+    assert 8.0 < np.linalg.norm(period) < 13.0
+    assert np.mean(np.abs(shifted(period) - base)) > 8.0
+    assert np.mean(np.abs(shifted(period * 1e-5) - base)) < 1.0
 
 
 # -- exact ground truth ----------------------------------------------------------------------
@@ -354,10 +385,23 @@ def test_concatenate_chains_segments_without_duplicates():
     (lambda: Trajectory(np.zeros(2), np.broadcast_to(np.eye(4), (2, 4, 4))),
      r'stamps: expected strictly increasing times'),
     (lambda: StreetWorld.along(np.zeros((3, 3))), r'path: expected shape \(N, 2\), got \(3, 3\)'),
+    (lambda: StreetWorld.along(straight(), setback=(9.0, 7.0)),
+     r'setback: expected a range 0 <= low <= high \(m\), got \(9.0, 7.0\)'),
+    (lambda: StreetWorld.along(straight(), parked_car_probability=2),
+     r'parked_car_probability: expected a probability in \[0, 1\], got 2'),
+    (lambda: render(None, CAMERAS['pinhole'], np.eye(4)),
+     r'world: expected a StreetWorld, got NoneType'),
 ])
-def test_trajectory_and_world_errors(call, match):
+def test_bad_input_raises_typed_errors(call, match):
     with pytest.raises(InputError, match=match):
         call()
+
+
+def test_open_ground_world_has_only_ground_and_cars(drive, poses):
+    world = StreetWorld.along(drive, seed=2, buildings=False, parked_car_probability=0.0)
+    assert len(world) == 1 and world.kind[0] == GROUND_KIND
+    frame = render(world, CAMERAS['pinhole'], poses[0])
+    assert set(np.unique(frame.kind)) == {-1, GROUND_KIND}
 
 
 # -- mounts ----------------------------------------------------------------------------------
@@ -367,6 +411,8 @@ def test_pitched_rolled_mount_renders_and_poses_reflect_it(world, drive):
     T_bc = mount_transform(x=1.2, y=-0.3, height=1.6, roll=roll, pitch=pitch)
     cams = drive.camera_poses(T_bc)
     np.testing.assert_allclose(cams, drive.poses @ T_bc)
+    config = MountConfig(x=1.2, y=-0.3, height=1.6, roll=roll, pitch=pitch)
+    np.testing.assert_allclose(drive.camera_poses(config), cams)
     optical = cams[:, :3, 2]                                 # optical axis in odom
     np.testing.assert_allclose(optical[:, 2], -np.sin(pitch), atol=1e-12)
     np.testing.assert_allclose(cams[:, 2, 3], 1.6)

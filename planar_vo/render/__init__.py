@@ -1,13 +1,23 @@
 """A seeded, textured street world rendered through a `CameraModel`, with exact ground truth.
 
-Used by front-end, pipeline and node tests and by the demo drive:
+For front-end, pipeline and node tests and the demo drive (numpy and OpenCV only)::
 
-    traj = straight(40.0).then(turn(np.pi / 2, radius=20.0), stop_and_go())
-    world = StreetWorld.along(traj, seed=1)
-    poses = traj.camera_poses(mount_transform(height=1.5))
-    frame = render(world, camera, poses[0])                  # frame.image, .plane, .depth
-    acs, valid = exact_acs(world, poses[0], poses[1], camera, pixels)
-    alpha, beta, scale = relative_planar_motion(poses[0], poses[1])
+    drive = straight(40.0).then(turn(np.pi / 2, radius=20.0), stop_and_go())
+    world = StreetWorld.along(drive, seed=1)          # street built around the drive
+    poses = drive.camera_poses(mount_transform(height=1.5))    # T_odom_camera per frame
+    frame = render(world, camera, poses[k])           # .image uint8, .plane, .kind, .depth
+    acs, valid = exact_acs(world, poses[k], poses[k + 1], camera, pixels)
+    alpha, beta, scale = relative_planar_motion(poses[k], poses[k + 1])
+
+- Trajectories (`trajectory`): ``T_odom_base`` (REP-103) at ``stamps``; positive yaw turns left.
+- World (`world`): ground ``z = 0``, building boxes along both sides, parked cars; procedural,
+  non-repeating two-layer textures (`textures`).
+- Rendering (`renderer`): per-pixel rays through the camera model (distortion exact),
+  anisotropic trilinear mip-mapping (no aliasing on the far ground), optional lens blur.
+- Ground truth (`ground_truth`): ``p2`` and ``A = dp2/dp1`` exactly (plane homography chained
+  with the distortion Jacobians), with visibility; the true motion in planar_vo's convention.
+  Note: under planar motion, ACs on vertical planes (facades) make the 1AC system rank 2; only
+  non-vertical surfaces (the ground) determine ``(alpha, beta)`` from a single AC.
 """
 
 from __future__ import annotations

@@ -48,19 +48,33 @@ def cast_rays(world: StreetWorld, T_odom_camera: np.ndarray, q: np.ndarray
     q = as_array('q', q, (None, 2), min_items=0, finite=False)
     vis = _visible(world, T)
     n = len(q)
-    good = np.isfinite(q).all(1)
-    r = np.column_stack([np.where(good[:, None], q, 0.0), np.ones(n)])
     best = np.zeros(n)                                   # inverse depth of the nearest hit
     plane = np.full(n, -1)
-    inside = ((q[:, None, 0] >= vis.qlo[None, :, 0]) & (q[:, None, 0] <= vis.qhi[None, :, 0])
-              & (q[:, None, 1] >= vis.qlo[None, :, 1]) & (q[:, None, 1] <= vis.qhi[None, :, 1]))
-    for k in np.flatnonzero(inside.any(axis=0)):
-        sel = np.flatnonzero(inside[:, k] & good)
-        aw, bw, iw = (r[sel] @ vis.g[k].T).T
-        m = ((iw > best[sel]) & (iw <= 1.0 / NEAR) & (aw >= 0) & (bw >= 0)
-             & (aw <= iw * vis.size[k, 0]) & (bw <= iw * vis.size[k, 1]))
-        best[sel[m]] = iw[m]
-        plane[sel[m]] = vis.index[k]
+    good = np.flatnonzero(np.isfinite(q).all(1))
+    if good.size:
+        # Bin the points on a grid over q so that each plane tests only the points in the bins
+        # its projection's bounding box overlaps (sorted by bin: one slice per grid row).
+        bins = int(np.clip(np.sqrt(good.size / 32.0), 1, 64))
+        lo, hi = q[good].min(axis=0), q[good].max(axis=0)
+        width = np.maximum(hi - lo, 1e-12) / bins
+        cell = np.clip(((q[good] - lo) / width).astype(np.int64), 0, bins - 1)
+        key = cell[:, 1] * bins + cell[:, 0]
+        order = np.argsort(key, kind='stable')
+        points = good[order]
+        edges = np.searchsorted(key[order], np.arange(bins * bins + 1))
+        first = np.clip(np.floor((vis.qlo - lo) / width), 0, bins - 1).astype(np.int64)
+        last = np.clip(np.floor((vis.qhi - lo) / width), 0, bins - 1).astype(np.int64)
+        overlap = np.all((vis.qhi >= lo) & (vis.qlo <= hi), axis=1)
+        r = np.column_stack([q, np.ones(n)])
+        for k in np.flatnonzero(overlap):
+            (x0, y0), (x1, y1) = first[k], last[k]
+            sel = np.concatenate([points[edges[y * bins + x0]:edges[y * bins + x1 + 1]]
+                                  for y in range(y0, y1 + 1)])
+            aw, bw, iw = vis.g[k] @ r[sel].T
+            m = ((iw > best[sel]) & (iw <= 1.0 / NEAR) & (aw >= 0) & (bw >= 0)
+                 & (aw <= iw * vis.size[k, 0]) & (bw <= iw * vis.size[k, 1]))
+            best[sel[m]] = iw[m]
+            plane[sel[m]] = vis.index[k]
     with np.errstate(divide='ignore'):
         depth = np.where(plane >= 0, 1.0 / best, np.inf)
     return plane, depth
@@ -127,22 +141,34 @@ def exact_acs(world: StreetWorld, T_odom_camera1: np.ndarray, T_odom_camera2: np
         valid &= np.linalg.norm(np.nan_to_num(back - q2, nan=np.inf), axis=1) < 1e-9
     plane2, depth2 = cast_rays(world, T2, np.where(valid[:, None], q2, np.nan))
     valid &= np.abs(depth2 - z2) <= _OCCLUSION_RTOL * z2
-    # Plane-induced homography in normalised coordinates, per point: H = R + t n^T / d with the
-    # plane n . X1 = d of each point in camera-1 coordinates.
+    # Plane-induced homography in normalised coordinates, per point: H = R + t m^T with
+    # m = n / d for the plane n . X1 = d of each point in camera-1 coordinates; its Jacobian
+    # at q1 is (H[:2, :2] - q2 H[2, :2]) / (H [q1; 1])_z. Written out per element: stacks of
+    # tiny matrices are slow in numpy.
     idx = np.maximum(plane, 0)
     normal = world.normal[idx]
-    nrm = normal @ T1[:3, :3]                            # odom normal -> camera 1
     d = np.einsum('ij,ij->i', normal, world.origin[idx] - T1[:3, 3])
-    d = np.where(valid, d, 1.0)
-    H = R[None] + t[None, :, None] * (nrm / d[:, None])[:, None, :]
-    h = np.einsum('nij,nj->ni', H, r1)
-    JH = (H[:, :2, :2] - q2[:, :, None] * H[:, 2:3, :2]) / h[:, 2, None, None]
-    A = Jp2 @ JH @ Jq1
+    m = (normal @ T1[:3, :3]) / np.where(valid, d, 1.0)[:, None]        # odom -> camera 1
+    hz = r1 @ R[2] + t[2] * np.einsum('ij,ij->i', m, r1)
+    JH = np.empty((n, 2, 2))
+    for i in range(2):
+        for j in range(2):
+            JH[:, i, j] = (R[i, j] + t[i] * m[:, j] - q2[:, i] * (R[2, j] + t[2] * m[:, j])) / hz
+    A = _matmul2(_matmul2(Jp2, JH), Jq1)
     eye = np.broadcast_to(np.eye(2), (n, 2, 2))
     ok = valid[:, None]
     acs = AffineCorrespondences(p1, np.where(ok, p2, p1), np.where(ok[..., None], A, eye),
                                 valid.astype(np.float64))
     return acs, valid
+
+
+def _matmul2(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Products of stacks of 2x2 matrices ``(N, 2, 2)``, element-wise (fast for large N)."""
+    Z = np.empty(np.broadcast_shapes(X.shape, Y.shape))
+    for i in range(2):
+        for j in range(2):
+            Z[..., i, j] = X[..., i, 0] * Y[..., 0, j] + X[..., i, 1] * Y[..., 1, j]
+    return Z
 
 
 def relative_planar_motion(T_odom_camera1: np.ndarray, T_odom_camera2: np.ndarray

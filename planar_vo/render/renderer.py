@@ -33,6 +33,8 @@ from planar_vo.geometry.frames import invert
 from planar_vo.render.textures import (
     COARSE_FROM_DETAIL,
     LAYER_WEIGHT,
+    MACRO_AMPLITUDE,
+    MACRO_WAVES,
     PAD,
     TextureBank,
     texture_bank,
@@ -45,8 +47,10 @@ logger = logging.getLogger(__name__)
 
 NEAR = 0.05                  # near clipping distance (m) along the optical axis
 _TILE_PX = 16                # screen tiles used to bound each plane's pixels
+_BATCH_TILES = 6             # planes covering at most this many tiles are z-buffered in a batch
 _TAPS = 2                    # anisotropic taps along the footprint's major axis
-_SKY = (200.0, 35.0)         # sky grey level at the horizon and its increase towards the zenith
+_TAP_OFFSETS = tuple((k + 0.5) / _TAPS - 0.5 for k in range(_TAPS))   # in footprint lengths
+_SKY = (195.0, 25.0)         # sky grey level at the horizon and its increase towards the zenith
 _CHUNK_PIXELS = 8192         # pixels shaded per block (keeps the temporaries in cache)
 
 
@@ -76,6 +80,7 @@ class RenderedFrame:
 
     @functools.cached_property
     def depth(self) -> np.ndarray:
+        """Depth along the optical axis (m), float64 ``(H, W)``; inf where no plane is seen."""
         rays = _rays(self.camera)
         g = self._inverse_depth[self.plane]
         with np.errstate(divide='ignore'):
@@ -94,6 +99,9 @@ class _Rays:
     jq: tuple                  # dq/dp: four scalars (pinhole) or four (H, W) arrays
     tile_lo: np.ndarray        # (2, ny, nx) min qx, qy over each tile
     tile_hi: np.ndarray        # (2, ny, nx) max
+    tile_qx: np.ndarray        # (ny * nx, TILE_PX^2) float32 qx of each tile's pixels (NaN: none)
+    tile_qy: np.ndarray
+    tile_pix: np.ndarray       # (ny * nx, TILE_PX^2) flat pixel index of each tile's pixels
 
 
 @functools.lru_cache(maxsize=8)
@@ -112,17 +120,24 @@ def _rays(camera: CameraModel) -> _Rays:
     else:
         jq = tuple(float(x) for x in Jq[0].ravel())
     ny, nx = -(-H // _TILE_PX), -(-W // _TILE_PX)
-    lo = np.empty((2, ny, nx))
-    hi = np.empty((2, ny, nx))
-    for i, c in enumerate((qx, qy)):
-        padded = np.full((ny * _TILE_PX, nx * _TILE_PX), np.nan)
-        padded[:H, :W] = np.where(valid, c, np.nan)
-        blocks = padded.reshape(ny, _TILE_PX, nx, _TILE_PX)
-        with warnings.catch_warnings():                 # all-NaN tiles: no valid pixel
-            warnings.simplefilter('ignore', RuntimeWarning)
-            lo[i] = np.nan_to_num(np.nanmin(blocks, axis=(1, 3)), nan=np.inf)
-            hi[i] = np.nan_to_num(np.nanmax(blocks, axis=(1, 3)), nan=-np.inf)
-    return _Rays(qx, qy, qx.astype(np.float32), qy.astype(np.float32), valid, jq, lo, hi)
+
+    def by_tile(values: np.ndarray, fill) -> np.ndarray:
+        """``(H, W)`` -> ``(tiles, TILE_PX^2)``, padding partial tiles with ``fill``."""
+        padded = np.full((ny * _TILE_PX, nx * _TILE_PX), fill, dtype=values.dtype)
+        padded[:H, :W] = values
+        return np.ascontiguousarray(padded.reshape(ny, _TILE_PX, nx, _TILE_PX).swapaxes(1, 2)
+                                    .reshape(ny * nx, _TILE_PX * _TILE_PX))
+
+    qx32, qy32 = qx.astype(np.float32), qy.astype(np.float32)
+    tile_qx = by_tile(np.where(valid, qx32, np.nan), np.nan)
+    tile_qy = by_tile(np.where(valid, qy32, np.nan), np.nan)
+    tile_pix = by_tile(np.arange(H * W).reshape(H, W), 0)
+    with warnings.catch_warnings():                     # all-NaN tiles: no valid pixel
+        warnings.simplefilter('ignore', RuntimeWarning)
+        lo = np.stack([np.nanmin(t, axis=1) for t in (tile_qx, tile_qy)]).reshape(2, ny, nx)
+        hi = np.stack([np.nanmax(t, axis=1) for t in (tile_qx, tile_qy)]).reshape(2, ny, nx)
+    lo, hi = np.nan_to_num(lo, nan=np.inf), np.nan_to_num(hi, nan=-np.inf)
+    return _Rays(qx, qy, qx32, qy32, valid, jq, lo, hi, tile_qx, tile_qy, tile_pix)
 
 
 @dataclass(frozen=True)
@@ -193,6 +208,8 @@ def render(world: StreetWorld, camera: CameraModel, T_odom_camera: np.ndarray, *
         A `RenderedFrame` with the image, plane ids, kinds and depths.
     """
     T = as_array('T_odom_camera', T_odom_camera, (4, 4))
+    if not isinstance(world, StreetWorld):
+        raise InputError(f'world: expected a StreetWorld, got {type(world).__name__}')
     if not isinstance(camera, CameraModel):
         raise InputError(f'camera: expected a CameraModel, got {type(camera).__name__}')
     if not (np.isfinite(psf_sigma) and 0.0 <= psf_sigma <= 10.0):
@@ -224,8 +241,12 @@ def _zbuffer(rays: _Rays, vis: _Visible) -> np.ndarray:
            & (hi[1][None] >= vis.qlo[:, 1, None, None]))
     rows, cols = hit.any(axis=2), hit.any(axis=1)
     g = vis.g.astype(np.float32)
+    size = vis.size.astype(np.float32)
     wmax = np.float32(1.0 / NEAR)
-    for k in np.flatnonzero(rows.any(axis=1)):
+    tiles = rows.sum(axis=1) * cols.sum(axis=1)
+    # Large planes one by one on their tile rectangle; then all small ones in one batch (their
+    # per-plane call overhead would dominate).
+    for k in np.flatnonzero(tiles > _BATCH_TILES):
         r = np.flatnonzero(rows[k])
         c = np.flatnonzero(cols[k])
         ys = slice(r[0] * _TILE_PX, (r[-1] + 1) * _TILE_PX)
@@ -240,10 +261,33 @@ def _zbuffer(rays: _Rays, vis: _Visible) -> np.ndarray:
         m &= iw <= wmax
         m &= aw >= 0
         m &= bw >= 0
-        m &= aw <= iw * np.float32(vis.size[k, 0])
-        m &= bw <= iw * np.float32(vis.size[k, 1])
+        m &= aw <= iw * size[k, 0]
+        m &= bw <= iw * size[k, 1]
         np.copyto(wb, iw, where=m)
         plane[ys, xs][m] = k
+    small = np.flatnonzero((tiles > 0) & (tiles <= _BATCH_TILES))
+    if small.size:
+        kk, ty, tx = np.nonzero(hit[small])
+        k = small[kk]
+        tile = ty * hit.shape[2] + tx
+        qx, qy = rays.tile_qx[tile], rays.tile_qy[tile]                     # (P, TILE_PX^2)
+        gk = g[k][..., None]
+        iw = qx * gk[:, 2, 0] + qy * gk[:, 2, 1] + gk[:, 2, 2]
+        aw = qx * gk[:, 0, 0] + qy * gk[:, 0, 1] + gk[:, 0, 2]
+        bw = qx * gk[:, 1, 0] + qy * gk[:, 1, 1] + gk[:, 1, 2]
+        m = ((iw <= wmax) & (aw >= 0) & (bw >= 0) & (aw <= iw * size[k, :1])
+             & (bw <= iw * size[k, 1:]))
+        i, j = np.nonzero(m)
+        pix, w_new, k_new = rays.tile_pix[tile[i], j], iw[i, j], k[i]
+        flat_w, flat_plane = wbuf.reshape(-1), plane.reshape(-1)
+        keep = w_new > flat_w[pix]
+        pix, w_new, k_new = pix[keep], w_new[keep], k_new[keep]
+        # Nearest candidate per pixel: sort by pixel, then inverse depth; take each group's last.
+        order = np.lexsort((w_new, pix))
+        pix, w_new, k_new = pix[order], w_new[order], k_new[order]
+        last = np.append(pix[1:] != pix[:-1], pix.size > 0)[:pix.size]
+        flat_w[pix[last]] = w_new[last]
+        flat_plane[pix[last]] = k_new[last]
     plane[~rays.valid] = K
     return plane
 
@@ -255,25 +299,30 @@ def _shade(world: StreetWorld, rays: _Rays, vis: _Visible, plane: np.ndarray,
     Works on blocks of rows small enough to stay in the CPU cache: the per-pixel work is a long
     chain of element-wise operations, memory-bound on whole images.
     """
-    bank = texture_bank(world.seed)
+    bank = texture_bank()
     tile = float(bank.size[0])
-    dummy = np.zeros((1, 3, 3))
-    g = np.concatenate([vis.g, dummy])                                # (K + 1, 3, 3)
-    # Detail texel coordinates, [d w] = (M @ g) [q, 1]. Both layers are periodic with the tile,
-    # so whole tiles are taken out of each plane's offsets at the texel nearest the camera:
-    # the coordinates stay small and float32 keeps them to ~1e-4 texel near the camera.
+    # Plane coordinates relative to the point nearest the camera, (a - a0, b - b0), and texture
+    # offsets with whole tiles removed there (both layers are periodic with the tile): all
+    # terms stay small, so float32 keeps the texel coordinates to ~1e-4 texel near the camera.
+    g = vis.g.copy()
+    g[:, :2] -= vis.nearest[:, :, None] * g[:, 2:3]
+    g = np.concatenate([g, np.zeros((1, 3, 3))])                      # (K + 1, 3, 3)
     M = world.texture_map[vis.index].copy()
-    nearest = (M[:, :, :2] @ vis.nearest[:, :, None])[..., 0] + M[:, :, 2]
-    M[:, :, 2] -= tile * np.round(nearest / tile)
-    shift = world.texture_map[vis.index, :, 2] - M[:, :, 2]           # whole tiles removed
-    coarse = world.coarse_offset[vis.index] + shift @ COARSE_FROM_DETAIL.T
+    M[:, :, 2] += (M[:, :, :2] @ vis.nearest[:, :, None])[..., 0]
+    whole = tile * np.round(M[:, :, 2] / tile)
+    M[:, :, 2] -= whole
+    coarse = world.coarse_offset[vis.index] + whole @ COARSE_FROM_DETAIL.T
     coarse -= tile * np.floor(coarse / tile)
+    # Macro waves are functions of the original detail coordinates d = d' + whole.
+    phase = np.remainder(whole @ MACRO_WAVES.T, 2 * np.pi)          # (K, waves)
+    # Detail texel coordinates: [s w, t w] = (M @ g) [q, 1].
     st = np.einsum('kij,kjl->ilk', np.concatenate([M, np.zeros((1, 2, 3))]), g)
     levels = np.arange(bank.levels + 1)
     tables = _Tables(
         gn=np.ascontiguousarray(g[:, 2].T).astype(np.float32),
         st=st.astype(np.float32),
         coarse=np.append(coarse, [[0.0, 0.0]], axis=0).T.astype(np.float32),
+        phase=np.append(phase, np.zeros((1, len(MACRO_WAVES))), axis=0).T.astype(np.float32),
         row0=np.append(bank.y0[world.material[vis.index]] + PAD, PAD).astype(np.float32),
         gain=np.append(world.gain[vis.index], 0.0).astype(np.float32),
         bias=np.append(world.bias[vis.index], 0.0).astype(np.float32),
@@ -298,6 +347,7 @@ class _Tables:
     gn: np.ndarray                 # (3, K + 1): inverse depth w = gn . [q, 1]
     st: np.ndarray                 # (2, 3, K + 1): detail texels [s w, t w] = st . [q, 1]
     coarse: np.ndarray             # (2, K + 1): coarse-layer offsets
+    phase: np.ndarray              # (waves, K + 1): macro-wave phases
     row0: np.ndarray               # (K + 1,) atlas row of the plane's material block
     gain: np.ndarray
     bias: np.ndarray
@@ -333,11 +383,17 @@ def _shade_rows(bank: TextureBank, tab: _Tables, pid: np.ndarray, rays: _Rays, y
     lx = sx * sx + tx * tx
     ly = sy * sy + ty * ty
     x_major = lx >= ly
+    major2 = np.maximum(lx, ly)
     lam = f32(0.5) * np.log2(np.maximum(np.maximum(np.minimum(lx, ly),
-                                                   np.maximum(lx, ly) * f32(1.0 / _TAPS ** 2)),
-                                        f32(1e-12)))
+                                                   major2 * f32(1.0 / _TAPS ** 2)), f32(1e-12)))
     ax = np.where(x_major, sx, sy)
     ay = np.where(x_major, tx, ty)
+    # Macro waves, prefiltered: a Gaussian of the footprint's major length scales a wave of
+    # wave number k by exp(-k^2 major^2 / 2).
+    macro = np.zeros(pid.shape, f32)
+    for (kx, ky), phase in zip(MACRO_WAVES.astype(f32), tab.phase):
+        macro += np.cos(kx * coords[0] + ky * coords[1] + phase[pid]) * np.exp(
+            f32(-0.5 * (kx * kx + ky * ky)) * major2)
     C = COARSE_FROM_DETAIL
     layers = (
         (coords[0], coords[1], lam, ax, ay),
@@ -361,25 +417,21 @@ def _shade_rows(bank: TextureBank, tab: _Tables, pid: np.ndarray, rays: _Rays, y
         scale0 = tab.scale[level]
         ax = ax * scale0 * near
         ay = ay * scale0 * near
-        col0 = tab.column[level]
-        col1 = tab.column[level + 1]
-        x0 = (u + f32(0.5)) * scale0 - f32(0.5)
-        y0 = (v + f32(0.5)) * scale0 - f32(0.5)
-        x1 = x0 * f32(0.5) - f32(0.25) + col1
-        y1 = y0 * f32(0.5) - f32(0.25) + row0
-        x0 += col0
-        y0 += row0
-        v0 = np.zeros(pid.shape, f32)
-        v1 = np.zeros(pid.shape, f32)
-        for tap in range(_TAPS):
-            k = f32((tap + 0.5) / _TAPS - 0.5)
-            v0 += cv2.remap(atlas, x0 + k * ax, y0 + k * ay, cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE)
-            k *= f32(0.5)
-            v1 += cv2.remap(atlas, x1 + k * ax, y1 + k * ay, cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE)
+        col = tab.column[level]
+        x = (u + f32(0.5)) * scale0 - f32(0.5) + col
+        y = (v + f32(0.5)) * scale0 - f32(0.5) + row0
+        k = f32(_TAP_OFFSETS[0])
+        both = cv2.remap(atlas, x + k * ax, y + k * ay, cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)
+        for k in _TAP_OFFSETS[1:]:
+            both += cv2.remap(atlas, x + f32(k) * ax, y + f32(k) * ay, cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
+        v0, v1 = both[..., 0], both[..., 1]
         total += f32(weight / _TAPS) * (v0 + frac * (v1 - v0))
-    shade = tab.bias[pid] + tab.gain[pid] * total
+    shade = tab.bias[pid] + tab.gain[pid] * (total + f32(MACRO_AMPLITUDE) * macro)
+    # Soft saturation instead of clipping: no flat (texture-less) patches where a dark blob meets
+    # a dark surface; slope 1 at mid-grey.
+    shade = f32(127.5) + f32(127.5) * np.tanh((shade - f32(127.5)) * f32(1 / 127.5))
     if sky.any():
         # Plain sky, brighter towards the zenith: elevation of the ray in odom.
         sqx, sqy = rays.qx[ys][sky], rays.qy[ys][sky]

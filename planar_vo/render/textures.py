@@ -11,8 +11,9 @@ Content: multi-octave ``1/f^beta`` noise synthesised in the Fourier domain (peri
 construction), plus blobs, lines and rectangles drawn with wrap-around.
 
 Anti-aliasing: each tile's mip pyramid (2x2 box averages, which keep a power-of-two tile
-periodic) is packed into one float32 atlas per layer, every level padded by wrapped copies, so a
-single ``cv2.remap`` samples any material at any level with wrap-around bilinear interpolation.
+periodic) is packed into one two-channel float32 atlas per layer (level ``l`` and level ``l + 1``
+resampled on level ``l``'s grid), every level padded by wrapped copies, so a single ``cv2.remap``
+samples any material at two adjacent levels with wrap-around bilinear interpolation.
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ __all__ = [
     'GROUND',
     'LAYERS',
     'LAYER_WEIGHT',
+    'MACRO_AMPLITUDE',
+    'MACRO_WAVES',
     'MATERIALS',
     'TextureBank',
     'VEHICLE',
@@ -49,7 +52,16 @@ _COARSE_RATIO, _COARSE_ANGLE = 1.0 / 11.7, 0.61
 COARSE_FROM_DETAIL = _COARSE_RATIO * np.array([[np.cos(_COARSE_ANGLE), -np.sin(_COARSE_ANGLE)],
                                                [np.sin(_COARSE_ANGLE), np.cos(_COARSE_ANGLE)]])
 # Weight of each layer (grey levels per unit standard deviation) in a surface's brightness.
-LAYER_WEIGHT = (22.0, 30.0)
+LAYER_WEIGHT = (24.0, 26.0)
+# Macro layer: smooth brightness waves over the detail texel coordinates (periods of about 37,
+# 83 and 191 m, incommensurate with the coarse tile's ~120 m), evaluated analytically and
+# attenuated by the pixel footprint (a Gaussian prefilter), so even the far field where only the
+# coarse layer survives never repeats.
+_MACRO_PERIODS = np.array([3700.0, 8300.0, 19100.0])          # detail texels
+_MACRO_ANGLES = np.array([0.3, 1.9, 4.1])
+MACRO_WAVES = (2 * np.pi / _MACRO_PERIODS)[:, None] * np.stack(
+    [np.cos(_MACRO_ANGLES), np.sin(_MACRO_ANGLES)], -1)        # (waves, 2) rad per texel
+MACRO_AMPLITUDE = 9.0                                          # grey levels per wave
 PAD = 4          # wrapped border per level: centre in [-0.5, T), taps +-1 texel, bilinear +1
 
 # Per material and layer: noise spectral exponent (amplitude ~ 1/f^beta), noise weight, and the
@@ -69,8 +81,11 @@ class TextureBank:
     """Mip-map atlases of every material, one per layer.
 
     Attributes:
-        atlases: per layer, float32 ``(rows, cols)``; material ``m``'s level ``l`` occupies rows
-            ``y0[m] : y0[m] + size[l] + 2 PAD`` and columns ``x0[l] : x0[l] + size[l] + 2 PAD``.
+        atlases: per layer, float32 ``(rows, cols, 2)``; material ``m``'s level ``l`` occupies
+            rows ``y0[m] : y0[m] + size[l] + 2 PAD`` and columns ``x0[l] : x0[l] + size[l] +
+            2 PAD``. Channel 0 is level ``l``; channel 1 is level ``l + 1`` resampled (bilinear,
+            wrapped) at level ``l``'s texel centres, so one lookup returns both levels that a
+            trilinear blend needs.
         x0: column of each level's padded block, shape ``(levels,)``.
         y0: row of each material's padded block, shape ``(materials,)``.
         size: tile size of each level (``TILE >> l``), shape ``(levels,)``.
@@ -131,6 +146,9 @@ def _tile(rng: np.random.Generator, size: int, beta: float, noise: float, blobs:
                           (int(a[0] + wh[0] + dx), int(a[1] + wh[1] + dy)), frame, 2)), shapes,
             size)
     img += shapes
+    img = (img - img.mean()) / img.std()
+    # Squash the rare extremes (stacked dark or bright shapes) so that no surface saturates.
+    img = 2.0 * np.tanh(img / 2.0)
     img -= img.mean()
     return img / img.std()
 
@@ -145,10 +163,27 @@ def _pyramid(tile: np.ndarray) -> list[np.ndarray]:
     return levels
 
 
-@functools.lru_cache(maxsize=2)
-def texture_bank(seed: int = 0) -> TextureBank:
-    """The (cached) textures of every material and layer for ``seed``; deterministic."""
-    rng = np.random.default_rng([seed, 0x7E87])
+def _upsample(level: np.ndarray) -> np.ndarray:
+    """A periodic level sampled bilinearly at the texel centres of the next finer level.
+
+    Finer texel ``2 i + a`` has coarse coordinate ``i + a / 2 - 1/4``: weights 3/4 and 1/4.
+    """
+    def along(img: np.ndarray, axis: int) -> np.ndarray:
+        prev, nxt = np.roll(img, 1, axis), np.roll(img, -1, axis)
+        out = np.stack([0.75 * img + 0.25 * prev, 0.75 * img + 0.25 * nxt], axis=axis + 1)
+        shape = list(img.shape)
+        shape[axis] *= 2
+        return out.reshape(shape)
+    return along(along(level, 0), 1)
+
+
+@functools.lru_cache(maxsize=1)
+def texture_bank() -> TextureBank:
+    """The textures of every material and layer (built once per process, ~0.6 s, ~100 MB).
+
+    Fixed content (seeded internally): worlds differ by where and how they place it.
+    """
+    rng = np.random.default_rng(0x7E87)
     pyramids = {key: _pyramid(_tile(rng, TILE, **recipe)) for key, recipe in _RECIPES.items()}
     size = np.array([p.shape[0] for p in pyramids[(GROUND, 0)]])
     widths = size + 2 * PAD
@@ -156,10 +191,13 @@ def texture_bank(seed: int = 0) -> TextureBank:
     y0 = np.arange(len(MATERIALS)) * (TILE + 2 * PAD)
     atlases = []
     for layer in range(len(LAYERS)):
-        atlas = np.zeros((len(MATERIALS) * (TILE + 2 * PAD), int(widths.sum())), np.float32)
+        atlas = np.zeros((len(MATERIALS) * (TILE + 2 * PAD), int(widths.sum()), 2), np.float32)
         for m in range(len(MATERIALS)):
-            for lvl, img in enumerate(pyramids[(m, layer)]):
-                block = np.pad(img, PAD, mode='wrap')
+            pyramid = pyramids[(m, layer)]
+            for lvl, img in enumerate(pyramid):
+                coarser = _upsample(pyramid[lvl + 1]) if lvl + 1 < len(pyramid) else img
+                block = np.pad(np.dstack([img, coarser]), ((PAD, PAD), (PAD, PAD), (0, 0)),
+                               mode='wrap')
                 atlas[y0[m]:y0[m] + block.shape[0], x0[lvl]:x0[lvl] + block.shape[1]] = block
         atlas.setflags(write=False)
         atlases.append(atlas)

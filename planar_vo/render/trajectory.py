@@ -25,7 +25,7 @@ import numpy as np
 
 from planar_vo._checks import as_array
 from planar_vo.errors import InputError
-from planar_vo.geometry.frames import invert, planar_pose, yaw_of
+from planar_vo.geometry.frames import invert, mount_transform, planar_pose, yaw_of
 
 __all__ = [
     'Trajectory',
@@ -87,13 +87,18 @@ class Trajectory:
         """Mean frame rate (Hz)."""
         return float((len(self) - 1) / (self.stamps[-1] - self.stamps[0])) if len(self) > 1 else 0.0
 
-    def camera_poses(self, T_base_camera: np.ndarray) -> np.ndarray:
+    def camera_poses(self, mount) -> np.ndarray:
         """``T_odom_camera = T_odom_base @ T_base_camera`` per frame, shape ``(N, 4, 4)``.
 
         Args:
-            T_base_camera: the mount, 4x4 (`planar_vo.geometry.frames.mount_transform`).
+            mount: ``T_base_camera`` (4x4, `planar_vo.geometry.frames.mount_transform`) or a
+                `planar_vo.config.MountConfig` (anything with its x, y, height, roll, pitch,
+                yaw).
         """
-        T_bc = as_array('T_base_camera', T_base_camera, (4, 4))
+        if all(hasattr(mount, k) for k in ('x', 'y', 'height', 'roll', 'pitch', 'yaw')):
+            mount = mount_transform(mount.x, mount.y, mount.height, mount.roll, mount.pitch,
+                                    mount.yaw)
+        T_bc = as_array('T_base_camera', mount, (4, 4))
         return self.poses @ T_bc
 
     def relative(self, i: int, j: int) -> np.ndarray:

@@ -110,7 +110,8 @@ class StreetWorld:
               building_width: tuple[float, float] = (8.0, 24.0),
               building_depth: tuple[float, float] = (8.0, 16.0),
               building_height: tuple[float, float] = (5.0, 22.0),
-              gap: tuple[float, float] = (0.0, 6.0), parked_car_probability: float = 0.5,
+              gap: tuple[float, float] = (0.0, 6.0), buildings: bool = True,
+              parked_car_probability: float = 0.5,
               car_offset: float = 3.8, clearance: float = 2.5,
               max_range: float = 250.0) -> StreetWorld:
         """A street around a drive: ground, buildings on both sides, parked cars at the kerbs.
@@ -122,84 +123,110 @@ class StreetWorld:
             setback: range of the facades' distance from the path centre line (m).
             building_width, building_depth, building_height: ranges of box sizes (m).
             gap: range of the gaps between neighbouring buildings (m).
+            buildings: False for an open ground plane with (optionally) parked cars only.
             parked_car_probability: chance of a parked car at each kerb slot (6 m).
             car_offset: distance of parked cars' centres from the path centre line (m).
             clearance: nothing is placed within this distance of the path centre line (m),
                 except the ground.
             max_range: drawing range (see the class attributes).
         """
-        centre, heading = _centre_line(path, margin)
+        for name, value in (('margin', margin), ('clearance', clearance),
+                            ('car_offset', car_offset)):
+            if not (np.isfinite(value) and value >= 0.0):
+                raise InputError(f'{name}: expected a non-negative distance (m), got {value!r}')
+        for name, (lo, hi) in (('setback', setback), ('building_width', building_width),
+                               ('building_depth', building_depth),
+                               ('building_height', building_height), ('gap', gap)):
+            if not (np.isfinite([lo, hi]).all() and 0.0 <= lo <= hi):
+                raise InputError(f'{name}: expected a range 0 <= low <= high (m), got '
+                                 f'{(lo, hi)!r}')
+        if not 0.0 <= parked_car_probability <= 1.0:
+            raise InputError(f'parked_car_probability: expected a probability in [0, 1], got '
+                             f'{parked_car_probability!r}')
+        if building_width[0] <= 0.0:
+            raise InputError(f'building_width: expected a positive minimum width (m), got '
+                             f'{building_width!r}')
+        lines = _street_lines(path, margin)
         rng = np.random.default_rng([seed, 0x5731])
-        builder = _Builder(rng, centre, clearance)
+        builder = _Builder(rng, np.concatenate([line for line, _ in lines]), clearance)
         # Ground: a rectangle covering the whole street plus the drawing range around it.
-        lo = centre.min(axis=0) - max_range
-        hi = centre.max(axis=0) + max_range
+        lo = builder.centre.min(axis=0) - max_range
+        hi = builder.centre.max(axis=0) + max_range
         builder.add_plane(np.r_[lo, 0.0], [1, 0, 0], [0, 1, 0], hi - lo, GROUND, GROUND_KIND,
                           one_sided=True, rot_spread=np.pi)
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(centre, axis=0), axis=1))])
-        for side in (1.0, -1.0):
-            s = rng.uniform(0.0, building_width[1])
-            while s < arc[-1]:
-                width = rng.uniform(*building_width)
-                depth = rng.uniform(*building_depth)
-                height = rng.uniform(*building_height)
-                offset = rng.uniform(*setback)
-                p, psi = _at(arc, centre, heading, s + width / 2)
-                normal = np.array([-np.sin(psi), np.cos(psi)]) * side
-                builder.add_box(p + normal * (offset + depth / 2), psi, width, depth, 0.0, height,
-                                FACADE, FACADE_KIND, top=False)
-                s += width + rng.uniform(*gap)
-            s = rng.uniform(0.0, 6.0)
-            while s < arc[-1]:
-                if rng.uniform() < parked_car_probability:
-                    p, psi = _at(arc, centre, heading, s)
+        for centre, heading in lines:
+            arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(centre, axis=0),
+                                                                  axis=1))])
+            for side in (1.0, -1.0):
+                s = rng.uniform(0.0, building_width[1]) if buildings else np.inf
+                while s < arc[-1]:
+                    width = rng.uniform(*building_width)
+                    depth = rng.uniform(*building_depth)
+                    height = rng.uniform(*building_height)
+                    offset = rng.uniform(*setback)
+                    p, psi = _at(arc, centre, heading, s + width / 2)
                     normal = np.array([-np.sin(psi), np.cos(psi)]) * side
-                    psi += rng.normal(0.0, 0.03)
-                    centre_xy = p + normal * (car_offset + rng.normal(0.0, 0.1))
-                    length, width = rng.uniform(3.8, 4.8), rng.uniform(1.7, 1.9)
-                    shift = np.array([np.cos(psi), np.sin(psi)]) * rng.uniform(-0.5, 0.0)
-                    cabin_height = rng.uniform(1.35, 1.5)
-                    if builder.add_box(centre_xy, psi, length, width, 0.0, 1.0, VEHICLE,
-                                       OBSTACLE_KIND, top=True):
-                        builder.add_box(centre_xy + shift, psi, length * 0.55, width * 0.9, 1.0,
-                                        cabin_height, VEHICLE, OBSTACLE_KIND, top=True,
-                                        stacked=True)
-                s += 6.0
+                    builder.add_box(p + normal * (offset + depth / 2), psi, width, depth, 0.0,
+                                    height, FACADE, FACADE_KIND, top=False)
+                    s += width + rng.uniform(*gap)
+                s = rng.uniform(0.0, 6.0)
+                while s < arc[-1]:
+                    if rng.uniform() < parked_car_probability:
+                        p, psi = _at(arc, centre, heading, s)
+                        normal = np.array([-np.sin(psi), np.cos(psi)]) * side
+                        psi += rng.normal(0.0, 0.03)
+                        centre_xy = p + normal * (car_offset + rng.normal(0.0, 0.1))
+                        length, width = rng.uniform(3.8, 4.8), rng.uniform(1.7, 1.9)
+                        shift = np.array([np.cos(psi), np.sin(psi)]) * rng.uniform(-0.5, 0.0)
+                        cabin_height = rng.uniform(1.35, 1.5)
+                        if builder.add_box(centre_xy, psi, length, width, 0.0, 1.0, VEHICLE,
+                                           OBSTACLE_KIND, top=True):
+                            builder.add_box(centre_xy + shift, psi, length * 0.55, width * 0.9,
+                                            1.0, cabin_height, VEHICLE, OBSTACLE_KIND, top=True,
+                                            stacked=True)
+                    s += 6.0
         world = builder.build(seed, max_range)
         logger.debug('StreetWorld.along: %d planes, %d boxes skipped', len(world),
                      builder.skipped)
         return world
 
 
-def _centre_line(path: Trajectory | np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
-    """The driven path resampled every metre, extended by ``margin`` at both ends.
+def _street_lines(path: Trajectory | np.ndarray, margin: float
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Centre lines of the street: the driven path resampled every metre, then straight roads
+    of length ``margin`` ahead of and behind the first and the last pose (along their headings,
+    so a drive that ends reversing still looks down a street).
 
-    Returns positions ``(K, 2)`` and the direction of travel along the line ``(K,)`` (rad).
+    Returns ``(positions (K, 2), direction of the line (K,) rad)`` per line.
     """
-    yaw0 = 0.0
     if isinstance(path, Trajectory):
-        xy, yaw0 = path.xy, float(path.yaw[0])
+        xy, yaw = path.xy, path.yaw[[0, -1]]
     else:
         arr = np.asarray(path, dtype=np.float64)
         if arr.ndim == 3:
             xy = as_array('path', arr, (None, 4, 4))[:, :2, 3]
-            yaw0 = float(np.arctan2(arr[0, 1, 0], arr[0, 0, 0]))
+            yaw = np.arctan2(arr[[0, -1], 1, 0], arr[[0, -1], 0, 0])
         else:
             xy = as_array('path', arr, (None, 2))
+            d = np.diff(xy, axis=0)
+            moving = np.flatnonzero(np.linalg.norm(d, axis=1) > 1e-6)
+            first, last = (d[moving[0]], d[moving[-1]]) if moving.size else ([1, 0], [1, 0])
+            yaw = np.array([np.arctan2(first[1], first[0]), np.arctan2(last[1], last[0])])
     step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     xy = np.concatenate([xy[:1], xy[1:][step > 1e-6]])
-    if len(xy) == 1:                                      # standing still: a street along yaw
-        xy = np.concatenate([xy, xy + [np.cos(yaw0), np.sin(yaw0)]])
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
-    s = np.linspace(0.0, arc[-1], max(2, int(np.ceil(arc[-1])) + 1))
-    line = np.stack([np.interp(s, arc, xy[:, 0]), np.interp(s, arc, xy[:, 1])], -1)
-    d0 = line[1] - line[0]
-    d1 = line[-1] - line[-2]
-    ext = np.arange(1.0, margin + 1.0)[:, None]
-    line = np.concatenate([line[0] - ext[::-1] * d0 / np.linalg.norm(d0), line,
-                           line[-1] + ext * d1 / np.linalg.norm(d1)])
-    d = np.gradient(line, axis=0)
-    return line, np.arctan2(d[:, 1], d[:, 0])
+    lines = []
+    if len(xy) > 1:
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+        s = np.linspace(0.0, arc[-1], max(2, int(np.ceil(arc[-1])) + 1))
+        line = np.stack([np.interp(s, arc, xy[:, 0]), np.interp(s, arc, xy[:, 1])], -1)
+        d = np.gradient(line, axis=0)
+        lines.append((line, np.arctan2(d[:, 1], d[:, 0])))
+    ray = np.arange(0.0, margin + 1.0)[:, None]
+    for start, heading in ((xy[0], yaw[0]), (xy[-1], yaw[-1])):
+        for direction in (heading, heading + np.pi):
+            lines.append((start + ray * [np.cos(direction), np.sin(direction)],
+                          np.full(len(ray), direction)))
+    return lines
 
 
 def _at(arc: np.ndarray, line: np.ndarray, heading: np.ndarray, s: float
@@ -255,8 +282,8 @@ class _Builder:
         hx, hy = ex * length / 2, ey * width / 2
         corners = np.stack([centre_xy - hx - hy, centre_xy + hx - hy, centre_xy + hx + hy,
                             centre_xy - hx + hy])
-        gain = self.rng.uniform(0.7, 1.25)
-        bias = self.rng.uniform(85.0, 165.0)
+        gain = self.rng.uniform(0.7, 1.15)
+        bias = self.rng.uniform(100.0, 155.0)
         if not stacked:
             if self._blocked(corners):
                 self.skipped += 1
