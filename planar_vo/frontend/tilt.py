@@ -140,7 +140,7 @@ class MountTiltEstimator:
         self._weights.append(float(weight))
 
     def add_acs(self, q1: np.ndarray, q2: np.ndarray, weight: float = 1.0,
-                threshold: float = 1e-3) -> bool:
+                threshold: float = 1e-3, max_points: int = 2000) -> bool:
         """Add the pose of a frame pair from normalised point correspondences (OpenCV five-point,
         `planar_vo.baselines.estimate_5pc_opencv`: a general pose, since the planar solvers
         assume the level camera that is being calibrated).
@@ -148,6 +148,8 @@ class MountTiltEstimator:
         Args:
             q1, q2: normalised coordinates ``(N, 2)`` (e.g. ``acs.normalized(camera).p1``).
             weight: relative confidence. threshold: RANSAC threshold (normalised units).
+            max_points: at most this many correspondences, evenly picked, go to the five-point
+                RANSAC (its cost grows with the number of points, its accuracy barely).
 
         Returns:
             Whether a pose was found and added.
@@ -158,6 +160,9 @@ class MountTiltEstimator:
         q2 = as_array('q2', q2, (None, 2), min_items=0)
         if len(q1) < 5 or len(q2) != len(q1):
             return False
+        if len(q1) > max_points:
+            pick = np.linspace(0, len(q1) - 1, max_points).astype(int)
+            q1, q2 = q1[pick], q2[pick]
         pose = estimate_5pc_opencv(q1, q2, threshold=threshold)
         if not pose.ok:
             return False
