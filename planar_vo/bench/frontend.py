@@ -39,7 +39,7 @@ from planar_vo.frontend import ACExtractor, MountTiltEstimator, level_acs, level
 from planar_vo.geometry import angle_difference, planar_motion_from_pose, solve_1ac
 from planar_vo.geometry.camera import normalize_affines, normalize_points
 
-__all__ = ['HELP', 'add_arguments', 'register', 'run']
+__all__ = ['HELP', 'VARIANTS', 'add_arguments', 'register', 'run', 'time_methods']
 
 logger = logging.getLogger(__name__)
 
@@ -58,7 +58,9 @@ EXAMPLES = """examples:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The benchmark's options (used by `register` and by ``planar_vo bench``)."""
     parser.add_argument('--methods', nargs='+', default=['flow', 'klt', 'asift'],
-                        choices=['flow', 'klt', 'asift'], help='methods to time (default: all)')
+                        choices=['flow', 'klt', 'asift'],
+                        help='methods to time (default: all); flow is also timed with the '
+                             'forward-backward check and without re-seeding')
     parser.add_argument('--pairs', type=int, default=8,
                         help='frame pairs timed per image set (default: 8)')
     parser.add_argument('--repeat', type=int, default=3,
@@ -135,40 +137,59 @@ def kitti_frames(directory: Path, count: int | None = None) -> FrameSet:
 # Speed
 # --------------------------------------------------------------------------------------------
 
-def time_methods(frames: FrameSet, methods: list[str], pairs: int, repeat: int,
-                 asift_pairs: int) -> dict[str, tuple[float, float, float]]:
-    """Per method: (median ms per pair, median ratio to DIS fast, median ACs per pair).
+# Timed variants: label -> (method, FrontendConfig overrides).
+VARIANTS = {
+    'flow': ('flow', {}),
+    'flow + FB check': ('flow', {'fb_threshold': 2.0}),
+    'flow, no re-seeding': ('flow', {'reseed': False}),
+    'klt': ('klt', {}),
+    'asift': ('asift', {}),
+}
 
-    DIS and the methods are run interleaved on each pair; per pair the minimum over ``repeat``
-    runs counts.
+
+def time_methods(frames: FrameSet, variants: list[str], pairs: int, repeat: int,
+                 asift_pairs: int) -> dict[str, dict[str, float]]:
+    """Per variant: median ms per pair, median ratio to DIS fast (wall clock and, with one
+    OpenCV thread, CPU time of the calling thread), median ACs per pair.
+
+    DIS and the variants run interleaved on each pair; per pair the minimum over ``repeat``
+    runs counts. With ``cv2.setNumThreads(1)`` everything runs on the calling thread, so its
+    CPU time (``time.thread_time``) is the whole cost and is not inflated by other processes.
     """
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
-    extractor = ACExtractor(FrontendConfig())
     n = min(pairs, len(frames.images) - 1)
+    single = cv2.getNumThreads() <= 1
     out = {}
-    for method in methods:
+    for label in variants:
+        method, overrides = VARIANTS[label]
+        extractor = ACExtractor(FrontendConfig(**overrides))
         count = min(n, asift_pairs) if method == 'asift' else n
         reps = 1 if method == 'asift' else repeat
-        ratios, times, sizes = [], [], []
+        ratios, cpu_ratios, times, sizes = [], [], [], []
         extractor.extract(frames.images[0], frames.images[1], method)       # warm-up
         dis.calc(frames.images[0], frames.images[1], None)
         for k in range(count):
             a, b = frames.images[k], frames.images[k + 1]
-            t_dis, t_method = np.inf, np.inf
+            wall = [np.inf, np.inf]
+            cpu = [np.inf, np.inf]
             for _ in range(reps):
-                start = time.perf_counter()
-                dis.calc(a, b, None)
-                t_dis = min(t_dis, time.perf_counter() - start)
-                start = time.perf_counter()
-                acs = extractor.extract(a, b, method)
-                t_method = min(t_method, time.perf_counter() - start)
-            ratios.append(t_method / t_dis)
-            times.append(t_method)
-            sizes.append(len(acs))
-        out[method] = (1e3 * float(np.median(times)), float(np.median(ratios)),
-                       float(np.median(sizes)))
-        dis_ms = 1e3 * float(np.median(times)) / float(np.median(ratios))
-        logger.info('%s %s: %.1f ms, DIS %.1f ms', frames.name, method, out[method][0], dis_ms)
+                for i, job in enumerate((lambda: dis.calc(a, b, None),
+                                         lambda: extractor.extract(a, b, method))):
+                    start, start_cpu = time.perf_counter(), time.thread_time()
+                    result = job()
+                    wall[i] = min(wall[i], time.perf_counter() - start)
+                    cpu[i] = min(cpu[i], time.thread_time() - start_cpu)
+            ratios.append(wall[1] / wall[0])
+            cpu_ratios.append(cpu[1] / cpu[0] if single else np.nan)
+            times.append((wall[0], wall[1]))
+            sizes.append(len(result))
+        times = np.array(times)
+        out[label] = {'ms': 1e3 * float(np.median(times[:, 1])),
+                      'dis_ms': 1e3 * float(np.median(times[:, 0])),
+                      'ratio': float(np.median(ratios)),
+                      'cpu_ratio': float(np.median(cpu_ratios)),
+                      'acs': float(np.median(sizes))}
+        logger.info('%s %s: %s', frames.name, label, out[label])
     return out
 
 
@@ -286,21 +307,25 @@ def run(args: argparse.Namespace) -> int:
     print(f'Interleaved in one process; per pair the minimum of {args.repeat} runs, median '
           f'over {args.pairs} pairs (ASIFT: {args.asift_pairs} pair, 1 run).\n')
     rows = []
+    variants = [v for v in VARIANTS if VARIANTS[v][0] in args.methods]
     default_threads = cv2.getNumThreads()
     try:
         for threads in args.threads:
             cv2.setNumThreads(threads if threads > 0 else default_threads)
             label = f'{cv2.getNumThreads()}'
             for frames in sets + ([kitti] if kitti is not None else []):
-                timing = time_methods(frames, args.methods, args.pairs, args.repeat,
+                timing = time_methods(frames, variants, args.pairs, args.repeat,
                                       args.asift_pairs)
-                for method, (ms, ratio, size) in timing.items():
-                    rows.append([frames.name, label, method, f'{ms:.1f}', f'{ms / ratio:.1f}',
-                                 f'{ratio:.2f}', f'{size:.0f}'])
+                for name, t in timing.items():
+                    cpu = '' if np.isnan(t['cpu_ratio']) else f'{t["cpu_ratio"]:.2f}'
+                    rows.append([frames.name, label, name, f'{t["ms"]:.1f}',
+                                 f'{t["dis_ms"]:.1f}', f'{t["ratio"]:.2f}', cpu,
+                                 f'{t["acs"]:.0f}'])
     finally:
         cv2.setNumThreads(default_threads)
-    print(_markdown(['frames', 'OpenCV threads', 'method', 'ms / pair', 'DIS fast ms',
-                     'ratio to DIS', 'ACs / pair'], rows))
+    print(_markdown(['frames', 'OpenCV threads', 'method', 'ms / pair', 'DIS fast ms / pair',
+                     'ratio to DIS (wall)', 'ratio to DIS (CPU, 1 thread)', 'ACs / pair'],
+                    rows))
 
     print('\n## Front-end accuracy against exact ACs (rendered street, all planes)\n')
     rows = []

@@ -54,7 +54,7 @@ logger = logging.getLogger(__name__)
 # rounds of propagation, and how different (pixels, Frobenius) a prediction must be from the
 # flow's start to be worth a retry.
 _NEIGHBOURS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))
-_RESEED_ROUNDS = 2
+_RESEED_ROUNDS = 1
 _RESEED_MIN_POINT_CHANGE = 1.0
 _RESEED_MIN_AFFINE_CHANGE = 0.1
 # After one update, patches with a residual above this many times max_residual are dropped.
