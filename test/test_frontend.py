@@ -529,6 +529,9 @@ def test_tilt_estimator_reports_an_unobservable_roll_when_driving_straight():
     tilt = est_prior.estimate()
     assert abs(tilt.pitch - 0.03) < 1e-3 and abs(tilt.roll) < 1e-3
     assert np.deg2rad(1.0) < tilt.roll_std < np.deg2rad(10.0)
+    # Levelling uses only the angles that are known: here the pitch.
+    pitch, roll = tilt.levelling_angles(np.deg2rad(0.5))
+    assert pitch == tilt.pitch and roll == 0.0
 
 
 def test_tilt_estimator_input_errors():

@@ -18,7 +18,8 @@ motion estimation against the ground-truth poses, beside OpenCV's five-point pip
 ``planar_vo.geometry.vote_planar_motion`` when it exists, else the median of the per-AC 1AC
 solutions (``solve_1ac(refine=True)``); the table says which. Rows with ``levelled`` first
 remove the camera's tilt estimated from the five-point poses of the whole excerpt
-(`MountTiltEstimator`); their ground truth is expressed in the same levelled frame.
+(`MountTiltEstimator`; an angle with a standard deviation above 0.5 deg is left at 0,
+`TiltEstimate.levelling_angles`); their ground truth is expressed in the same levelled frame.
 """
 
 from __future__ import annotations
@@ -260,13 +261,14 @@ def kitti_motion(frames: FrameSet) -> tuple[list[tuple[str, np.ndarray, np.ndarr
             tilt_estimator.add_motion(pose.R, pose.t)
         per_frame.append((acs, pose))
     tilt = tilt_estimator.estimate()
+    pitch, roll = tilt.levelling_angles()
     rows = {f'{name}': [], f'{name}, levelled': [], 'OpenCV five-point (same points)': []}
-    R_lc = leveling_rotation(tilt.pitch, tilt.roll)
+    R_lc = leveling_rotation(pitch, roll)
     for (acs, pose), M in zip(per_frame, frames.relative):
         true_raw = planar_motion_from_pose(M[:3, :3], M[:3, 3])
         true_lev = planar_motion_from_pose(R_lc @ M[:3, :3] @ R_lc.T, R_lc @ M[:3, 3])
         for label, c, truth in ((name, acs, true_raw),
-                                (f'{name}, levelled', level_acs(acs, K, tilt.pitch, tilt.roll),
+                                (f'{name}, levelled', level_acs(acs, K, pitch, roll),
                                  true_lev)):
             est = estimate(normalize_points(K, c.p1), normalize_points(K, c.p2),
                            normalize_affines(K, K, c.A), c.weights)
@@ -278,8 +280,8 @@ def kitti_motion(frames: FrameSet) -> tuple[list[tuple[str, np.ndarray, np.ndarr
     for label, errs in rows.items():
         e = np.degrees(np.abs(np.array(errs, dtype=np.float64)))
         table.append((label, e[:, 0], e[:, 1]))
-    info = {'tilt': tilt, 'acs': float(np.median([len(a) for a, _ in per_frame])),
-            'frames': len(per_frame)}
+    info = {'tilt': tilt, 'level': (pitch, roll), 'frames': len(per_frame),
+            'acs': float(np.median([len(a) for a, _ in per_frame]))}
     return table, info
 
 
@@ -348,7 +350,9 @@ def run(args: argparse.Namespace) -> int:
         print(f'Estimated camera tilt w.r.t. the motion plane (from the five-point poses): '
               f'pitch {np.degrees(tilt.pitch):.2f} +- {np.degrees(tilt.pitch_std):.2f} deg, '
               f'roll {np.degrees(tilt.roll):.2f} +- {np.degrees(tilt.roll_std):.2f} deg '
-              f'({tilt.frames} pairs).\n')
+              f'({tilt.frames} pairs); levelled by pitch {np.degrees(info["level"][0]):.2f}, '
+              f'roll {np.degrees(info["level"][1]):.2f} deg (an angle with a standard deviation '
+              f'above 0.5 deg is left at 0).\n')
         rows = [[label, f'{yaw.mean():.3f}', f'{np.median(yaw):.3f}', f'{yaw.max():.3f}',
                  f'{head.mean():.3f}', f'{np.median(head):.3f}', f'{head.max():.3f}']
                 for label, yaw, head in table]

@@ -61,6 +61,13 @@ class TiltEstimate:
     normal: np.ndarray
     frames: int
 
+    def levelling_angles(self, max_std: float = np.deg2rad(0.5)) -> tuple[float, float]:
+        """``(pitch, roll)`` to level with: an angle known no better than ``max_std`` (radians)
+        is taken as 0, since levelling by a wrong angle does more harm than not levelling
+        (KITTI 06 drives nearly straight: its roll is unobservable, std about 3 deg)."""
+        return (self.pitch if self.pitch_std <= max_std else 0.0,
+                self.roll if self.roll_std <= max_std else 0.0)
+
 
 def _normal_from_angles(pitch: float, roll: float) -> tuple[np.ndarray, np.ndarray]:
     """``n(pitch, roll)`` and its Jacobian ``(3, 2)`` with respect to ``(pitch, roll)``."""
