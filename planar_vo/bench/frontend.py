@@ -74,6 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f'KITTI excerpt directory with image_l/ and poses.txt '
                              f'(default: {DEFAULT_KITTI}; skipped when missing)')
     parser.add_argument('--seed', type=int, default=3, help='rendered world seed (default: 3)')
+    parser.add_argument('--per-frame', action='store_true',
+                        help='also print the KITTI yaw and heading errors of every frame pair')
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -358,6 +360,14 @@ def run(args: argparse.Namespace) -> int:
                 for label, yaw, head in table]
         print(_markdown(['estimator', 'yaw err mean (deg)', 'median', 'max',
                          'heading err mean (deg)', 'median', 'max'], rows))
+        if getattr(args, 'per_frame', False):
+            header = ['pair'] + [f'{label}: {what}' for label, _, _ in table
+                                 for what in ('yaw', 'heading')]
+            frame_rows = [[f'{k}-{k + 1}'] + [f'{e[k]:.3f}' for _, yaw, head in table
+                                               for e in (yaw, head)]
+                          for k in range(len(table[0][1]))]
+            print('\nPer frame pair, absolute errors in degrees:\n')
+            print(_markdown(header, frame_rows))
     else:
         print(f'\n(KITTI excerpt not found at {args.kitti}: motion table skipped)')
     print(f'\ndone in {time.perf_counter() - start:.0f} s')
