@@ -11,7 +11,7 @@ bilinear resampling of image 2 plus small matrix products.
 All patches are processed together: one ``np.take`` gathers every template sample, one
 ``cv2.remap`` samples every warped patch per iteration, and the per-patch sums (Hessian, gradient)
 are matrix products of the ``(N, S)`` sample arrays with a fixed ``(S, k)`` matrix of offset
-monomials, which BLAS does in one call. The offset ``b`` is eliminated by centring (its Schur
+monomials, one ``cv2.gemm`` call each. The offset ``b`` is eliminated by centring (its Schur
 complement), leaving a 6x6 system per patch whose inverse is computed once by a vectorised
 Cholesky factorisation. There is no Python loop over patches.
 """
@@ -100,9 +100,6 @@ class Template:
         values: centred template intensities ``T - mean(T)``, ``(N, S)`` float32.
         gx, gy: template gradients at the samples, ``(N, S)`` float32 (grey levels / pixel).
         hessian_inv: inverse Gauss-Newton Hessians in the layout ``(6, 6, N)`` (float64).
-        hessian_min_eig: smallest eigenvalue estimate of each Hessian's translation block,
-            ``(N,)``, a texture measure (grey^2 / pixel^2 summed over the patch).
-        sd_mean: mean steepest-descent image per patch ``(N, 6)`` (to centre gradients).
         ok: patches with a positive-definite Hessian, ``(N,)`` bool.
         contrast: RMS of the centred template values, ``(N,)`` grey levels.
     """
@@ -113,8 +110,6 @@ class Template:
     gx: np.ndarray
     gy: np.ndarray
     hessian_inv: np.ndarray
-    hessian_min_eig: np.ndarray
-    sd_mean: np.ndarray
     ok: np.ndarray
     contrast: np.ndarray
 
@@ -124,8 +119,7 @@ class Template:
     def subset(self, index: np.ndarray) -> Template:
         """The template of the patches selected by a boolean mask or index array."""
         return Template(self.p1[index], self.offsets, self.values[index], self.gx[index],
-                        self.gy[index], self.hessian_inv[:, :, index],
-                        self.hessian_min_eig[index], self.sd_mean[index], self.ok[index],
+                        self.gy[index], self.hessian_inv[:, :, index], self.ok[index],
                         self.contrast[index])
 
 
@@ -202,12 +196,8 @@ def prepare_template(image1: np.ndarray, p1: np.ndarray, offsets: np.ndarray) ->
     # Eliminate the intensity offset: Schur complement = Hessian of centred steepest descent.
     H -= sd_sum[:, :, None] * sd_sum[:, None, :] / s
     Hinv, ok = _cholesky_inverse(np.ascontiguousarray(H.transpose(1, 2, 0)))
-    # Texture of the translation block (2x2 [[sum gx^2, sum gx gy], [., sum gy^2]]), centred.
-    a, b, c = H[:, 4, 4], H[:, 4, 5], H[:, 5, 5]
-    min_eig = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
     contrast = np.sqrt(np.einsum('ns,ns->n', values, values).astype(np.float64) / max(s, 1))
-    return Template(p1.astype(np.float64), offsets, values, gx, gy, Hinv, min_eig,
-                    (sd_sum / s).astype(np.float32), ok, contrast)
+    return Template(p1.astype(np.float64), offsets, values, gx, gy, Hinv, ok, contrast)
 
 
 @dataclass(frozen=True)
@@ -255,7 +245,7 @@ def _gauss_newton_step(T: np.ndarray, Gx: np.ndarray, Gy: np.ndarray, Hinv: np.n
     warped -= warped.mean(axis=1, keepdims=True)
     r = T - warped
     # Gradient sum_x SD^T r: (Gx r, Gy r) against (1, ox, oy); T and warped are centred, so the
-    # offset's Schur complement (sd_mean * sum(r)) vanishes.
+    # offset's Schur complement (mean steepest-descent image times sum(r)) vanishes.
     q = _gemm(np.stack([Gx * r, Gy * r], axis=1).reshape(-1, s), mono.T.copy()).reshape(m, 2, 3)
     g = np.stack([q[:, 0, 1], q[:, 0, 2], q[:, 1, 1], q[:, 1, 2], q[:, 0, 0], q[:, 1, 0]])
     d = -np.einsum('ijn,jn->in', Hinv, g.astype(np.float64))        # (6, M)
