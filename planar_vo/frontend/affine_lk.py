@@ -11,7 +11,7 @@ bilinear resampling of image 2 plus small matrix products.
 All patches are processed together: one ``np.take`` gathers every template sample, one
 ``cv2.remap`` samples every warped patch per iteration, and the per-patch sums (Hessian, gradient)
 are matrix products of the ``(N, S)`` sample arrays with a fixed ``(S, k)`` matrix of offset
-monomials, which BLAS does in one call. The offset ``b`` is eliminated by centring (its Schur
+monomials, one ``cv2.gemm`` call each. The offset ``b`` is eliminated by centring (its Schur
 complement), leaving a 6x6 system per patch whose inverse is computed once by a vectorised
 Cholesky factorisation. There is no Python loop over patches.
 """
@@ -62,24 +62,29 @@ def patch_offsets(radius: int, stride: int) -> np.ndarray:
 def _cholesky_inverse(H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of symmetric positive-definite matrices given as ``(n, n, N)`` (last axis batch).
 
-    Vectorised Cholesky ``H = L L^T``, then ``H^-1 = L^-T L^-1``; a loop over the 6x6 entries
-    (not over the N matrices) keeps every numpy operation N wide. Matrices that are not
-    positive definite (no texture) come back NaN, flagged in the second output (``(N,)`` bool).
+    Vectorised Cholesky ``H = L L^T``, then ``H^-1 = L^-T L^-1``; the loops run over the 6x6
+    entries (not over the N matrices), so every numpy operation is N wide, and a batched LAPACK
+    call (one small call per matrix) is avoided. Matrices that are not positive definite (no
+    texture) come back NaN, flagged in the second output (``(N,)`` bool).
     """
     n = H.shape[0]
     L = np.zeros_like(H)
+    inv_diag = np.empty((n,) + H.shape[2:])
     with np.errstate(invalid='ignore', divide='ignore'):
         for j in range(n):
-            d = H[j, j] - np.einsum('kn,kn->n', L[j, :j], L[j, :j])
+            d = H[j, j] - (L[j, :j] * L[j, :j]).sum(axis=0)
             L[j, j] = np.sqrt(d)
-            for i in range(j + 1, n):
-                L[i, j] = (H[i, j] - np.einsum('kn,kn->n', L[i, :j], L[j, :j])) / L[j, j]
-        # Forward substitution for M = L^-1 (lower triangular).
+            inv_diag[j] = 1.0 / L[j, j]
+            if j + 1 < n:
+                L[j + 1:, j] = (H[j + 1:, j] - np.einsum('ikn,kn->in', L[j + 1:, :j],
+                                                         L[j, :j]) if j else H[j + 1:, j]) \
+                    * inv_diag[j]
+        # Forward substitution for M = L^-1 (lower triangular), one row at a time.
         M = np.zeros_like(H)
         for i in range(n):
-            M[i, i] = 1.0 / L[i, i]
-            for j in range(i):
-                M[i, j] = -np.einsum('kn,kn->n', L[i, j:i], M[j:i, j]) / L[i, i]
+            M[i, i] = inv_diag[i]
+            if i:
+                M[i, :i] = -np.einsum('kn,kjn->jn', L[i, :i], M[:i, :i]) * inv_diag[i]
     inv = np.einsum('kin,kjn->ijn', M, M)
     ok = np.all(np.isfinite(inv), axis=(0, 1))
     return inv, ok
@@ -95,10 +100,8 @@ class Template:
         values: centred template intensities ``T - mean(T)``, ``(N, S)`` float32.
         gx, gy: template gradients at the samples, ``(N, S)`` float32 (grey levels / pixel).
         hessian_inv: inverse Gauss-Newton Hessians in the layout ``(6, 6, N)`` (float64).
-        hessian_min_eig: smallest eigenvalue estimate of each Hessian's translation block,
-            ``(N,)``, a texture measure (grey^2 / pixel^2 summed over the patch).
-        sd_mean: mean steepest-descent image per patch ``(N, 6)`` (to centre gradients).
         ok: patches with a positive-definite Hessian, ``(N,)`` bool.
+        contrast: RMS of the centred template values, ``(N,)`` grey levels.
     """
 
     p1: np.ndarray
@@ -107,9 +110,8 @@ class Template:
     gx: np.ndarray
     gy: np.ndarray
     hessian_inv: np.ndarray
-    hessian_min_eig: np.ndarray
-    sd_mean: np.ndarray
     ok: np.ndarray
+    contrast: np.ndarray
 
     def __len__(self) -> int:
         return int(self.p1.shape[0])
@@ -117,8 +119,8 @@ class Template:
     def subset(self, index: np.ndarray) -> Template:
         """The template of the patches selected by a boolean mask or index array."""
         return Template(self.p1[index], self.offsets, self.values[index], self.gx[index],
-                        self.gy[index], self.hessian_inv[:, :, index],
-                        self.hessian_min_eig[index], self.sd_mean[index], self.ok[index])
+                        self.gy[index], self.hessian_inv[:, :, index], self.ok[index],
+                        self.contrast[index])
 
 
 def _gemm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -194,11 +196,8 @@ def prepare_template(image1: np.ndarray, p1: np.ndarray, offsets: np.ndarray) ->
     # Eliminate the intensity offset: Schur complement = Hessian of centred steepest descent.
     H -= sd_sum[:, :, None] * sd_sum[:, None, :] / s
     Hinv, ok = _cholesky_inverse(np.ascontiguousarray(H.transpose(1, 2, 0)))
-    # Texture of the translation block (2x2 [[sum gx^2, sum gx gy], [., sum gy^2]]), centred.
-    a, b, c = H[:, 4, 4], H[:, 4, 5], H[:, 5, 5]
-    min_eig = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
-    return Template(p1.astype(np.float64), offsets, values, gx, gy, Hinv, min_eig,
-                    (sd_sum / s).astype(np.float32), ok)
+    contrast = np.sqrt(np.einsum('ns,ns->n', values, values).astype(np.float64) / max(s, 1))
+    return Template(p1.astype(np.float64), offsets, values, gx, gy, Hinv, ok, contrast)
 
 
 @dataclass(frozen=True)
@@ -246,7 +245,7 @@ def _gauss_newton_step(T: np.ndarray, Gx: np.ndarray, Gy: np.ndarray, Hinv: np.n
     warped -= warped.mean(axis=1, keepdims=True)
     r = T - warped
     # Gradient sum_x SD^T r: (Gx r, Gy r) against (1, ox, oy); T and warped are centred, so the
-    # offset's Schur complement (sd_mean * sum(r)) vanishes.
+    # offset's Schur complement (mean steepest-descent image times sum(r)) vanishes.
     q = _gemm(np.stack([Gx * r, Gy * r], axis=1).reshape(-1, s), mono.T.copy()).reshape(m, 2, 3)
     g = np.stack([q[:, 0, 1], q[:, 0, 2], q[:, 1, 1], q[:, 1, 2], q[:, 0, 0], q[:, 1, 0]])
     d = -np.einsum('ijn,jn->in', Hinv, g.astype(np.float64))        # (6, M)
@@ -271,7 +270,8 @@ def _gauss_newton_step(T: np.ndarray, Gx: np.ndarray, Gy: np.ndarray, Hinv: np.n
 def refine_affines(template: Template, image2: np.ndarray, p2: np.ndarray, A: np.ndarray, *,
                    iterations: int = 3, max_iterations: int | None = None,
                    tolerance: float = 0.02, max_step: float = 0.25, noise_floor: float = 0.5,
-                   max_divergence: float | None = None) -> AffineLKResult:
+                   max_divergence: float | None = None, give_up: float | None = None
+                   ) -> AffineLKResult:
     """Refine the warps ``W(x) = p2 + A x`` of all template patches in image 2.
 
     Inverse-compositional Gauss-Newton (Baker and Matthews 2004): with residual
@@ -297,6 +297,9 @@ def refine_affines(template: Template, image2: np.ndarray, p2: np.ndarray, A: np
             standard errors (keeps noise-free rendered images from giving infinite weight).
         max_divergence: a patch whose update moves a sample by more than this (pixels; default
             the patch radius) has diverged: it is frozen and flagged.
+        give_up: from the second iteration on, a patch whose RMS residual exceeds this many
+            times its RMS contrast is dropped (flagged as diverged): it will not be accepted,
+            so further iterations would be wasted. None keeps every patch.
 
     Returns:
         An `AffineLKResult`; the residual is the one measured at the start of each patch's last
@@ -334,6 +337,8 @@ def refine_affines(template: Template, image2: np.ndarray, p2: np.ndarray, A: np
         # A patch whose step explodes has lost its match: freeze it (and flag it) instead of
         # letting it wander off to huge coordinates, which also makes remap slow.
         good = np.isfinite(step) & (step < max_divergence)
+        if give_up is not None and it >= 1:
+            good &= residual[active] <= give_up * template.contrast[active]
         alive[active[~good]] = False
         last[active] = np.where(good, step, np.inf)
         keep = active[good]
@@ -426,8 +431,7 @@ def score_refinement(template: Template, result: AffineLKResult, max_residual: f
     patch's RMS contrast. Weight ``1 / (1 + (sigma_A / 0.02)^2 + (sigma_p / 0.1)^2)`` from the
     Gauss-Newton covariance (`refine_affines`).
     """
-    contrast = np.sqrt(np.einsum('ns,ns->n', template.values, template.values).astype(
-        np.float64) / max(template.values.shape[1], 1))
+    contrast = template.contrast
     with np.errstate(divide='ignore', invalid='ignore'):
         residual = np.where(contrast > 0, result.residual / contrast, np.inf)
     smax, smin, det = singular_values_2x2(result.A)

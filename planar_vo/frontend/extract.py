@@ -1,8 +1,9 @@
 """`extract_acs`: affine correspondences between two images by one of three methods.
 
-- ``'flow'`` (default, `planar_vo.frontend.flow`): DIS optical flow, forward-backward check,
-  textured grid, flow-Jacobian affines refined per patch by affine Lucas-Kanade. Thousands of
-  ACs in about twice the time of the DIS flow alone.
+- ``'flow'`` (default, `planar_vo.frontend.flow`): DIS optical flow, textured grid,
+  flow-Jacobian affines refined per patch by affine Lucas-Kanade, failures re-seeded from their
+  neighbours; optional forward-backward check. A thousand and more ACs per frame in about twice
+  the time of one DIS flow.
 - ``'klt'`` (`planar_vo.frontend.klt`): Shi-Tomasi corners tracked by pyramidal Lucas-Kanade,
   affines from the same patch refinement started at the identity on a two-level pyramid.
 - ``'asift'`` (`planar_vo.frontend.asift`): ASIFT features (``cv2.AffineFeature`` with SIFT),

@@ -1,35 +1,41 @@
 """Affine correspondences from dense optical flow (the ``'flow'`` method; the default).
 
-1. DIS optical flow (Kroeger et al., ECCV 2016; ``cv2.DISOpticalFlow``) from image 1 to image 2,
-   and, for the forward-backward check, from image 2 to image 1.
+1. DIS optical flow (Kroeger et al., ECCV 2016; ``cv2.DISOpticalFlow``) from image 1 to image 2
+   (preset ``dis_preset``; the refinement makes ``'ultrafast'`` as good as slower presets), and,
+   only when the forward-backward check is enabled, from image 2 to image 1.
 2. Candidate points on a regular grid: in each ``grid_step`` cell, the pixel with the most
    texture (smaller eigenvalue of the structure tensor), kept if above ``min_texture``. One
    candidate per cell keeps the ACs spread over the image.
-3. Forward-backward consistency: ``|F(p1) + B(p1 + F(p1))|`` below ``fb_threshold`` pixels
-   rejects occlusions and flow failures.
+3. Optional forward-backward consistency (``fb_threshold > 0``; off by default):
+   ``|F(p1) + B(p1 + F(p1))|`` below ``fb_threshold`` pixels. Measured on the rendered street
+   and on KITTI, it rejected nothing the refinement's own tests (convergence, residual) did not,
+   while the backward flow cost about half a DIS 'fast' flow.
 4. Initial affine: the Jacobian of the flow, ``A = I + dF/dp``, by central differences over
    half a patch.
 5. Per-patch affine refinement (`planar_vo.frontend.affine_lk`): inverse-compositional affine
    Lucas-Kanade on all patches at once; its Gauss-Newton covariance gives the quality weights.
-6. Ground re-seeding (``ground_reseed``): candidates of the lower image half that failed get a
-   second start from a homography fitted to the accepted ACs there (the ground close to the
-   car, where DIS fails).
+6. Re-seeding (``reseed``): failed candidates get a second start from an accepted neighbour's
+   affine (the ground close to the car, where DIS fails).
+
+Cost (`planar_vo.bench.frontend`): about 1.7-2.2 times one DIS 'fast' flow on the same frames,
+for about 1,000 ACs at 640x480 and 1,000-1,500 at KITTI size.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from planar_vo.config import FrontendConfig
 from planar_vo.correspondences import AffineCorrespondences
-from planar_vo.geometry.camera import apply_homography, homography_jacobian
 from planar_vo.frontend.affine_lk import (
     MAX_STEP,
+    PatchRefinement,
     Template,
     patch_offsets,
     prepare_template,
@@ -38,13 +44,29 @@ from planar_vo.frontend.affine_lk import (
     smooth_for_refinement,
 )
 
-__all__ = ['DIS_PRESETS', 'FlowExtractor', 'flow_jacobian', 'sample_field', 'texture_grid']
+__all__ = [
+    'DIS_PRESETS',
+    'CandidateGrid',
+    'FlowExtractor',
+    'flow_jacobian',
+    'neighbour_predictions',
+    'sample_field',
+    'texture_grid',
+]
 
 logger = logging.getLogger(__name__)
 
-# Ground re-seeding (`FlowExtractor._reseed_ground`): RANSAC threshold (pixels) and support.
-_RESEED_RANSAC_PX = 1.0
-_RESEED_MIN_INLIERS = 12
+# Re-seeding (`FlowExtractor._reseed`): neighbour cells searched (edge-adjacent first),
+# rounds of propagation (one: a second round gained little for its cost), and how different (pixels, Frobenius) a prediction must be from the
+# flow's start to be worth a retry.
+_NEIGHBOURS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))
+_RESEED_ROUNDS = 1
+_RESEED_MIN_POINT_CHANGE = 1.0
+_RESEED_MIN_AFFINE_CHANGE = 0.1
+# After one update, patches with a residual above this many times max_residual are dropped.
+_GIVE_UP = 2.0
+# Below this many patches the refinement runs on the calling thread only.
+_PARALLEL_MIN_PATCHES = 256
 
 DIS_PRESETS = {
     'ultrafast': cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
@@ -69,8 +91,28 @@ def _structure_min_eig(gray: np.ndarray) -> np.ndarray:
     return 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
 
 
+@dataclass(frozen=True)
+class CandidateGrid:
+    """Candidate points, one per grid cell (`texture_grid`).
+
+    Attributes:
+        points: ``(N, 2)`` int64 pixel coordinates (even, full resolution).
+        texture: ``(N,)`` smaller structure-tensor eigenvalue, (grey levels / pixel)^2.
+        cells: ``(N, 2)`` int64 ``(row, col)`` of each point's cell.
+        shape: ``(rows, cols)`` of the grid.
+    """
+
+    points: np.ndarray
+    texture: np.ndarray
+    cells: np.ndarray
+    shape: tuple[int, int]
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+
 def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
-                 max_points: int) -> tuple[np.ndarray, np.ndarray]:
+                 max_points: int) -> CandidateGrid:
     """Well-spread textured points: the most textured pixel of each ``step x step`` cell.
 
     Args:
@@ -82,8 +124,7 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
         max_points: cap on the number of cells.
 
     Returns:
-        ``points`` ``(N, 2)`` int64 (even coordinates, full resolution) and their texture
-        ``(N,)``, in row-major cell order.
+        A `CandidateGrid` (cells without enough texture have no point), in row-major cell order.
     """
     h, w = gray.shape
     area = max(h - 2 * margin, 0) * max(w - 2 * margin, 0)
@@ -99,7 +140,8 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
     while cols > 0 and 2 * (m + cols * half - 1) > w - 1 - margin:
         cols -= 1
     if rows <= 0 or cols <= 0:
-        return np.zeros((0, 2), np.int64), np.zeros(0)
+        empty = np.zeros((0, 2), np.int64)
+        return CandidateGrid(empty, np.zeros(0), empty, (max(rows, 0), max(cols, 0)))
     cells = eig[m:m + rows * half, m:m + cols * half].reshape(rows, half, cols, half)
     cells = cells.transpose(0, 2, 1, 3).reshape(rows, cols, half * half)
     best = cells.argmax(axis=-1)
@@ -108,7 +150,8 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
     x = m + np.arange(cols)[None, :] * half + best % half
     keep = value > min_texture
     points = 2 * np.stack([x[keep], y[keep]], axis=1).astype(np.int64)
-    return points, value[keep].astype(np.float64)
+    index = np.stack(np.nonzero(keep), axis=1).astype(np.int64)
+    return CandidateGrid(points, value[keep].astype(np.float64), index, (rows, cols))
 
 
 def sample_field(field: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -131,19 +174,61 @@ def flow_jacobian(flow: np.ndarray, points: np.ndarray, h: int) -> np.ndarray:
     Returns:
         ``A`` ``(N, 2, 2)`` with ``A[:, i, j] = d p2_i / d p1_j``.
     """
-    x, y = points[:, 0], points[:, 1]
-    dx = (flow[y, x + h] - flow[y, x - h]) / (2.0 * h)
-    dy = (flow[y + h, x] - flow[y - h, x]) / (2.0 * h)
-    return np.eye(2)[None] + np.stack([dx, dy], axis=-1).astype(np.float64)
+    w = flow.shape[1]
+    flat = flow.reshape(-1, 2)
+    lin = points[:, 1] * w + points[:, 0]
+    dx = (np.take(flat, lin + h, axis=0) - np.take(flat, lin - h, axis=0)) / (2.0 * h)
+    dy = (np.take(flat, lin + h * w, axis=0) - np.take(flat, lin - h * w, axis=0)) / (2.0 * h)
+    A = np.empty((len(points), 2, 2))
+    A[:, :, 0] = dx
+    A[:, :, 1] = dy
+    A[:, 0, 0] += 1.0
+    A[:, 1, 1] += 1.0
+    return A
+
+
+def neighbour_predictions(grid: CandidateGrid, accepted: np.ndarray, retry: np.ndarray,
+                          p2: np.ndarray, A: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Predict candidates from an accepted neighbour: ``p2 = p2_n + A_n (p1 - p1_n)``, ``A = A_n``.
+
+    The neighbour is the first accepted candidate among the 4 edge-adjacent cells, then the 4
+    diagonal ones; the prediction is the neighbour's local affine extrapolated by one cell.
+
+    Args:
+        grid: the candidates.
+        accepted, retry: ``(N,)`` bool: usable neighbours, candidates to predict.
+        p2, A: current points ``(N, 2)`` and affines ``(N, 2, 2)`` (read for the neighbours).
+
+    Returns:
+        ``index`` (the retry candidates that have an accepted neighbour), their predicted points
+        ``(M, 2)`` and affines ``(M, 2, 2)``.
+    """
+    rows, cols = grid.shape
+    lookup = np.full((rows + 2, cols + 2), -1, dtype=np.int64)     # padded: no bounds checks
+    ok = np.flatnonzero(accepted)
+    lookup[grid.cells[ok, 0] + 1, grid.cells[ok, 1] + 1] = ok
+    index = np.flatnonzero(retry)
+    r, c = grid.cells[index, 0] + 1, grid.cells[index, 1] + 1
+    neighbour = np.full(index.size, -1, dtype=np.int64)
+    for dr, dc in _NEIGHBOURS:
+        free = neighbour < 0
+        neighbour[free] = lookup[r[free] + dr, c[free] + dc]
+    found = neighbour >= 0
+    index, neighbour = index[found], neighbour[found]
+    offset = (grid.points[index] - grid.points[neighbour]).astype(np.float64)
+    q = p2[neighbour] + np.einsum('nij,nj->ni', A[neighbour], offset)
+    return index, q, A[neighbour].copy()
 
 
 class FlowExtractor:
     """DIS-flow affine correspondences.
 
     Keeps the DIS instances between frames (creating one costs more than a flow computation)
-    and a small thread pool: the two DIS flows run in worker threads (OpenCV releases the GIL)
+    and a small thread pool: the DIS flows run in worker threads (OpenCV releases the GIL)
     while the calling thread picks the candidates and prepares the refinement's templates,
-    which need image 1 only.
+    which need image 1 only, and the refinement runs in two halves on two threads. With
+    ``cv2.setNumThreads(1)`` everything runs on the calling thread.
 
     Args:
         config: front-end configuration (`FrontendConfig`).
@@ -173,13 +258,15 @@ class FlowExtractor:
             clock[0] = now
 
         use_fb = cfg.fb_threshold > 0.0
-        forward = self._pool.submit(self._forward.calc, gray1, gray2, None)
-        backward = self._pool.submit(self._backward.calc, gray2, gray1, None) if use_fb else None
+        run = self._executor()
+        forward = run(self._forward.calc, gray1, gray2, None)
+        backward = run(self._backward.calc, gray2, gray1, None) if use_fb else None
         try:
             h_diff = max(cfg.patch_radius // 2, 1)
             margin = cfg.patch_radius + 1 + h_diff
-            p1, texture = texture_grid(gray1, cfg.grid_step, margin, cfg.min_texture,
-                                       cfg.max_correspondences)
+            grid = texture_grid(gray1, cfg.grid_step, margin, cfg.min_texture,
+                                cfg.max_correspondences)
+            p1, texture = grid.points, grid.texture
             template = image2 = None
             if cfg.refine_affine and len(p1):
                 template = prepare_template(smooth_for_refinement(gray1), p1,
@@ -206,18 +293,17 @@ class FlowExtractor:
         stats['fb_consistent'] = float(np.count_nonzero(keep))
         A = flow_jacobian(flow, p1, h_diff)
         if template is not None:
-            result = refine_affines(template.subset(keep), image2, p2[keep], A[keep],
-                                    iterations=cfg.lk_iterations,
-                                    max_iterations=cfg.lk_max_iterations, max_step=MAX_STEP)
-            refined = score_refinement(template.subset(keep), result, cfg.max_residual)
-            p2, A = p2.copy(), A.copy()
+            p2_flow, A_flow = p2, A
             index = np.flatnonzero(keep)
+            refined = self._refine(template.subset(index), image2, p2[index], A[index])
+            p2, A = p2.copy(), A.copy()
             accepted = np.zeros(len(p1), dtype=bool)
             weights = np.zeros(len(p1))
             accepted[index] = refined.ok
             p2[index], A[index], weights[index] = refined.p2, refined.A, refined.weights
-            if cfg.ground_reseed:
-                self._reseed_ground(template, image2, p1, p2, A, weights, accepted, stats)
+            if cfg.reseed:
+                self._reseed(grid, template, image2, p2_flow, A_flow, p2, A, weights, accepted,
+                             stats)
             acs = AffineCorrespondences(p1[accepted].astype(np.float64), p2[accepted],
                                         A[accepted], weights[accepted])
         else:
@@ -233,44 +319,76 @@ class FlowExtractor:
         self.stats = stats
         return acs
 
-    def _reseed_ground(self, template: Template, image2: np.ndarray, p1: np.ndarray,
-                       p2: np.ndarray, A: np.ndarray, weights: np.ndarray, accepted: np.ndarray,
-                       stats: dict[str, float]) -> None:
-        """Second chance for the lower image half from a homography of its accepted ACs.
+    def _executor(self):
+        """``submit(fn, *args) -> future``: the thread pool, or inline calls when OpenCV is set to
+        one thread (``cv2.setNumThreads(1)``): then everything runs on the calling thread, for
+        single-core deployments and fair one-thread timing."""
+        if cv2.getNumThreads() > 1:
+            return self._pool.submit
 
-        Why: the ground close to a car-mounted camera moves fast and is strongly
-        foreshortened, and there DIS fails (rendered 640x480 street at 1 m per frame: flow
-        errors of 15-20 px beyond 3.5 m ahead, so all of it was rejected). The ground is the
-        dominant plane of the lower half of the image: a homography fitted by RANSAC to the ACs
-        accepted there predicts the failed candidates of that half, and the patch refinement
-        confirms or rejects each one as usual. Updates the arrays in place.
-        """
-        h, w = image2.shape
-        lower = p1[:, 1] >= h / 2
-        fit = accepted & lower
-        retry = ~accepted & lower
-        stats['reseeded'] = 0.0
-        if np.count_nonzero(fit) < _RESEED_MIN_INLIERS or not retry.any():
-            return
-        H, inliers = cv2.findHomography(p1[fit].astype(np.float64), p2[fit],
-                                        cv2.RANSAC, _RESEED_RANSAC_PX)
-        if H is None or int(inliers.sum()) < _RESEED_MIN_INLIERS:
-            return
-        index = np.flatnonzero(retry)
-        q = apply_homography(H, p1[index].astype(np.float64))
-        inside = np.all(np.isfinite(q), axis=1) & (q[:, 0] >= 0) & (q[:, 0] <= w - 1) \
-            & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
-        index, q = index[inside], q[inside]
-        if index.size == 0:
-            return
+        def inline(fn, *args):
+            future: Future = Future()
+            future.set_result(fn(*args))
+            return future
+
+        return inline
+
+    def _refine(self, template: Template, image2: np.ndarray, p2: np.ndarray, A: np.ndarray,
+                iterations: int | None = None) -> PatchRefinement:
+        """`refine_affines` + `score_refinement`, in two halves on two threads when there are
+        many patches (numpy and OpenCV release the GIL in the heavy calls)."""
         cfg = self.config
-        sub = template.subset(index)
-        result = refine_affines(sub, image2, q, homography_jacobian(H, p1[index]),
-                                iterations=cfg.lk_iterations,
-                                max_iterations=cfg.lk_max_iterations, max_step=MAX_STEP)
-        refined = score_refinement(sub, result, cfg.max_residual)
-        good = index[refined.ok]
-        p2[good], A[good], weights[good] = (refined.p2[refined.ok], refined.A[refined.ok],
-                                            refined.weights[refined.ok])
-        accepted[good] = True
-        stats['reseeded'] = float(good.size)
+        iterations = cfg.lk_iterations if iterations is None else iterations
+        max_iterations = max(cfg.lk_max_iterations, iterations)
+
+        def work(index):
+            sub = template.subset(index) if index is not None else template
+            result = refine_affines(sub, image2, p2[index] if index is not None else p2,
+                                    A[index] if index is not None else A, iterations=iterations,
+                                    max_iterations=max_iterations, max_step=MAX_STEP,
+                                    give_up=_GIVE_UP * cfg.max_residual)
+            return score_refinement(sub, result, cfg.max_residual)
+
+        n = len(template)
+        if n < _PARALLEL_MIN_PATCHES or cv2.getNumThreads() <= 1:
+            return work(None)
+        half = n // 2
+        second = self._executor()(work, np.arange(half, n))
+        a = work(np.arange(half))
+        b = second.result()
+        return PatchRefinement(*(np.concatenate([x, y]) for x, y in zip(
+            (a.p2, a.A, a.weights, a.residual, a.ok), (b.p2, b.A, b.weights, b.residual, b.ok))))
+
+    def _reseed(self, grid: CandidateGrid, template: Template, image2: np.ndarray,
+                p2_flow: np.ndarray, A_flow: np.ndarray, p2: np.ndarray, A: np.ndarray,
+                weights: np.ndarray, accepted: np.ndarray, stats: dict[str, float]) -> None:
+        """Second chances for failed candidates, started from an accepted neighbour's affine.
+
+        Why: where the image moves fast and is strongly foreshortened, above all the ground close
+        to a car-mounted camera, DIS fails (rendered 640x480 street at 1 m per frame: flow
+        errors of 5 px on the near ground, 15-20 px beyond 3.5 m ahead), so the refinement
+        starts outside its basin. An accepted neighbour one cell away, on the same surface,
+        predicts the point to about a pixel (`neighbour_predictions`); the refinement then
+        confirms or rejects each retry as usual. A few rounds let accepted ACs propagate into
+        the failed region. Only predictions that differ from the flow's start are retried.
+        Updates the arrays in place.
+        """
+        retried = 0
+        tried = np.zeros(len(accepted), dtype=bool)
+        for _ in range(_RESEED_ROUNDS):
+            index, q, J = neighbour_predictions(grid, accepted, ~accepted & ~tried, p2, A)
+            new = (np.linalg.norm(q - p2_flow[index], axis=1) > _RESEED_MIN_POINT_CHANGE) | (
+                np.linalg.norm(J - A_flow[index], axis=(1, 2)) > _RESEED_MIN_AFFINE_CHANGE)
+            index, q, J = index[new], q[new], J[new]
+            if index.size == 0:
+                break
+            tried[index] = True
+            refined = self._refine(template.subset(index), image2, q, J)
+            good = index[refined.ok]
+            p2[good], A[good], weights[good] = (refined.p2[refined.ok], refined.A[refined.ok],
+                                                refined.weights[refined.ok])
+            accepted[good] = True
+            retried += good.size
+            if good.size == 0:
+                break
+        stats['reseeded'] = float(retried)

@@ -61,6 +61,13 @@ class TiltEstimate:
     normal: np.ndarray
     frames: int
 
+    def levelling_angles(self, max_std: float = np.deg2rad(0.5)) -> tuple[float, float]:
+        """``(pitch, roll)`` to level with: an angle known no better than ``max_std`` (radians)
+        is taken as 0, since levelling by a wrong angle does more harm than not levelling
+        (KITTI 06 drives nearly straight: its roll is unobservable, std about 3 deg)."""
+        return (self.pitch if self.pitch_std <= max_std else 0.0,
+                self.roll if self.roll_std <= max_std else 0.0)
+
 
 def _normal_from_angles(pitch: float, roll: float) -> tuple[np.ndarray, np.ndarray]:
     """``n(pitch, roll)`` and its Jacobian ``(3, 2)`` with respect to ``(pitch, roll)``."""
@@ -140,7 +147,7 @@ class MountTiltEstimator:
         self._weights.append(float(weight))
 
     def add_acs(self, q1: np.ndarray, q2: np.ndarray, weight: float = 1.0,
-                threshold: float = 1e-3) -> bool:
+                threshold: float = 1e-3, max_points: int = 2000) -> bool:
         """Add the pose of a frame pair from normalised point correspondences (OpenCV five-point,
         `planar_vo.baselines.estimate_5pc_opencv`: a general pose, since the planar solvers
         assume the level camera that is being calibrated).
@@ -148,6 +155,8 @@ class MountTiltEstimator:
         Args:
             q1, q2: normalised coordinates ``(N, 2)`` (e.g. ``acs.normalized(camera).p1``).
             weight: relative confidence. threshold: RANSAC threshold (normalised units).
+            max_points: at most this many correspondences, evenly picked, go to the five-point
+                RANSAC (its cost grows with the number of points, its accuracy barely).
 
         Returns:
             Whether a pose was found and added.
@@ -158,6 +167,9 @@ class MountTiltEstimator:
         q2 = as_array('q2', q2, (None, 2), min_items=0)
         if len(q1) < 5 or len(q2) != len(q1):
             return False
+        if len(q1) > max_points:
+            pick = np.linspace(0, len(q1) - 1, max_points).astype(int)
+            q1, q2 = q1[pick], q2[pick]
         pose = estimate_5pc_opencv(q1, q2, threshold=threshold)
         if not pose.ok:
             return False
