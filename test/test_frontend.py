@@ -640,7 +640,9 @@ def test_acs_give_the_rendered_motion_by_voting(street):
                                            normalize_points(K, acs.p2),
                                            normalize_affines(K, K, acs.A), acs.weights)
         alpha, beta, _ = relative_planar_motion(poses[k], poses[k + 1])
-        assert stats.num_inliers > 0.8 * len(acs)
+        # Inliers pass a 99 % chi-square test at noise scales estimated from the inliers' median;
+        # front-end errors have heavier tails than a Gaussian, so about 70 % pass.
+        assert stats.reliable and stats.num_inliers > 0.6 * len(acs)
         assert abs(angle_difference(motion.alpha, alpha)) < np.deg2rad(0.05)
         assert abs(angle_difference(motion.beta, beta)) < np.deg2rad(1.0)
 
