@@ -2,6 +2,10 @@
 
     ros2 launch planar_vo planar_vo.launch.py image:=/camera/image_raw \
         camera_info:=/camera/camera_info params_file:=/path/to/my_planar_vo.yaml
+
+The node subscribes to ``image`` (or ``image/compressed`` with ``ros.image_transport:
+compressed``; both follow the ``image`` argument), ``camera_info`` and, with ``scale.source:
+speed``, ``speed``; it publishes ``odom``, ``path``, ``status`` and the TF ``odom -> base_link``.
 """
 
 import os

@@ -1,0 +1,583 @@
+"""The planar_vo node over real DDS: a rendered drive played from a bag in another process.
+
+The node runs as ``ros2 run`` runs it (``<prefix>/lib/planar_vo/planar_vo_node``); the bag player
+(`ros_tools.play`) is a second process; odometry and status are collected in the test process
+(`ros_tools.Probe`). Discovery is awaited through matched publisher/subscriber counts, never
+by sleeping.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import re
+import signal
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bagdata import camera_info_msg, image_msg
+from ros_tools import NodeProcess, Probe, player_args, to_rclpy
+
+from planar_vo.bag import iter_camera_frames, iter_messages, open_bag
+from planar_vo.bag.camera_bag import CAMERA_INFO_TOPIC, GROUND_TRUTH_TOPIC, IMAGE_TOPIC
+from planar_vo.bag.record import record_drive
+from planar_vo.camera import CameraModel
+from planar_vo.config import MountConfig
+from planar_vo.geometry.frames import invert, rotation_from_quaternion, se3, yaw_of
+from planar_vo.messages import pose_from_message, stamp_to_ns
+from planar_vo.render import straight, turn
+
+# rclpy's imports pull in lark, which uses deprecated sre_* modules.
+pytestmark = [pytest.mark.ros,
+              pytest.mark.filterwarnings('ignore:module .sre_:DeprecationWarning')]
+rclpy = pytest.importorskip('rclpy')
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from nav_msgs.msg import Odometry, Path as PathMsg  # noqa: E402
+
+MOUNT = MountConfig(height=1.4, pitch=0.05)
+CAMERA = CameraModel.pinhole(640, 480, 500.0)
+REMAP = ['-r', f'image:={IMAGE_TOPIC}', '-r', f'image/compressed:={IMAGE_TOPIC}/compressed',
+         '-r', f'camera_info:={CAMERA_INFO_TOPIC}']
+MOUNT_PARAMS = {'mount.height': MOUNT.height, 'mount.pitch': MOUNT.pitch}
+
+
+# -- fixtures and helpers --------------------------------------------------------------------------
+
+@pytest.fixture(scope='module')
+def drive_bag(tmp_path_factory) -> Path:
+    """42 frames at 10 Hz, 640x480: 15 m straight at 8 m/s, then a 45-degree left turn of
+    radius 20 m at 7 m/s (30.7 m in all), with ground truth and a /speed topic."""
+    path = tmp_path_factory.mktemp('drive') / 'bag'
+    trajectory = straight(15.0, speed=8.0).then(turn(np.pi / 4, radius=20.0, speed=7.0))
+    record_drive(path, trajectory, camera=CAMERA, mount=MOUNT, seed=3)
+    return path
+
+
+@pytest.fixture(scope='module')
+def prefix() -> Path:
+    """Where ``ros2 run`` finds the executables (see test_install.py)."""
+    if os.environ.get('AMENT_PREFIX_PATH'):
+        from ament_index_python.packages import get_package_prefix
+
+        return Path(get_package_prefix('planar_vo'))
+    return Path(sys.prefix)
+
+
+def node_args(prefix: Path, params: dict[str, object], extra: list[str] = ()) -> list[str]:
+    args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args', *REMAP, *extra]
+    for name, value in params.items():
+        text = str(value).lower() if isinstance(value, bool) else str(value)
+        args += ['-p', f'{name}:={text}']
+    return args
+
+
+def ground_truth(bag: Path) -> dict[int, np.ndarray]:
+    """Header stamp (ns) -> ground-truth ``T_odom_base``."""
+    with open_bag(bag) as reader:
+        return {m.stamp_ns: pose_from_message(m.msg)
+                for m in iter_messages(reader, GROUND_TRUTH_TOPIC)}
+
+
+def image_stamps(bag: Path) -> list[int]:
+    with open_bag(bag) as reader:
+        return [f.stamp_ns for f in iter_camera_frames(reader, IMAGE_TOPIC)]
+
+
+def odom_pose(msg: Odometry) -> np.ndarray:
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    return se3(rotation_from_quaternion(np.array([q.x, q.y, q.z, q.w])),
+               np.array([p.x, p.y, p.z]))
+
+
+def status_values(msg: DiagnosticArray) -> dict[str, str]:
+    return {kv.key: kv.value for kv in msg.status[0].values}
+
+
+def last_count(status: list[DiagnosticArray], key: str) -> int:
+    return int(status_values(status[-1])[key]) if status else 0
+
+
+def summary_line(output: str) -> str:
+    lines = [ln for ln in output.splitlines() if 'summary:' in ln]
+    assert len(lines) == 1, output[-3000:]
+    return lines[0]
+
+
+def run_drive(prefix: Path, env: dict, tmp_path: Path, bag: Path, params: dict[str, object],
+              *, topics: list[str], frames: int, compress_fmt: str | None = None,
+              reliable: bool = False, extra: list[str] = (),
+              stop_signal: int = signal.SIGINT) -> tuple[list, list, str]:
+    """Start the node, play ``bag`` into it, collect odom and status until the node has seen
+    ``frames`` images, stop the node with ``stop_signal`` (exit code 0 expected).
+
+    Returns (odometry messages, status messages, node output); the last path message is
+    checked against the odometry (``ros.path_max_length`` poses at most)."""
+    with Probe(env) as probe, \
+            NodeProcess(node_args(prefix, params, extra), env, tmp_path / 'node.log') as node:
+        odom = probe.subscribe('/odom', Odometry)
+        status = probe.subscribe('/status', DiagnosticArray)
+        paths = probe.subscribe('/path', PathMsg)
+        probe.wait_for_publisher('/status', alive=[node])
+        with NodeProcess(player_args(bag, topics=topics, compress_fmt=compress_fmt,
+                                     reliable=reliable), env, tmp_path / 'player.log') as player:
+            probe.spin_until(lambda: last_count(status, 'frames') >= frames, 60.0,
+                             f'{frames} frames processed', alive=[node, player])
+            # The odometry of the last frame was published before its status.
+            probe.spin_until(lambda: len(odom) >= last_count(status, 'odometry_out'), 5.0,
+                             'the last odometry message', alive=[node])
+            if odom:
+                probe.spin_until(lambda: paths and paths[-1].header.stamp == odom[-1].header.stamp,
+                                 5.0, 'the last path', alive=[node])
+            assert 'played' in player.output()
+        assert node.stop(stop_signal) == 0, node.output()[-3000:]
+        output = node.output()
+    if odom:
+        keep = int(params.get('ros.path_max_length', 10000)) or len(odom)
+        assert [p.header.stamp for p in paths[-1].poses] == \
+            [m.header.stamp for m in odom[-keep:]]
+        assert [p.pose for p in paths[-1].poses] == [m.pose.pose for m in odom[-keep:]]
+    assert 'Traceback' not in output, output
+    return odom, status, output
+
+
+def assert_tracks_ground_truth(stamps: list[int], poses: list[np.ndarray],
+                               truth: dict[int, np.ndarray], origin_ns: int, *, yaw_deg: float,
+                               max_yaw_err_deg: float = 1.0, max_pos_err: float = 0.02
+                               ) -> tuple[float, float]:
+    """Check the last of the estimated ``poses`` (at ``stamps``, relative to the frame at
+    ``origin_ns``) against the ground truth: its yaw is about ``yaw_deg``, the yaw error below
+    ``max_yaw_err_deg`` and the position error below ``max_pos_err`` of the distance driven.
+
+    Returns the yaw error (deg) and the position error (fraction of the distance)."""
+    origin = invert(truth[origin_ns])
+    true_last, est_last = origin @ truth[stamps[-1]], poses[-1]
+    xy = np.array([(origin @ truth[s])[:2, 3] for s in [origin_ns, *stamps]])
+    distance = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+    yaw = math.degrees(float(yaw_of(est_last[:3, :3])))
+    yaw_err = yaw - math.degrees(float(yaw_of(true_last[:3, :3])))
+    pos_err = float(np.linalg.norm(est_last[:2, 3] - true_last[:2, 3])) / distance
+    assert yaw == pytest.approx(yaw_deg, abs=2.0)
+    assert abs(yaw_err) < max_yaw_err_deg, yaw_err
+    assert pos_err < max_pos_err, (pos_err, est_last[:2, 3], true_last[:2, 3])
+    return yaw_err, pos_err
+
+
+def odom_track(odom: list[Odometry]) -> tuple[list[int], list[np.ndarray]]:
+    """Stamps (ns) and poses of odometry messages."""
+    return [stamp_to_ns(m.header.stamp) for m in odom], [odom_pose(m) for m in odom]
+
+
+# -- 1, 2: a drive through the node ----------------------------------------------------------------
+
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize('source,stop_signal', [('ground', signal.SIGINT),
+                                                ('speed', signal.SIGTERM)],
+                         ids=['ground-SIGINT', 'speed-SIGTERM'])
+def test_drive_gives_one_odometry_per_image_tracking_ground_truth(
+        prefix, ros_env, tmp_path, drive_bag, source, stop_signal):
+    stamps = image_stamps(drive_bag)
+    topics = [IMAGE_TOPIC, CAMERA_INFO_TOPIC] + (['/speed'] if source == 'speed' else [])
+    odom, status, output = run_drive(prefix, ros_env, tmp_path, drive_bag,
+                                     {**MOUNT_PARAMS, 'scale.source': source,
+                                      'ros.path_max_length': 10},
+                                     topics=topics, frames=len(stamps), stop_signal=stop_signal)
+
+    # Every image but the first (which starts the keyframe chain) yields odometry, stamped
+    # exactly with the image's header stamp, in the configured frames.
+    assert [stamp_to_ns(m.header.stamp) for m in odom] == stamps[1:]
+    assert {(m.header.frame_id, m.child_frame_id) for m in odom} == {('odom', 'base_link')}
+    final = status_values(status[-1])
+    assert (final['frames'], final['odometry_out'], final['dropped']) == \
+        (str(len(stamps)), str(len(stamps) - 1), '1')
+    assert final['dropped.first_frame'] == '1'
+    assert [status_values(s)['result'] for s in status] == ['first_frame'] + \
+        ['ok'] * (len(stamps) - 1)
+    assert {status_values(s)['scale_source'] for s in status[1:]} == {source}
+    assert float(final['time_ms.total']) > 0 and int(final['inliers']) >= 20
+    if source == 'speed':
+        assert int(final['speed_messages']) >= len(stamps) - 1
+
+    # A left turn of 45 degrees: positive yaw; pose and rate close to the ground truth.
+    yaw_err, pos_err = assert_tracks_ground_truth(*odom_track(odom), ground_truth(drive_bag),
+                                                  stamps[0], yaw_deg=45.0)
+    last = odom[-1]
+    assert last.twist.twist.linear.x == pytest.approx(7.0, rel=0.1)
+    assert last.twist.twist.angular.z == pytest.approx(7.0 / 20.0, rel=0.2)
+    cov = np.array(last.pose.covariance).reshape(6, 6)
+    first_cov = np.array(odom[0].pose.covariance).reshape(6, 6)
+    assert np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0)
+    assert cov[0, 0] + cov[1, 1] > first_cov[0, 0] + first_cov[1, 1]   # uncertainty grows
+    assert np.all(np.diag(np.array(last.twist.covariance).reshape(6, 6)) > 0)
+
+    line = summary_line(output)
+    assert f'{len(stamps)} frames in, {len(stamps) - 1} odometry out, 1 dropped ' \
+           f'(first_frame 1)' in line
+    node_ms = np.mean([float(status_values(s)['time_ms.node']) for s in status[1:]])
+    print(f'{source}: final yaw error {yaw_err:+.3f} deg, position error {100 * pos_err:.3f}% '
+          f'of distance; mean node time {node_ms:.1f} ms/frame')
+
+
+@pytest.mark.timeout(90)
+def test_compressed_transport_drive(prefix, ros_env, tmp_path, drive_bag):
+    stamps = image_stamps(drive_bag)
+    odom, status, output = run_drive(prefix, ros_env, tmp_path, drive_bag,
+                                     {**MOUNT_PARAMS, 'ros.image_transport': 'compressed'},
+                                     topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
+                                     frames=len(stamps), compress_fmt='jpeg')
+    assert [stamp_to_ns(m.header.stamp) for m in odom] == stamps[1:]
+    yaw_err, pos_err = assert_tracks_ground_truth(*odom_track(odom), ground_truth(drive_bag),
+                                                  stamps[0], yaw_deg=45.0)
+    print(f'jpeg: final yaw error {yaw_err:+.3f} deg, position error {100 * pos_err:.3f}%')
+
+
+# -- 3: bad input to the live node -----------------------------------------------------------------
+
+def write_faulty_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
+    """A bag of the drive's first 30 frames with faults injected, in this order (F3 = frame 3):
+
+    no camera info for F0-F2 (no_camera_info x3), then camera info with every image; F3 starts
+    the keyframe chain; F6 as 32FC1 and F7 as yuv422 (bad_image x2); a camera info with K all
+    zeros before F8 (ignored, the last valid one stays); F9 black and F10 saturated
+    (blank_image x2); F12 twice (duplicate_stamp); after F13 the image of F11 again
+    (out_of_order); F14 and F15 missing (a gap); F18 at half size (size_changed), so F19 starts
+    a new keyframe chain.
+
+    Returns the expected ``(stamp_ns, result)`` of every image message, in publishing order.
+    """
+    from bagdata import T
+
+    with open_bag(clean) as reader:
+        frames = list(iter_camera_frames(reader, IMAGE_TOPIC))[:30]
+    info_type, image_type = 'sensor_msgs/msg/CameraInfo', 'sensor_msgs/msg/Image'
+    entries, expected = [], []
+    slot = [0]
+
+    def publish(stamp_ns: int, image_message, result: str, info: bool | np.ndarray = True):
+        log_ns = frames[0].stamp_ns + slot[0] * 100_000_000
+        slot[0] += 1
+        if info is not False:
+            k = CAMERA.K if info is True else info
+            entries.append((CAMERA_INFO_TOPIC, info_type, log_ns - 1000,
+                            camera_info_msg(stamp_ns, 640, 480, 500.0, k=k)))
+        entries.append((IMAGE_TOPIC, image_type, log_ns, image_message))
+        expected.append((stamp_ns, result))
+
+    def good(i: int, result: str = 'ok', **kwargs):
+        publish(frames[i].stamp_ns, image_msg(frames[i].image, 'mono8', frames[i].stamp_ns),
+                result, **kwargs)
+
+    for i in range(3):
+        good(i, 'no_camera_info', info=False)
+    good(3, 'first_frame')
+    good(4)
+    good(5)
+    s6, s7 = frames[6].stamp_ns, frames[7].stamp_ns
+    publish(s6, image_msg(frames[6].image.astype(np.float32), '32FC1', s6), 'bad_image')
+    yuv = np.repeat(frames[7].image, 2, axis=1).reshape(-1)
+    publish(s7, T[image_type](header=image_msg(frames[7].image, 'mono8', s7).header,
+                              height=480, width=640, encoding='yuv422', is_bigendian=0,
+                              step=1280, data=yuv), 'bad_image')
+    good(8, info=np.zeros((3, 3)))
+    for i, value in ((9, 0), (10, 255)):
+        publish(frames[i].stamp_ns, image_msg(np.full((480, 640), value, np.uint8), 'mono8',
+                                              frames[i].stamp_ns), 'blank_image')
+    good(11)
+    good(12)
+    good(12, 'duplicate_stamp')
+    good(13)
+    good(11, 'out_of_order')
+    slot[0] += 2                                   # F14, F15 never sent
+    good(16)
+    good(17)
+    small = frames[18].image[::2, ::2].copy()
+    publish(frames[18].stamp_ns, image_msg(small, 'mono8', frames[18].stamp_ns), 'size_changed')
+    good(19, 'first_frame')
+    for i in range(20, 30):
+        good(i)
+
+    from bagdata import write_bag
+
+    write_bag(out, 'mcap', sorted(entries, key=lambda e: e[2]))
+    return expected
+
+
+@pytest.mark.timeout(90)
+def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
+        prefix, ros_env, tmp_path, drive_bag):
+    faulty = tmp_path / 'faulty'
+    expected = write_faulty_bag(drive_bag, faulty)
+    # Reliable delivery (set through the standard QoS override parameters): a 640x480 32FC1
+    # image is 1.2 MB, which best-effort DDS delivery loses more often than not.
+    reliable = [f'qos_overrides.{t}.subscription.reliability:=reliable'
+                for t in (IMAGE_TOPIC, CAMERA_INFO_TOPIC)]
+    odom, status, output = run_drive(prefix, ros_env, tmp_path, faulty, MOUNT_PARAMS,
+                                     topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
+                                     frames=len(expected), reliable=True,
+                                     extra=[a for r in reliable for a in ('-p', r)])
+
+    # Every image has its status, in order, with the expected outcome; odometry exactly for
+    # the good frames, each stamped with its image's stamp.
+    assert [(int(status_values(s)['stamp_ns']), status_values(s)['result'])
+            for s in status] == expected
+    assert [stamp_to_ns(m.header.stamp) for m in odom] == \
+        [stamp for stamp, result in expected if result == 'ok']
+    final = status_values(status[-1])
+    counts = {reason: sum(r == reason for _, r in expected) for _, reason in expected}
+    assert counts == {'no_camera_info': 3, 'first_frame': 2, 'ok': 18, 'bad_image': 2,
+                      'blank_image': 2, 'duplicate_stamp': 1, 'out_of_order': 1,
+                      'size_changed': 1}
+    for reason, count in counts.items():
+        key = 'odometry_out' if reason == 'ok' else f'dropped.{reason}'
+        assert final[key] == str(count), key
+    assert (final['frames'], final['dropped']) == (str(len(expected)), str(len(expected) - 18))
+    assert (final['camera_info_errors'], final['gaps'], final['missing_frames']) == \
+        ('1', '1', '2')
+
+    # One specific warning per kind: repeats within ros.warn_period (5 s) are held back.
+    for needle in ("bad_image: image.encoding: expected one of", "blank_image: image is blank",
+                   'no_camera_info: no camera intrinsics yet', 'duplicate_stamp: timestamp',
+                   'out_of_order: timestamp', 'size_changed: image is 320x240',
+                   'ignoring camera_info: camera_info: K is all zeros', 'gap of 300 ms'):
+        lines = [ln for ln in output.splitlines() if needle in ln]
+        assert len(lines) == 1 and lines[0].startswith('[WARN]'), (needle, output[-4000:])
+    assert "got '32FC1'" in output
+
+    # The faults did not corrupt the estimate: up to F17 (through the gap) relative to F3, and
+    # the new chain from F19 relative to its start, track the ground truth.
+    truth = ground_truth(drive_bag)
+    chain_start = expected[-11][0]
+    stamps, poses = odom_track(odom)
+    before = [i for i, stamp in enumerate(stamps) if stamp < chain_start]
+    assert_tracks_ground_truth([stamps[i] for i in before], [poses[i] for i in before], truth,
+                               expected[3][0], yaw_deg=0.0)
+    origin = invert(poses[before[-1]])      # the new chain starts at the last pose before
+    after = range(before[-1] + 1, len(stamps))
+    turned = invert(truth[chain_start]) @ truth[stamps[-1]]
+    assert_tracks_ground_truth([stamps[i] for i in after], [origin @ poses[i] for i in after],
+                               truth, chain_start,
+                               yaw_deg=math.degrees(float(yaw_of(turned[:3, :3]))))
+    assert 'summary: 30 frames in, 18 odometry out, 12 dropped' in summary_line(output)
+
+
+# -- 4: signals ------------------------------------------------------------------------------------
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_signal_mid_stream_exits_cleanly_with_a_summary(prefix, ros_env, tmp_path,
+                                                        drive_bag, sig):
+    with Probe(ros_env) as probe, \
+            NodeProcess(node_args(prefix, MOUNT_PARAMS), ros_env, tmp_path / 'node.log') as node:
+        status = probe.subscribe('/status', DiagnosticArray)
+        probe.wait_for_publisher('/status', alive=[node])
+        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC]),
+                         ros_env, tmp_path / 'player.log') as player:
+            probe.spin_until(lambda: last_count(status, 'frames') >= 5, 30.0, '5 frames',
+                             alive=[node, player])
+            assert node.stop(sig, timeout=10.0) == 0     # while images keep arriving
+        output = node.output()
+    assert 'Traceback' not in output and 'Failed to publish log message' not in output, output
+    if importlib.util.find_spec('tf2_ros') is None:
+        assert output.count('ros.publish_tf: tf2_ros is not installed') == 1
+    frames = int(re.search(r'summary: (\d+) frames in', summary_line(output)).group(1))
+    assert frames >= 5
+
+
+# -- 5, 6: parameters ------------------------------------------------------------------------------
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize('arg,message', [
+    ('voting.bins:=3', 'voting.bins: expected at least 36, got 3'),
+    ('scale.source:=gps', "scale.source: expected one of ['speed', 'ground', 'fixed', 'unit'], "
+                          "got 'gps'"),
+    ('mount.height:=high', "mount.height: expected float, got str 'high'"),
+    ('voting.binz:=360', 'unknown parameter(s) voting.binz'),
+])
+def test_invalid_parameter_is_one_fatal_line_and_exit_code_1(prefix, ros_env, tmp_path, arg,
+                                                             message):
+    with NodeProcess([str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args', '-p', arg],
+                     ros_env, tmp_path / 'node.log') as node:
+        assert node.popen.wait(timeout=30) == 1
+        output = node.output()
+    fatal = [ln for ln in output.splitlines() if ln.startswith('[FATAL]')]
+    assert len(fatal) == 1 and message in fatal[0], output
+    assert 'Traceback' not in output and 'summary:' not in output
+
+
+@pytest.mark.timeout(60)
+def test_run_time_parameter_changes_are_validated(prefix, ros_env, tmp_path):
+    from rcl_interfaces.srv import GetParameters, SetParameters
+    from rclpy.parameter import Parameter
+
+    # An integer for a float parameter and a list for the empty-list default are accepted.
+    args = node_args(prefix, {'mount.height': 2, 'camera.distortion': '[0.1, -0.01, 0.0, 0.0]'})
+    with Probe(ros_env) as probe, NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
+        probe.subscribe('/status', DiagnosticArray)
+        probe.wait_for_publisher('/status', alive=[node])
+
+        def set_parameter(name, value):
+            request = SetParameters.Request(parameters=[Parameter(name, value=value)
+                                                        .to_parameter_msg()])
+            (result,) = probe.call(SetParameters, '/planar_vo/set_parameters', request).results
+            return result.successful, result.reason
+
+        assert set_parameter('voting.bins', 3) == \
+            (False, 'voting.bins: expected at least 36, got 3')
+        ok, reason = set_parameter('voting.bins', 360)
+        assert not ok and reason.startswith('voting.bins: read at start-up only')
+        ok, reason = set_parameter('ros.warn_period', -1.0)
+        assert not ok and reason.startswith('ros.warn_period: expected a non-negative')
+        assert set_parameter('ros.warn_period', 1) == (True, '')
+        assert set_parameter('ros.path_max_length', 5) == (True, '')
+        values = probe.call(GetParameters, '/planar_vo/get_parameters', GetParameters.Request(
+            names=['ros.warn_period', 'voting.bins', 'mount.height'])).values
+        assert [values[0].integer_value, values[1].integer_value, values[2].integer_value] == \
+            [1, 720, 2]
+        assert node.stop(signal.SIGINT) == 0
+        output = node.output()
+    assert 'mount.height = 2.0' in output and 'camera.distortion = [0.1, -0.01, 0.0, 0.0]' \
+        in output, output
+
+
+# -- the warning throttle --------------------------------------------------------------------------
+
+def test_warning_throttle_admits_one_per_period_per_key_and_counts_the_rest():
+    from planar_vo.node import WarningThrottle
+
+    throttle = WarningThrottle(5.0)
+    assert throttle.admit('bad_image', now=100.0) == 0
+    assert throttle.admit('bad_image', now=101.0) is None
+    assert throttle.admit('blank_image', now=101.5) == 0       # keys are independent
+    assert throttle.admit('bad_image', now=104.9) is None
+    assert throttle.admit('bad_image', now=105.0) == 2         # two held back since 100.0
+    assert throttle.admit('bad_image', now=110.0) == 0
+    assert WarningThrottle(0.0).admit('x', now=1.0) == 0
+
+
+# -- in-process node: TF and pipeline failures -----------------------------------------------------
+
+@pytest.fixture
+def local_node(monkeypatch, ros_env):
+    """Factory of `PlanarVoNode` s in the test process (own context), with their odometry and
+    status publishers captured; the nodes and the context are cleaned up afterwards."""
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
+
+    import planar_vo.node as node_module
+
+    for key, value in ros_env.items():
+        monkeypatch.setenv(key, value)
+    context = Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    nodes = []
+
+    def make(params: dict[str, object]):
+        node = node_module.PlanarVoNode(context=context, parameter_overrides=[
+            Parameter(name, value=value) for name, value in params.items()])
+        nodes.append(node)
+        node.published = {'odom': [], 'status': []}
+        monkeypatch.setattr(node._odom_pub, 'publish', node.published['odom'].append)
+        monkeypatch.setattr(node._status_pub, 'publish', node.published['status'].append)
+        return node
+
+    try:
+        yield make
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        context.try_shutdown()
+
+
+def feed(node, bag: Path, count: int, before=None) -> None:
+    """Call the node's callbacks with the first ``count`` images of ``bag`` (and camera infos);
+    ``before(i)`` runs before image ``i``."""
+    from sensor_msgs.msg import CameraInfo, Image
+
+    with open_bag(bag) as reader:
+        messages = [(m.topic, reader.deserialize(m)) for m in
+                    reader.messages([CAMERA_INFO_TOPIC, IMAGE_TOPIC])]
+    images = 0
+    for topic, msg in messages:
+        if topic == CAMERA_INFO_TOPIC:
+            node._on_camera_info(to_rclpy(msg, CameraInfo))
+            continue
+        if images == count:
+            return
+        if before is not None:
+            before(images)
+        node._on_image(to_rclpy(msg, Image))
+        images += 1
+
+
+@pytest.mark.timeout(60)
+def test_tf_follows_the_odometry_and_can_be_switched_off(monkeypatch, local_node, drive_bag):
+    from rclpy.parameter import Parameter
+
+    import planar_vo.node as node_module
+
+    sent = []
+
+    class Broadcaster:                           # the interface of tf2_ros.TransformBroadcaster
+        def __init__(self, node):
+            self.node = node
+
+        def sendTransform(self, transform):  # noqa: N802 - the tf2_ros name
+            sent.append(transform)
+
+    monkeypatch.setattr(node_module, 'TransformBroadcaster', Broadcaster)
+    node = local_node(MOUNT_PARAMS)
+
+    def switch_off(i):
+        if i == 5:                                # after four odometry messages
+            (result,) = node.set_parameters([Parameter('ros.publish_tf', value=False)])
+            assert result.successful
+
+    feed(node, drive_bag, 7, switch_off)
+    published = node.published['odom']
+    assert len(published) == 6 and len(sent) == 4
+    for tf, odom in zip(sent, published):
+        assert tf.header == odom.header and tf.header.frame_id == 'odom'
+        assert tf.child_frame_id == odom.child_frame_id == 'base_link'
+        p = odom.pose.pose.position
+        assert (tf.transform.translation.x, tf.transform.translation.y,
+                tf.transform.translation.z) == (p.x, p.y, p.z)
+        assert tf.transform.rotation == odom.pose.pose.orientation
+    assert sent[-1].transform.translation.x == pytest.approx(3.2, rel=0.05)   # 4 frames at 8 m/s
+
+
+@pytest.mark.timeout(60)
+def test_pipeline_failures_are_counted_and_the_node_carries_on(monkeypatch, local_node,
+                                                               drive_bag):
+    import dataclasses
+
+    node = local_node(MOUNT_PARAMS)
+    real = node._vo.process
+    calls = []
+
+    def flaky(image, stamp, camera):
+        calls.append(stamp)
+        if len(calls) == 4:
+            raise RuntimeError('injected failure')
+        result = real(image, stamp, camera)
+        if len(calls) == 6:                       # accepted by the pipeline, but not finite
+            return dataclasses.replace(result, pose=np.full((4, 4), np.nan))
+        return result
+
+    monkeypatch.setattr(node._vo, 'process', flaky)
+    feed(node, drive_bag, 8)
+    results = [{kv.key: kv.value for kv in s.status[0].values} for s in
+               node.published['status']]
+    assert [r['result'] for r in results] == ['first_frame', 'ok', 'ok', 'pipeline_error', 'ok',
+                                              'pipeline_error', 'ok', 'ok']
+    messages = [s.status[0].message for s in node.published['status']]
+    assert messages[3] == 'pipeline_error: RuntimeError: injected failure'
+    assert messages[5].startswith('pipeline_error: InputError: pose: expected a finite 4x4')
+    assert node.published['status'][3].status[0].level == DiagnosticStatus.ERROR
+    assert len(node.published['odom']) == 5 and results[-1]['dropped.pipeline_error'] == '2'
+    assert node.outcomes == {'first_frame': 1, 'ok': 5, 'pipeline_error': 2}
+    assert node.summary().startswith('summary: 8 frames in, 5 odometry out, 3 dropped '
+                                     '(first_frame 1, pipeline_error 2)')
