@@ -243,8 +243,8 @@ def write_faulty_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
     the keyframe chain; F6 as 32FC1 and F7 as yuv422 (bad_image x2); a camera info with K all
     zeros before F8 (ignored, the last valid one stays); F9 black and F10 saturated
     (blank_image x2); F12 twice (duplicate_stamp); after F13 the image of F11 again
-    (out_of_order); F14 and F15 missing (a gap); F18 at half size (size_changed), so F19 starts
-    a new keyframe chain.
+    (out_of_order); F14 and F15 missing (a gap); F18 at half size (size_changed: a stray frame,
+    dropped, while tracking continues).
 
     Returns the expected ``(stamp_ns, result)`` of every image message, in publishing order.
     """
@@ -295,8 +295,7 @@ def write_faulty_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
     good(17)
     small = frames[18].image[::2, ::2].copy()
     publish(frames[18].stamp_ns, image_msg(small, 'mono8', frames[18].stamp_ns), 'size_changed')
-    good(19, 'first_frame')
-    for i in range(20, 30):
+    for i in range(19, 30):
         good(i)
 
     from bagdata import write_bag
@@ -327,13 +326,13 @@ def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
         [stamp for stamp, result in expected if result == 'ok']
     final = status_values(status[-1])
     counts = {reason: sum(r == reason for _, r in expected) for _, reason in expected}
-    assert counts == {'no_camera_info': 3, 'first_frame': 2, 'ok': 18, 'bad_image': 2,
+    assert counts == {'no_camera_info': 3, 'first_frame': 1, 'ok': 19, 'bad_image': 2,
                       'blank_image': 2, 'duplicate_stamp': 1, 'out_of_order': 1,
                       'size_changed': 1}
     for reason, count in counts.items():
         key = 'odometry_out' if reason == 'ok' else f'dropped.{reason}'
         assert final[key] == str(count), key
-    assert (final['frames'], final['dropped']) == (str(len(expected)), str(len(expected) - 18))
+    assert (final['frames'], final['dropped']) == (str(len(expected)), str(len(expected) - 19))
     assert (final['camera_info_errors'], final['gaps'], final['missing_frames']) == \
         ('1', '1', '2')
 
@@ -346,21 +345,14 @@ def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
         assert len(lines) == 1 and lines[0].startswith('[WARN]'), (needle, output[-4000:])
     assert "got '32FC1'" in output
 
-    # The faults did not corrupt the estimate: up to F17 (through the gap) relative to F3, and
-    # the new chain from F19 relative to its start, track the ground truth.
+    # The faults did not corrupt the estimate: one chain from F3 to F29 (through the gap and
+    # past the stray half-size frame) tracks the ground truth.
     truth = ground_truth(drive_bag)
-    chain_start = expected[-11][0]
     stamps, poses = odom_track(odom)
-    before = [i for i, stamp in enumerate(stamps) if stamp < chain_start]
-    assert_tracks_ground_truth([stamps[i] for i in before], [poses[i] for i in before], truth,
-                               expected[3][0], yaw_deg=0.0)
-    origin = invert(poses[before[-1]])      # the new chain starts at the last pose before
-    after = range(before[-1] + 1, len(stamps))
-    turned = invert(truth[chain_start]) @ truth[stamps[-1]]
-    assert_tracks_ground_truth([stamps[i] for i in after], [origin @ poses[i] for i in after],
-                               truth, chain_start,
+    turned = invert(truth[expected[3][0]]) @ truth[stamps[-1]]
+    assert_tracks_ground_truth(stamps, poses, truth, expected[3][0],
                                yaw_deg=math.degrees(float(yaw_of(turned[:3, :3]))))
-    assert 'summary: 30 frames in, 18 odometry out, 12 dropped' in summary_line(output)
+    assert 'summary: 30 frames in, 19 odometry out, 11 dropped' in summary_line(output)
 
 
 # -- 4: signals ------------------------------------------------------------------------------------
