@@ -143,7 +143,10 @@ class PlanarVoNode(Node):
                                      **sensor)
         else:
             self.create_subscription(Image, 'image', self._on_image, **sensor)
-        if self.config.camera.fx > 0:
+        self._pending: tuple | None = None
+        # With estimate_focal the pipeline runs without CameraInfo: no image waits for one.
+        self._expects_camera_info = self.config.camera.fx <= 0 and not self.config.camera.estimate_focal
+        if not self._expects_camera_info:
             self.get_logger().info('camera intrinsics from the camera.* parameters; not '
                                    'subscribing to camera_info')
         else:
@@ -228,10 +231,28 @@ class PlanarVoNode(Node):
     # -- inputs --------------------------------------------------------------------------------
 
     def _on_image(self, msg: Image) -> None:
-        self._frame(msg, image_to_array)
+        self._image(msg, image_to_array)
 
     def _on_compressed(self, msg: CompressedImage) -> None:
-        self._frame(msg, compressed_to_array)
+        self._image(msg, compressed_to_array)
+
+    def _image(self, msg: Image | CompressedImage, decode) -> None:
+        """Until the first CameraInfo has arrived, an image waits in one slot for it: a driver
+        publishes both with the same stamp but DDS does not order two topics, so the first image
+        may arrive first. It runs when the CameraInfo comes, or as soon as another image does
+        (then counted ``no_camera_info``, like every image that finds no camera model)."""
+        if self._camera is None and self._expects_camera_info:
+            self.flush_pending()
+            self._pending = (msg, decode)
+            return
+        self.flush_pending()
+        self._frame(msg, decode)
+
+    def flush_pending(self) -> None:
+        """Process the image waiting for the first CameraInfo, if any."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            self._frame(*pending)
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
@@ -246,6 +267,7 @@ class PlanarVoNode(Node):
             self.get_logger().info(f'camera model changed to {camera.width}x{camera.height}, '
                                    f'fx {camera.fx:.1f}')
         self._camera = camera
+        self.flush_pending()
 
     def _on_speed(self, msg: TwistStamped | Odometry) -> None:
         try:
@@ -458,6 +480,10 @@ def main(args: list[str] | None = None) -> int:
         return 1            # the fatal line naming the parameter is already logged
     finally:
         if node is not None:
+            try:
+                node.flush_pending()            # counted like any frame; publishing may fail
+            except Exception:  # noqa: BLE001 - shutting down: the count matters, not the publish
+                pass
             name, summary = node.get_name(), node.summary()
             node.destroy_node()
             # Logged after the node is gone: a signal has already shut the context down, and

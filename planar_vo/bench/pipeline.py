@@ -29,32 +29,29 @@ import numpy as np
 KITTI_EXCERPT = Path('..') / 'shared' / 'data' / 'kitti06_excerpt'
 EXAMPLES = """examples:
   planar_vo bench pipeline
-  planar_vo bench pipeline --frames 100 --out bench_results
+  planar_vo bench pipeline --frames 100 --out out/bench/pipeline
   planar_vo bench pipeline --kitti /data/kitti/sequences/06 --kitti-pitch 0.0188
 """
 ONE_CORE = {'OMP_NUM_THREADS': '1', 'OPENBLAS_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
 
 
-def register(subparsers) -> argparse.ArgumentParser:
-    parser = subparsers.add_parser(
-        'pipeline', help='end-to-end speed per stage and KITTI accuracy vs the five-point peer',
-        description=__doc__, epilog=EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+HELP = 'end-to-end speed per stage and KITTI accuracy vs the five-point peer'
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``planar_vo bench pipeline`` (``--out`` is added by the bench command)."""
+    parser.epilog = EXAMPLES
     parser.add_argument('--frames', type=int, default=60,
                         help='rendered frames for the speed part (default: 60)')
     parser.add_argument('--kitti', type=Path, default=None, metavar='DIR',
                         help='KITTI sequence folder for the accuracy part (default: the shared '
-                             'excerpt when present)')
+                             'excerpt ../shared/data/kitti06_excerpt when present)')
     parser.add_argument('--kitti-height', type=float, default=1.65,
                         help='KITTI camera height in metres (default: 1.65)')
     parser.add_argument('--kitti-pitch', type=float, default=None, metavar='RAD',
                         help='known camera pitch; default: estimated online (mount.estimate_tilt)')
-    parser.add_argument('--out', type=Path, default=None, metavar='DIR',
-                        help='also write the tables as markdown here')
     parser.add_argument('--skip-speed', action='store_true', help='accuracy part only')
     parser.add_argument('--skip-kitti', action='store_true', help='speed part only')
-    parser.set_defaults(run=run)
-    return parser
 
 
 def _one_core(argv: list[str]) -> None:
@@ -74,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     import cv2
 
     cv2.setNumThreads(1)
-    command = 'planar_vo ' + ' '.join(sys.argv[1:])
+    command = getattr(args, 'command', 'planar_vo ' + ' '.join(sys.argv[1:]))
     sections = []
     if not args.skip_speed:
         sections.append(speed_table(args.frames))
@@ -89,8 +86,9 @@ def run(args: argparse.Namespace) -> int:
             sections.append(kitti_table(kitti, args.kitti_height, args.kitti_pitch))
             print(sections[-1], flush=True)
     if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-        path = args.out / 'pipeline.md'
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / 'pipeline.md'
         path.write_text(f'# planar_vo bench pipeline\n\nCommand: `{command}`\n\n'
                         + '\n\n'.join(sections) + '\n')
         print(f'wrote {path}')
