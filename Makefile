@@ -15,6 +15,7 @@ PIP    := $(PY) -m pip install --quiet --disable-pip-version-check
 SOURCES := $(shell find planar_vo resource config -type f -not -name '*.pyc')
 
 # Exact versions for a reproducible environment (setup.py carries the compatible ranges).
+# poselib and matplotlib (the 'bench' extra) are here so that the benchmark tests run, not skip.
 PINS := \
 	setuptools==80.9.0 \
 	ros-jazzy-rclpy==7.1.6 \
@@ -26,7 +27,9 @@ PINS := \
 	PyYAML==6.0.3 \
 	tqdm==4.70.1 \
 	pytest==9.0.3 \
-	pytest-timeout==2.4.0
+	pytest-timeout==2.4.0 \
+	poselib==2.0.5 \
+	matplotlib==3.11.2
 
 .PHONY: demo test venv clean
 

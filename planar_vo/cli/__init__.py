@@ -19,7 +19,7 @@ from planar_vo.errors import PlanarVoError
 __all__ = ['build_parser', 'main']
 
 # Subcommand modules, in --help order.
-COMMANDS = ('demo',)
+COMMANDS = ('demo', 'bench')
 
 EPILOG = """examples:
   planar_vo demo                      solver accuracy on the paper's synthetic protocol
