@@ -74,6 +74,7 @@ def test_command_line_spells_out_every_option():
 
 
 def test_bench_paper_quick_writes_plots_and_report(tmp_path, capfd):
+    pytest.importorskip('poselib')
     pytest.importorskip('matplotlib')
     out = tmp_path / 'paper'
     assert main(['bench', 'paper', '--quick', '--out', str(out)]) == 0

@@ -186,14 +186,6 @@ def _1ac_voting(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
     return _one(*estimate_1ac_voting(trial.q1, trial.q2, trial.A_norm))
 
 
-def _has_poselib() -> bool:
-    try:
-        import poselib  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 METHODS: tuple[Method, ...] = (
     Method('1AC', 'minimal', 'calibrated', 1, _1ac(False), 'planar_vo solve_1ac'),
     Method('1AC+LS', 'minimal', 'calibrated', 1, _1ac(True),
@@ -201,21 +193,20 @@ METHODS: tuple[Method, ...] = (
     Method('2PC', 'minimal', 'calibrated', 2, _points(solve_2pc, 2),
            'planar_vo solve_2pc (Choi and Kim 2018)'),
     Method('2PC (PoseLib)', 'minimal', 'calibrated', 2,
-           _points(baselines.solve_2pc_poselib, 2), 'PoseLib relpose_upright_planar_2pt',
-           _has_poselib),
+           _points(baselines.solve_2pc_poselib, 2), 'PoseLib relpose_upright_planar_2pt'),
     Method('3PC', 'minimal', 'calibrated', 3, _points(solve_3pc, 3), 'planar_vo solve_3pc'),
     Method('5PC (PoseLib)', 'minimal', 'calibrated', 5, _5pc_minimal,
-           'PoseLib relpose_5pt (Nister); the paper\'s 5PC', _has_poselib),
+           'PoseLib relpose_5pt (Nister); the paper\'s 5PC'),
     Method('5PC RANSAC (OpenCV)', 'robust', 'calibrated', 0, _5pc_opencv,
            'OpenCV findEssentialMat (RANSAC, p=0.999) + recoverPose'),
     Method('5PC RANSAC (PoseLib)', 'robust', 'calibrated', 0, _5pc_poselib,
-           'PoseLib estimate_relative_pose (RANSAC + LO + bundle, p=0.999)', _has_poselib),
+           'PoseLib estimate_relative_pose (RANSAC + LO + bundle, p=0.999)'),
     Method('1AC+voting', 'robust', 'calibrated', 0, _1ac_voting,
            'HOOK estimate_1ac_voting -> planar_vo.geometry.vote_planar_motion',
            voting_available),
     Method('1ACf', 'minimal', 'focal', 1, _1acf, 'planar_vo solve_1acf'),
     Method('6PC (PoseLib)', 'minimal', 'focal', 6, _6pc_minimal,
-           'PoseLib shared_focal_relpose_6pt', _has_poselib),
+           'PoseLib shared_focal_relpose_6pt'),
     Method('6PC RANSAC (PoseLib)', 'robust', 'focal', 0, _6pc_poselib,
-           'PoseLib estimate_shared_focal_relative_pose (p=0.999)', _has_poselib),
+           'PoseLib estimate_shared_focal_relative_pose (p=0.999)'),
 )

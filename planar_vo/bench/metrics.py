@@ -66,5 +66,6 @@ def focal_error(f_est: np.ndarray, f_gt: float) -> np.ndarray:
 
 
 def planar_pose(alpha: np.ndarray, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``R = Ry(alpha)`` ``(..., 3, 3)`` and ``t = [cos b, 0, sin b]`` ``(..., 3)`` of planar motions."""
+    """Pose of planar motions: ``R = Ry(alpha)`` ``(..., 3, 3)``, ``t = [cos b, 0, sin b]``
+    ``(..., 3)``."""
     return rotation_y(alpha), translation_direction(beta)
