@@ -114,7 +114,7 @@ def test_bench_speed_quick_reports_voting_as_not_run(tmp_path, capfd):
     assert (out / 'speed_vs_size.png').exists() and (out / 'speed_vs_outliers.png').exists()
     if not methods.voting_available():
         # The missing step is reported as missing, never replaced by a number.
-        assert '| 500 | solve + vote (1AC+voting) | not run |' in text
+        assert '| 300 | solve + vote (1AC+voting) | not run |' in text
         assert 'solve only' in text
 
 
