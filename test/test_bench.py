@@ -96,6 +96,20 @@ def test_bench_paper_quick_writes_plots_and_report(tmp_path, capfd):
     assert float(rows[('general', 0.0, '1ACf')]['focal_median']) < 1e-9
 
 
+def test_paper_experiments_do_not_depend_on_the_number_of_workers():
+    from planar_vo.bench.paper import run_experiments
+
+    kwargs = dict(runs=3, samples=2, methods=['1AC', '2PC', '1ACf'], progress=False)
+    rows1, free1 = run_experiments([0.0, 1.0], jobs=1, **kwargs)
+    rows2, free2 = run_experiments([0.0, 1.0], jobs=2, **kwargs)
+    np.testing.assert_equal(rows1, rows2)                  # NaN (no focal) equals NaN
+    assert len(rows1) == 4 * 2 * 2 + 2 * 2                  # 1ACf: untilted+tilted general
+    np.testing.assert_array_equal(free1['forward']['2PC']['rot'], free2['forward']['2PC']['rot'])
+    assert max(free1['general']['1AC']['rot']) < 1e-9
+    with pytest.raises(InputError, match='sigmas: expected non-negative noise levels'):
+        run_experiments([-1.0], **kwargs)
+
+
 def test_missing_optional_dependency_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(__import__('sys').modules, 'poselib', None)   # import now fails
     assert main(['bench', 'speed', '--quick', '--out', str(tmp_path)]) == 1
