@@ -17,6 +17,7 @@ SOURCES := $(shell find planar_vo resource config -type f -not -name '*.pyc')
 # Exact versions for a reproducible environment (setup.py carries the compatible ranges).
 # Test-only tools: pytest, pytest-timeout, and evo (GPL; the tests run its evo_ape/evo_traj
 # executables to cross-check planar_vo.evaluation; the package never imports it).
+# poselib (the 'bench' extra) is here so that the benchmark tests run, not skip.
 PINS := \
 	setuptools==80.9.0 \
 	ros-jazzy-rclpy==7.1.6 \
@@ -30,7 +31,8 @@ PINS := \
 	matplotlib==3.10.8 \
 	pytest==9.0.3 \
 	pytest-timeout==2.4.0 \
-	evo==1.38.1
+	evo==1.38.1 \
+	poselib==2.0.5
 
 .PHONY: demo test venv clean
 

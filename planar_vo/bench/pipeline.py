@@ -17,8 +17,6 @@ difference is the estimator.
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -32,7 +30,6 @@ EXAMPLES = """examples:
   planar_vo bench pipeline --frames 100 --out out/bench/pipeline
   planar_vo bench pipeline --kitti /data/kitti/sequences/06 --kitti-pitch 0.0188
 """
-ONE_CORE = {'OMP_NUM_THREADS': '1', 'OPENBLAS_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
 
 
 HELP = 'end-to-end speed per stage and KITTI accuracy vs the five-point peer'
@@ -54,44 +51,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--skip-kitti', action='store_true', help='speed part only')
 
 
-def _one_core(argv: list[str]) -> None:
-    """Re-execute in a single-threaded environment (numpy/OpenCV thread pools) if needed."""
-    if all(os.environ.get(k) == v for k, v in ONE_CORE.items()):
-        return
-    env = {**os.environ, **ONE_CORE}
-    os.execve(sys.executable, [sys.executable, '-m', 'planar_vo', *argv], env)
-
-
 def run(args: argparse.Namespace) -> int:
+    from planar_vo.bench.common import reexec_single_threaded, write_markdown
     from planar_vo.errors import InputError
 
     if args.frames < 10:
         raise InputError(f'frames: expected at least 10, got {args.frames}')
-    _one_core(sys.argv[1:])
-    import cv2
-
-    cv2.setNumThreads(1)
-    command = getattr(args, 'command', 'planar_vo ' + ' '.join(sys.argv[1:]))
+    kitti = args.kitti if args.kitti is not None else KITTI_EXCERPT
+    if args.kitti is not None and not (kitti / 'calib.txt').exists():
+        raise InputError(f"kitti: '{kitti}' is not a KITTI sequence folder (no calib.txt)")
+    code = reexec_single_threaded(args, pin_core=True)
+    if code is not None:
+        return code
     sections = []
     if not args.skip_speed:
         sections.append(speed_table(args.frames))
-        print(sections[-1], flush=True)
-    kitti = args.kitti if args.kitti is not None else KITTI_EXCERPT
+        print(sections[-1] + '\n', flush=True)
     if not args.skip_kitti:
-        if not (kitti / 'calib.txt').exists():
-            if args.kitti is not None:
-                raise InputError(f"kitti: '{kitti}' is not a KITTI sequence folder (no calib.txt)")
-            print(f'(accuracy part skipped: no KITTI excerpt at {kitti}; pass --kitti DIR)')
-        else:
+        if (kitti / 'calib.txt').exists():
             sections.append(kitti_table(kitti, args.kitti_height, args.kitti_pitch))
-            print(sections[-1], flush=True)
-    if args.out is not None:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        path = out / 'pipeline.md'
-        path.write_text(f'# planar_vo bench pipeline\n\nCommand: `{command}`\n\n'
-                        + '\n\n'.join(sections) + '\n')
-        print(f'wrote {path}')
+        else:
+            sections.append(f'(KITTI accuracy skipped: no excerpt at {kitti}; pass --kitti DIR)')
+        print(sections[-1] + '\n', flush=True)
+    path = Path(args.out) / 'pipeline.md'
+    write_markdown(path, 'planar_vo bench pipeline', args.command, sections)
+    print(f'wrote {path}')
     return 0
 
 

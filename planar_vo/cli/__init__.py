@@ -19,11 +19,14 @@ from planar_vo.errors import PlanarVoError
 __all__ = ['build_parser', 'main']
 
 # Subcommand modules, in --help order.
-COMMANDS = ('demo', 'import-kitti', 'replay', 'eval')
+COMMANDS = ('demo', 'replay', 'eval', 'import-kitti', 'bench')
 
 EPILOG = """examples:
-  planar_vo demo                      solver accuracy on the paper's synthetic protocol
-  planar_vo demo --trials 500 --seed 7
+  planar_vo demo                                  render, replay and evaluate the demo drive
+  planar_vo import-kitti ~/kitti/06 --out kitti06 a KITTI sequence folder into a bag
+  planar_vo replay kitti06 --out kitti06_vo       odometry over a bag into a new bag
+  planar_vo eval kitti06_vo --out-dir kitti06_eval
+  planar_vo bench pipeline                        speed per stage, KITTI accuracy vs five-point
 """
 
 

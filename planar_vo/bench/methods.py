@@ -1,0 +1,212 @@
+"""The methods compared in the paper benchmark, and how each produces its estimates per run.
+
+Every run is one `planar_vo.synthetic.paper_trial` (50 ACs sharing one motion). Two kinds:
+
+- ``minimal``: the solver alone, as in the paper's Fig. 3. Each run draws ``samples`` random
+  minimal samples (the first ``m`` indices of a random permutation of the 50 correspondences,
+  the same permutations for every method); every sample gives one estimate. Solvers with
+  several roots keep the root nearest to the truth (smallest rotation + translation error; for
+  focal problems smallest focal error), the usual way of scoring minimal solvers. A sample
+  without any root counts as a failure (reported as 'solved').
+- ``robust``: an estimator on all 50 correspondences, once per run (no outliers in this
+  protocol, so these show what using all the data buys). Its inlier threshold is
+  `peer_threshold_px` of the noise level (an oracle threshold).
+
+`estimate_1ac_voting` is the hook for the paper's own robust estimator (1AC + histogram
+voting, ``planar_vo.geometry.vote_planar_motion``, in progress): while that function does not
+exist the hook raises `VotingUnavailable` and the benchmarks report the method as not run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from planar_vo import baselines
+from planar_vo.bench.metrics import planar_pose
+from planar_vo.geometry import solve_1ac, solve_1acf, solve_2pc, solve_3pc
+from planar_vo.synthetic import ACSet
+
+__all__ = [
+    'Candidates',
+    'Method',
+    'METHODS',
+    'VotingUnavailable',
+    'estimate_1ac_voting',
+    'peer_threshold_px',
+    'voting_available',
+]
+
+
+class VotingUnavailable(NotImplementedError):
+    """``planar_vo.geometry.vote_planar_motion`` does not exist yet: '1AC + voting' cannot run."""
+
+
+def voting_available() -> bool:
+    """Whether the histogram-voting estimator exists in `planar_vo.geometry`."""
+    import planar_vo.geometry as geometry
+
+    return hasattr(geometry, 'vote_planar_motion')
+
+
+def estimate_1ac_voting(q1: np.ndarray, q2: np.ndarray, A: np.ndarray) -> tuple[float, float]:
+    """HOOK: '1AC + voting', the paper's robust estimator, on all ACs of one image pair.
+
+    Calls ``planar_vo.geometry.vote_planar_motion(q1, q2, A)`` (normalised coordinates
+    ``(N, 2)`` and affines ``(N, 2, 2)``) and returns its ``(alpha, beta)`` in radians. The result
+    may be a tuple starting with ``alpha, beta`` or an object with ``alpha`` and ``beta``
+    attributes; adapt `_alpha_beta` if the final API differs. Both benchmarks (paper and speed)
+    time and score '1AC + voting' only through this function.
+
+    Raises:
+        VotingUnavailable: the voting estimator does not exist yet.
+    """
+    if not voting_available():
+        raise VotingUnavailable('1AC + voting: planar_vo.geometry.vote_planar_motion is not '
+                                'implemented yet (lead, in progress); not run')
+    from planar_vo.geometry import vote_planar_motion
+
+    return _alpha_beta(vote_planar_motion(q1, q2, A))
+
+
+def _alpha_beta(result) -> tuple[float, float]:
+    if hasattr(result, 'alpha') and hasattr(result, 'beta'):
+        return float(result.alpha), float(result.beta)
+    return float(result[0]), float(result[1])
+
+
+def peer_threshold_px(sigma: float) -> float:
+    """Inlier threshold (pixels) given to the robust peers: twice the noise, at least 0.1 px."""
+    return max(2.0 * sigma, 0.1)
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Estimates of one run: ``S`` samples with up to ``M`` roots each, NaN-padded.
+
+    Attributes:
+        R: rotations ``(S, M, 3, 3)``; t: translations ``(S, M, 3)``;
+        focal: focal lengths in pixels ``(S, M)``, or None for calibrated methods.
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    focal: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Method:
+    """A compared method.
+
+    Attributes:
+        name: label in tables and plots.
+        kind: ``'minimal'`` (one estimate per random minimal sample) or ``'robust'`` (one per run).
+        problem: ``'calibrated'`` (alpha, beta) or ``'focal'`` (alpha, beta and the focal length).
+        sample_size: correspondences per sample (robust: all, recorded as 0).
+        solve: ``(trial, samples, sigma) -> Candidates``; ``samples`` is ``(S, n)`` permutations.
+        source: where the implementation comes from (for the report).
+        available: a callable telling whether the method can run (dependencies, hooks).
+    """
+
+    name: str
+    kind: str
+    problem: str
+    sample_size: int
+    solve: Callable[[ACSet, np.ndarray, float], Candidates]
+    source: str
+    available: Callable[[], bool] = lambda: True
+
+
+def _one(alpha: np.ndarray, beta: np.ndarray, focal: np.ndarray | None = None) -> Candidates:
+    """Candidates from per-sample planar angles ``(S,)`` or ``(S, M)``."""
+    alpha, beta = np.atleast_1d(alpha), np.atleast_1d(beta)
+    if alpha.ndim == 1:
+        alpha, beta = alpha[:, None], beta[:, None]
+        focal = None if focal is None else np.atleast_1d(focal)[:, None]
+    R, t = planar_pose(alpha, beta)
+    return Candidates(R, t, focal)
+
+
+def _pose(est: baselines.PoseEstimate, with_focal: bool = False) -> Candidates:
+    return Candidates(est.R[None, None], est.t[None, None],
+                      np.array([[est.focal]]) if with_focal else None)
+
+
+def _1ac(refine: bool):
+    def solve(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+        i = samples[:, 0]
+        return _one(*solve_1ac(trial.q1[i], trial.q2[i], trial.A_norm[i], refine=refine))
+    return solve
+
+
+def _1acf(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+    i = samples[:, 0]
+    c1, c2 = trial.centered
+    alpha, beta, focal = solve_1acf(c1[i], c2[i], trial.A[i])
+    return _one(alpha, beta, focal)
+
+
+def _points(solver, m: int):
+    def solve(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+        i = samples[:, :m]
+        return _one(*solver(trial.q1[i], trial.q2[i]))
+    return solve
+
+
+def _5pc_minimal(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+    i = samples[:, :5]
+    return Candidates(*baselines.solve_5pc_poselib(trial.q1[i], trial.q2[i]))
+
+
+def _6pc_minimal(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+    i = samples[:, :6]
+    c1, c2 = trial.centered
+    return Candidates(*baselines.solve_6pc_focal_poselib(c1[i], c2[i]))
+
+
+def _5pc_opencv(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+    thr = peer_threshold_px(sigma) / trial.focal
+    return _pose(baselines.estimate_5pc_opencv(trial.q1, trial.q2, threshold=thr))
+
+
+def _5pc_poselib(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+    thr = peer_threshold_px(sigma) / trial.focal
+    return _pose(baselines.estimate_5pc_poselib(trial.q1, trial.q2, threshold=thr))
+
+
+def _6pc_poselib(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+    c1, c2 = trial.centered
+    est = baselines.estimate_6pc_focal_poselib(c1, c2, threshold=peer_threshold_px(sigma))
+    return _pose(est, with_focal=True)
+
+
+def _1ac_voting(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+    return _one(*estimate_1ac_voting(trial.q1, trial.q2, trial.A_norm))
+
+
+METHODS: tuple[Method, ...] = (
+    Method('1AC', 'minimal', 'calibrated', 1, _1ac(False), 'planar_vo solve_1ac'),
+    Method('1AC+LS', 'minimal', 'calibrated', 1, _1ac(True),
+           'planar_vo solve_1ac(refine=True): constrained least squares of the AC\'s 3 rows'),
+    Method('2PC', 'minimal', 'calibrated', 2, _points(solve_2pc, 2),
+           'planar_vo solve_2pc (Choi and Kim 2018)'),
+    Method('2PC (PoseLib)', 'minimal', 'calibrated', 2,
+           _points(baselines.solve_2pc_poselib, 2), 'PoseLib relpose_upright_planar_2pt'),
+    Method('3PC', 'minimal', 'calibrated', 3, _points(solve_3pc, 3), 'planar_vo solve_3pc'),
+    Method('5PC (PoseLib)', 'minimal', 'calibrated', 5, _5pc_minimal,
+           'PoseLib relpose_5pt (Nister); the paper\'s 5PC'),
+    Method('5PC RANSAC (OpenCV)', 'robust', 'calibrated', 0, _5pc_opencv,
+           'OpenCV findEssentialMat (RANSAC, p=0.999) + recoverPose'),
+    Method('5PC RANSAC (PoseLib)', 'robust', 'calibrated', 0, _5pc_poselib,
+           'PoseLib estimate_relative_pose (RANSAC + LO + bundle, p=0.999)'),
+    Method('1AC+voting', 'robust', 'calibrated', 0, _1ac_voting,
+           'HOOK estimate_1ac_voting -> planar_vo.geometry.vote_planar_motion',
+           voting_available),
+    Method('1ACf', 'minimal', 'focal', 1, _1acf, 'planar_vo solve_1acf'),
+    Method('6PC (PoseLib)', 'minimal', 'focal', 6, _6pc_minimal,
+           'PoseLib shared_focal_relpose_6pt'),
+    Method('6PC RANSAC (PoseLib)', 'robust', 'focal', 0, _6pc_poselib,
+           'PoseLib estimate_shared_focal_relative_pose (p=0.999)'),
+)

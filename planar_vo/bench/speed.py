@@ -1,0 +1,385 @@
+"""``planar_vo bench speed``: one-core throughput of planar_vo's estimators against the peers.
+
+Data (`shared_motion_acs`): ``N`` ACs sharing one planar motion (a gentle left turn while driving
+forward: yaw 1.5 deg, heading 3 deg off straight ahead), in the paper's camera (f = 600 px,
+600x600), from 3D points on 40 random scene planes (depth 4 to 30 translation units) so the
+scene is not one plane; each AC's affine is the exact Jacobian of its plane's homography. Noise:
+0.5 px on the points, 0.02 on the pixel affine entries. A fraction of the ACs are outliers
+(second point uniform in the image, affine = identity + N(0, 0.1)).
+
+Timed on the same correspondences, each the median of ``--repeats`` runs, in a process pinned
+to ONE core with OMP/OpenBLAS/MKL threads = 1 and ``cv2.setNumThreads(1)`` (the benchmark
+re-executes itself in such a process when needed):
+
+- ours: ``solve`` (`solve_1ac`, closed form per AC), ``solve+LS`` (with refinement) and
+  ``solve + vote`` (1AC + histogram voting through the hook
+  `planar_vo.bench.methods.estimate_1ac_voting`; reported as not run until
+  ``planar_vo.geometry.vote_planar_motion`` exists, never estimated);
+- peers: OpenCV five-point RANSAC (``findEssentialMat`` + ``recoverPose``; and
+  ``findEssentialMat`` alone, timed only: ``recoverPose`` triangulates every point for four
+  candidate poses and dominates OpenCV's time on thousands of points), PoseLib
+  ``estimate_relative_pose`` (five-point RANSAC + LO + bundle), and planar two-point RANSAC with
+  PoseLib's upright planar solver or planar_vo's `solve_2pc`. RANSAC peers: inlier threshold
+  1 px, confidence 0.999, at most 1000 iterations, PoseLib ``min_iterations`` 0 (so every peer
+  stops as soon as it is confident; PoseLib's own default of 1000 minimum iterations would make
+  it slower).
+
+Speed is reported as ratios, peer time / our time, in the same process. Targets (issue): 4,000
+ACs solved and voted in under 2 ms median on one core, and at least 10x faster than the OpenCV
+five-point pipeline on the same points.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from planar_vo.bench.common import (
+    format_cell,
+    markdown_table,
+    new_figure,
+    reexec_single_threaded,
+    require,
+    save_figure,
+    write_markdown,
+)
+from planar_vo.bench.methods import VotingUnavailable, estimate_1ac_voting, voting_available
+from planar_vo.bench.metrics import planar_pose, rotation_error_deg, translation_error_deg
+from planar_vo.errors import InputError
+from planar_vo.synthetic import PAPER_IMAGE_SIZE, ACSet, paper_intrinsics
+
+__all__ = ['HELP', 'add_arguments', 'run', 'shared_motion_acs', 'time_estimators']
+
+HELP = 'one-core throughput for 500/4,000/20,000 ACs vs OpenCV and PoseLib (as ratios)'
+SIZES = (500, 4000, 20000)
+OUTLIER_RATIOS = (0.0, 0.5, 0.7, 0.9)
+SIZE_OUTLIERS = 0.5               # outlier ratio of the size sweep
+SWEEP_SIZE = 4000                 # size of the outlier sweep
+TARGET_SIZE, TARGET_MS, TARGET_RATIO = 4000, 2.0, 10.0
+THRESHOLD_PX = 1.0
+OURS, VOTE = 'solve (1AC)', 'solve + vote (1AC+voting)'
+OPENCV, OPENCV_E = '5PC RANSAC (OpenCV)', '5PC findEssentialMat only (OpenCV)'
+
+
+# --------------------------------------------------------------------------------------------
+# Data
+# --------------------------------------------------------------------------------------------
+
+def shared_motion_acs(rng: np.random.Generator, n: int, *, outlier_ratio: float = 0.5,
+                      alpha: float = np.deg2rad(1.5), beta: float = np.deg2rad(-87.0),
+                      sigma_px: float = 0.5, sigma_affine: float = 0.02, planes: int = 40
+                      ) -> tuple[ACSet, np.ndarray]:
+    """``n`` ACs of one planar motion on ``planes`` random scene planes, with outliers.
+
+    Each plane passes through a point on a random viewing ray at a depth uniform in [4, 30]
+    (translation has unit length) with its normal within about 60 degrees of facing camera 1.
+    Its points are pixels drawn uniformly in image 1 whose plane point lies in front of both
+    cameras and projects inside image 2; ``p2`` and ``A`` come from the plane's homography
+    (`planar_vo.geometry.camera.plane_homography`, `homography_jacobian`).
+
+    Returns:
+        The `ACSet` (noisy ``p1, p2, A``; ``*_true`` noise-free; outliers replaced) and the
+        bool outlier mask ``(n,)``.
+    """
+    from planar_vo.geometry.camera import (
+        apply_homography,
+        homography_jacobian,
+        normalize_points,
+        plane_homography,
+    )
+    from planar_vo.geometry.planar import rotation_y, translation_direction
+
+    if n < 1 or not 0.0 <= outlier_ratio < 1.0:
+        raise InputError(f'n >= 1 and outlier_ratio in [0, 1) expected, got n={n}, '
+                         f'outlier_ratio={outlier_ratio}')
+    K = paper_intrinsics()
+    width, height = PAPER_IMAGE_SIZE
+    R, t = rotation_y(alpha), translation_direction(beta)
+    per_plane = -(-n // planes)
+    p1s, p2s, As = [], [], []
+    while sum(len(p) for p in p1s) < n:            # one iteration per plane, not per AC
+        anchor = np.append(normalize_points(K, rng.uniform((0, 0), (width, height), (1, 2))), 1)
+        tilt = rng.normal(0.0, 0.6, 2)
+        normal = np.array([tilt[0], tilt[1], -1.0]) / np.linalg.norm([tilt[0], tilt[1], 1.0])
+        distance = float(normal @ (anchor * rng.uniform(4.0, 30.0)))
+        pix = rng.uniform((0, 0), (width, height), (4 * per_plane, 2))
+        ray = np.column_stack([normalize_points(K, pix), np.ones(len(pix))])
+        with np.errstate(divide='ignore', invalid='ignore'):
+            depth = distance / (ray @ normal)
+            X2 = (ray * depth[:, None]) @ R.T + t
+            H = plane_homography(K, K, R, t, normal, distance)
+            p2 = apply_homography(H, pix)
+        ok = ((depth > 0.5) & (X2[:, 2] > 0.5) & np.all((p2 >= 0) & (p2 <= (width, height)), 1))
+        ok &= np.isfinite(p2).all(axis=1)
+        if np.count_nonzero(ok) < per_plane // 2:
+            continue
+        keep = np.flatnonzero(ok)[:per_plane]
+        p1s.append(pix[keep])
+        p2s.append(p2[keep])
+        As.append(homography_jacobian(H, pix[keep]))
+    p1_true, p2_true = np.concatenate(p1s)[:n], np.concatenate(p2s)[:n]
+    A_true = np.concatenate(As)[:n]
+    p1 = p1_true + rng.normal(0.0, sigma_px, p1_true.shape)
+    p2 = p2_true + rng.normal(0.0, sigma_px, p2_true.shape)
+    A = A_true + rng.normal(0.0, sigma_affine, A_true.shape)
+    outlier = rng.permutation(n) < round(outlier_ratio * n)
+    k = int(outlier.sum())
+    p2[outlier] = rng.uniform((0, 0), (width, height), (k, 2))
+    A[outlier] = np.eye(2) + rng.normal(0.0, 0.1, (k, 2, 2))
+    acs = ACSet(K=K, p1=p1, p2=p2, A=A, alpha=np.asarray(alpha), beta=np.asarray(beta), R=R,
+                t=t, p1_true=p1_true, p2_true=p2_true, A_true=A_true)
+    return acs, outlier
+
+
+# --------------------------------------------------------------------------------------------
+# Timing
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Timing:
+    """One estimator on one data set: median wall time, accuracy of its estimate, or why not."""
+
+    method: str
+    ms: float                       # median milliseconds; NaN if not run
+    rot_err: float                  # degrees, NaN for per-AC solvers and failures
+    trans_err: float
+    note: str = ''
+
+
+def _estimators(acs: ACSet) -> dict[str, Callable[[], tuple[np.ndarray, np.ndarray] | None]]:
+    """Name -> callable returning the estimate's ``(R, t)``, or None (per-AC solvers, failure)."""
+    from planar_vo import baselines
+    from planar_vo.geometry import solve_1ac
+
+    q1, q2, A = acs.q1, acs.q2, acs.A_norm
+    thr = THRESHOLD_PX / acs.focal
+
+    def solve(refine: bool) -> None:
+        solve_1ac(q1, q2, A, refine=refine)          # one candidate per AC, no single estimate
+
+    def pose(est: baselines.PoseEstimate) -> tuple[np.ndarray, np.ndarray] | None:
+        return (est.R, est.t) if est.ok else None
+
+    def essential_only() -> None:
+        import cv2
+
+        cv2.findEssentialMat(q1, q2, np.eye(3), cv2.RANSAC, 0.999, thr, 1000)
+
+    return {
+        OURS: lambda: solve(False),
+        'solve+LS (1AC+LS)': lambda: solve(True),
+        VOTE: lambda: planar_pose(*estimate_1ac_voting(q1, q2, A)),
+        OPENCV: lambda: pose(baselines.estimate_5pc_opencv(q1, q2, threshold=thr)),
+        OPENCV_E: essential_only,
+        '5PC RANSAC (PoseLib)': lambda: pose(
+            baselines.estimate_5pc_poselib(q1, q2, threshold=thr)),
+        '2PC RANSAC (PoseLib solver)': lambda: pose(
+            baselines.estimate_2pc_ransac(q1, q2, solver='poselib', threshold=thr)),
+        '2PC RANSAC (planar_vo solver)': lambda: pose(
+            baselines.estimate_2pc_ransac(q1, q2, solver='planar_vo', threshold=thr)),
+    }
+
+
+def time_estimators(acs: ACSet, repeats: int) -> list[Timing]:
+    """Median time of every estimator on ``acs``, with the error of its estimate.
+
+    One warm-up call each (which also gives the estimate scored), then ``repeats`` rounds in
+    which every estimator runs once: interleaving spreads any load from other processes over
+    all estimators alike, so the ratios stay fair on a shared machine.
+    """
+    estimators = _estimators(acs)
+    results, notes = {}, {}
+    for name, fn in estimators.items():
+        try:
+            results[name] = fn()
+        except VotingUnavailable as err:
+            notes[name] = str(err)
+    times = {name: [] for name in results}
+    gc.collect()
+    for _ in range(repeats):
+        for name in times:
+            start = time.perf_counter()
+            estimators[name]()
+            times[name].append(time.perf_counter() - start)
+    out = []
+    for name in estimators:
+        if name in notes:
+            out.append(Timing(name, np.nan, np.nan, np.nan, notes[name]))
+            continue
+        rot = trans = np.nan
+        if results[name] is not None:
+            rot = float(rotation_error_deg(results[name][0], acs.R))
+            trans = float(translation_error_deg(results[name][1], acs.t))
+        out.append(Timing(name, 1e3 * float(np.median(times[name])), rot, trans))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Report
+# --------------------------------------------------------------------------------------------
+
+def _ours_ms(timings: list[Timing]) -> tuple[float, str]:
+    """Our reference time: solve + vote when it runs, else solve alone (labelled)."""
+    by = {t.method: t for t in timings}
+    if np.isfinite(by[VOTE].ms):
+        return by[VOTE].ms, 'solve + vote'
+    return by[OURS].ms, 'solve only'
+
+
+def _results_table(label: str, keys: list, results: dict) -> str:
+    rows = []
+    for key in keys:
+        timings = results[key]
+        ours, basis = _ours_ms(timings)
+        for t in timings:
+            peer = not t.method.startswith(('solve', OURS))
+            ratio = format_cell(t.ms / ours) if peer and np.isfinite(t.ms) else '-'
+            rows.append([key, t.method,
+                         format_cell(t.ms) if np.isfinite(t.ms) else 'not run',
+                         f'{ratio} ({basis})' if ratio != '-' else '-',
+                         format_cell(t.rot_err), format_cell(t.trans_err)])
+    return markdown_table([label, 'method', 'median time (ms)', 'peer / ours',
+                           'rotation error (deg)', 'translation error (deg)'], rows,
+                          'rlrrrr')
+
+
+def _targets(results_n: dict) -> str:
+    if TARGET_SIZE not in results_n:
+        return f'Not evaluated: the targets need a run with {TARGET_SIZE:,} ACs (not in --quick).'
+    timings = {t.method: t for t in results_n[TARGET_SIZE]}
+    vote, solve = timings[VOTE], timings[OURS]
+    opencv = timings[OPENCV]
+    rows = []
+    if np.isfinite(vote.ms):
+        ok1 = vote.ms < TARGET_MS
+        ratio = opencv.ms / vote.ms
+        rows.append([f'{TARGET_SIZE:,} ACs solved + voted < {TARGET_MS:g} ms (one core)',
+                     f'{vote.ms:.3g} ms', 'PASS' if ok1 else 'FAIL'])
+        rows.append([f'>= {TARGET_RATIO:g}x faster than OpenCV five-point, same points',
+                     f'{ratio:.3g}x', 'PASS' if ratio >= TARGET_RATIO else 'FAIL'])
+        strict = timings[OPENCV_E].ms / vote.ms
+        rows.append([f'(stricter) >= {TARGET_RATIO:g}x faster than findEssentialMat alone',
+                     f'{strict:.3g}x', 'PASS' if strict >= TARGET_RATIO else 'FAIL'])
+    else:
+        rows.append([f'{TARGET_SIZE:,} ACs solved + voted < {TARGET_MS:g} ms (one core)',
+                     f'not measurable: {vote.note}; solve alone {solve.ms:.3g} ms',
+                     'PENDING (solve alone ' + ('already over' if solve.ms >= TARGET_MS
+                                                else 'under') + ' the budget)'])
+        rows.append([f'>= {TARGET_RATIO:g}x faster than OpenCV five-point, same points',
+                     f'OpenCV / solve-only = {opencv.ms / solve.ms:.3g}x (an upper bound: '
+                     'voting adds time)', 'PENDING'])
+        rows.append([f'(stricter) >= {TARGET_RATIO:g}x faster than findEssentialMat alone',
+                     f'findEssentialMat / solve-only = '
+                     f'{timings[OPENCV_E].ms / solve.ms:.3g}x (upper bound)', 'PENDING'])
+    return markdown_table(['target (issue)', 'measured', 'status'], rows, 'llr')
+
+
+def _flatness(by_outliers: dict) -> str:
+    """How much each method's time changes over the outlier sweep (max / min median time)."""
+    names = [t.method for t in next(iter(by_outliers.values()))]
+    parts = []
+    for name in names:
+        ms = np.array([next(t.ms for t in v if t.method == name) for v in by_outliers.values()])
+        if np.isfinite(ms).all():
+            parts.append(f'{name} {ms.min():.3g} to {ms.max():.3g} ms '
+                         f'(x{ms.max() / ms.min():.2g})')
+    return ('Time over the outlier ratios ' + ', '.join(f'{r:g}' for r in by_outliers) + ': '
+            + '; '.join(parts) + '. One AC gives one candidate, so the solve cost does not '
+            'depend on the outlier ratio; RANSAC cost grows with it until the iteration cap.')
+
+
+def _plot(results: dict, xlabel: str, path: Path, logx: bool) -> Path:
+    fig, axes = new_figure(1, 1, width=6.5, height=4.2)
+    ax = axes[0, 0]
+    keys = list(results)
+    for i, name in enumerate(t.method for t in results[keys[0]]):
+        y = [next(t.ms for t in results[k] if t.method == name) for k in keys]
+        if not np.isfinite(y).any():
+            continue
+        ours = name.startswith('solve')
+        ax.plot(keys, y, marker='o' if ours else 's', linestyle='-' if ours else '--',
+                color=f'C{i}', label=name)
+    ax.set_yscale('log')
+    if logx:
+        ax.set_xscale('log')
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel('median time (ms), one core')
+    ax.grid(True, which='both', alpha=0.3)
+    ax.legend(fontsize=7)
+    return save_figure(fig, path)
+
+
+# --------------------------------------------------------------------------------------------
+# CLI
+# --------------------------------------------------------------------------------------------
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--repeats', type=int, default=15,
+                        help='timed runs per estimator and data set (median; default: 15)')
+    parser.add_argument('--sizes', type=int, nargs='+', default=list(SIZES), metavar='N',
+                        help='numbers of ACs (default: 500 4000 20000)')
+    parser.add_argument('--seed', type=int, default=0, help='random seed (default: 0)')
+    parser.add_argument('--quick', action='store_true',
+                        help='a smoke run: 300 ACs, outlier ratios 0 and 0.5, 1 repeat, no '
+                             'target verdicts (overrides --sizes/--repeats)')
+
+
+def run(args: argparse.Namespace) -> int:
+    require('poselib', 'matplotlib', 'tqdm')
+    if args.repeats < 1 or not args.sizes or min(args.sizes) < 10:
+        raise InputError(f'repeats >= 1 and sizes >= 10 expected, got repeats={args.repeats}, '
+                         f'sizes={args.sizes}')
+    code = reexec_single_threaded(args, pin_core=True)
+    if code is not None:
+        return code
+    from tqdm import tqdm
+
+    rng = np.random.default_rng(args.seed)
+    if args.quick:
+        sizes, sweep, ratios, base_repeats = [300], 300, OUTLIER_RATIOS[:2], 1
+    else:
+        sizes, sweep, ratios, base_repeats = sorted(set(args.sizes) | {TARGET_SIZE}), \
+            SWEEP_SIZE, OUTLIER_RATIOS, args.repeats
+    jobs = [('n', n, SIZE_OUTLIERS) for n in sizes]
+    jobs += [('outliers', r, r) for r in ratios]
+    by_n, by_outliers = {}, {}
+    start = time.perf_counter()
+    for kind, key, ratio in tqdm(jobs, desc='speed bench'):
+        n = key if kind == 'n' else sweep
+        acs, _ = shared_motion_acs(rng, n, outlier_ratio=ratio)
+        repeats = max(1, base_repeats // 3) if n > 10000 else base_repeats
+        (by_n if kind == 'n' else by_outliers)[key] = time_estimators(acs, repeats)
+    out = Path(args.out)
+    figs = [_plot({k: by_n[k] for k in sizes}, f'number of ACs ({SIZE_OUTLIERS:.0%} outliers)',
+                  out / 'speed_vs_size.png', True),
+            _plot(by_outliers, f'outlier ratio ({sweep:,} ACs)',
+                  out / 'speed_vs_outliers.png', False)]
+    note = ('' if voting_available() else
+            '\n\n**1AC + voting is not run**: `planar_vo.geometry.vote_planar_motion` does not '
+            'exist yet. Ratios are therefore against `solve` alone (labelled "solve only"), '
+            'an upper bound of the final ratios; no number is estimated for the missing step.')
+    sections = [
+        'One core, one thread. Data: `planar_vo.bench.speed.shared_motion_acs` (see the module '
+        'docstring: paper camera, 40 random planes, 0.5 px point noise, 0.02 affine noise, '
+        f'outliers random). RANSAC peers: threshold {THRESHOLD_PX:g} px, confidence 0.999, '
+        'at most 1000 iterations. "peer / ours" = peer time / our time (greater than 1: we '
+        'are faster).' + note,
+        '## Targets', _targets(by_n),
+        f'## Time vs number of ACs ({SIZE_OUTLIERS:.0%} outliers)',
+        _results_table('ACs', sizes, by_n),
+        f'## Time vs outlier ratio ({sweep:,} ACs)',
+        _results_table('outliers', list(ratios), by_outliers),
+        _flatness(by_outliers),
+        'Figures: ' + ', '.join(f'`{p.name}`' for p in figs) + '.',
+        f'Wall time: {time.perf_counter() - start:.0f} s.',
+    ]
+    text = write_markdown(out / 'speed.md', 'planar_vo bench speed', args.command, sections)
+    print(text)
+    print(f'wrote {out / "speed.md"}, ' + ', '.join(str(p) for p in figs))
+    return 0

@@ -1,0 +1,54 @@
+"""``planar_vo bench``: benchmarks against the paper and the peers, one module per benchmark.
+
+Each benchmark writes PNG plots and a markdown report (starting with the exact command that
+produced it) into ``--out`` and prints the report. Optional dependencies: ``pip install
+'planar_vo[bench]'``; without them a benchmark exits with one line and code 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from planar_vo.bench.common import BenchDependencyError, command_argv
+
+__all__ = ['BENCHES', 'register', 'run']
+
+# Benchmark modules planar_vo.bench.<name>, in --help order. To add one (e.g. 'frontend'):
+# write planar_vo/bench/<name>.py with HELP, add_arguments(parser), run(args) -> int.
+BENCHES = ('paper', 'speed', 'frontend', 'pipeline')
+
+EXAMPLES = """examples:
+  planar_vo bench paper --quick                 smoke run of the paper's experiments
+  planar_vo bench paper --runs 1000 --out out/bench/paper
+  planar_vo bench speed --out out/bench/speed   one-core throughput vs OpenCV and PoseLib
+  planar_vo bench frontend                      AC extraction time vs DIS, accuracy, KITTI
+  planar_vo bench pipeline                      whole frame per stage vs DIS; KITTI vs 5-point
+"""
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        'bench', help='benchmarks: the paper\'s experiments, speed against the peers',
+        description=__doc__, epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    benches = parser.add_subparsers(dest='bench', metavar='BENCH', required=True)
+    for name in BENCHES:
+        module = importlib.import_module(f'planar_vo.bench.{name}')
+        sub = benches.add_parser(name, help=module.HELP, description=module.__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+        sub.add_argument('--out', default=f'out/bench/{name}', metavar='DIR',
+                         help=f'output folder (default: out/bench/{name})')
+        module.add_arguments(sub)
+        sub.set_defaults(run=run, bench_module=module, bench_parser=sub)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    args.command = command_argv(['planar_vo', 'bench', args.bench], args.bench_parser, args)
+    try:
+        return int(args.bench_module.run(args) or 0)
+    except BenchDependencyError as err:
+        print(f'planar_vo bench {args.bench}: error: {err}', file=sys.stderr)
+        return 1
