@@ -239,8 +239,9 @@ def test_compressed_transport_drive(prefix, ros_env, tmp_path, drive_bag):
 def write_faulty_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
     """A bag of the drive's first 30 frames with faults injected, in this order (F3 = frame 3):
 
-    no camera info for F0-F2 (no_camera_info x3), then camera info with every image; F3 starts
-    the keyframe chain; F6 as 32FC1 and F7 as yuv422 (bad_image x2); a camera info with K all
+    no camera info for F0-F2, then camera info with every image: F0 and F1 are no_camera_info,
+    F2 waits in the node's slot for the first CameraInfo (it comes just before F3) and starts the
+    keyframe chain; F6 as 32FC1 and F7 as yuv422 (bad_image x2); a camera info with K all
     zeros before F8 (ignored, the last valid one stays); F9 black and F10 saturated
     (blank_image x2); F12 twice (duplicate_stamp); after F13 the image of F11 again
     (out_of_order); F14 and F15 missing (a gap); F18 at half size (size_changed: a stray frame,
@@ -270,9 +271,10 @@ def write_faulty_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
         publish(frames[i].stamp_ns, image_msg(frames[i].image, 'mono8', frames[i].stamp_ns),
                 result, **kwargs)
 
-    for i in range(3):
+    for i in range(2):
         good(i, 'no_camera_info', info=False)
-    good(3, 'first_frame')
+    good(2, 'first_frame', info=False)
+    good(3)
     good(4)
     good(5)
     s6, s7 = frames[6].stamp_ns, frames[7].stamp_ns
@@ -326,13 +328,13 @@ def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
         [stamp for stamp, result in expected if result == 'ok']
     final = status_values(status[-1])
     counts = {reason: sum(r == reason for _, r in expected) for _, reason in expected}
-    assert counts == {'no_camera_info': 3, 'first_frame': 1, 'ok': 19, 'bad_image': 2,
+    assert counts == {'no_camera_info': 2, 'first_frame': 1, 'ok': 20, 'bad_image': 2,
                       'blank_image': 2, 'duplicate_stamp': 1, 'out_of_order': 1,
                       'size_changed': 1}
     for reason, count in counts.items():
         key = 'odometry_out' if reason == 'ok' else f'dropped.{reason}'
         assert final[key] == str(count), key
-    assert (final['frames'], final['dropped']) == (str(len(expected)), str(len(expected) - 19))
+    assert (final['frames'], final['dropped']) == (str(len(expected)), str(len(expected) - 20))
     assert (final['camera_info_errors'], final['gaps'], final['missing_frames']) == \
         ('1', '1', '2')
 
@@ -345,14 +347,14 @@ def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
         assert len(lines) == 1 and lines[0].startswith('[WARN]'), (needle, output[-4000:])
     assert "got '32FC1'" in output
 
-    # The faults did not corrupt the estimate: one chain from F3 to F29 (through the gap and
+    # The faults did not corrupt the estimate: one chain from F2 to F29 (through the gap and
     # past the stray half-size frame) tracks the ground truth.
     truth = ground_truth(drive_bag)
     stamps, poses = odom_track(odom)
-    turned = invert(truth[expected[3][0]]) @ truth[stamps[-1]]
-    assert_tracks_ground_truth(stamps, poses, truth, expected[3][0],
+    turned = invert(truth[expected[2][0]]) @ truth[stamps[-1]]
+    assert_tracks_ground_truth(stamps, poses, truth, expected[2][0],
                                yaw_deg=math.degrees(float(yaw_of(turned[:3, :3]))))
-    assert 'summary: 30 frames in, 19 odometry out, 11 dropped' in summary_line(output)
+    assert 'summary: 30 frames in, 20 odometry out, 10 dropped' in summary_line(output)
 
 
 # -- 4: signals ------------------------------------------------------------------------------------

@@ -3,14 +3,14 @@
 One module per benchmark (``paper``, ``speed``; others add ``frontend``, ``pipeline``), each with
 ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``, registered in
 `planar_vo.cli.bench.BENCHES`. Shared pieces: `metrics` (the paper's error measures), `methods`
-(the compared methods and the '1AC + voting' hook), `common` (reports, figures, dependencies).
+(the compared methods, '1AC + voting' among them), `common` (reports, figures, dependencies).
 Optional dependencies: ``pip install 'planar_vo[bench]'`` (poselib, matplotlib).
 """
 
 from __future__ import annotations
 
 from planar_vo.bench.common import BenchDependencyError
-from planar_vo.bench.methods import METHODS, VotingUnavailable, estimate_1ac_voting
+from planar_vo.bench.methods import METHODS, estimate_1ac_voting
 from planar_vo.bench.metrics import (
     focal_error,
     rotation_error_deg,
@@ -20,7 +20,6 @@ from planar_vo.bench.metrics import (
 __all__ = [
     'METHODS',
     'BenchDependencyError',
-    'VotingUnavailable',
     'estimate_1ac_voting',
     'focal_error',
     'rotation_error_deg',

@@ -12,9 +12,8 @@ Every run is one `planar_vo.synthetic.paper_trial` (50 ACs sharing one motion). 
   protocol, so these show what using all the data buys). Its inlier threshold is
   `peer_threshold_px` of the noise level (an oracle threshold).
 
-`estimate_1ac_voting` is the hook for the paper's own robust estimator (1AC + histogram
-voting, ``planar_vo.geometry.vote_planar_motion``, in progress): while that function does not
-exist the hook raises `VotingUnavailable` and the benchmarks report the method as not run.
+`estimate_1ac_voting` runs the paper's own robust estimator (1AC + histogram voting,
+``planar_vo.geometry.vote_planar_motion``) on all 50 ACs of a run.
 """
 
 from __future__ import annotations
@@ -33,48 +32,22 @@ __all__ = [
     'Candidates',
     'Method',
     'METHODS',
-    'VotingUnavailable',
     'estimate_1ac_voting',
     'peer_threshold_px',
-    'voting_available',
 ]
 
 
-class VotingUnavailable(NotImplementedError):
-    """``planar_vo.geometry.vote_planar_motion`` does not exist yet: '1AC + voting' cannot run."""
-
-
-def voting_available() -> bool:
-    """Whether the histogram-voting estimator exists in `planar_vo.geometry`."""
-    import planar_vo.geometry as geometry
-
-    return hasattr(geometry, 'vote_planar_motion')
-
-
 def estimate_1ac_voting(q1: np.ndarray, q2: np.ndarray, A: np.ndarray) -> tuple[float, float]:
-    """HOOK: '1AC + voting', the paper's robust estimator, on all ACs of one image pair.
+    """'1AC + voting', the paper's robust estimator, on all ACs of one image pair.
 
-    Calls ``planar_vo.geometry.vote_planar_motion(q1, q2, A)`` (normalised coordinates
-    ``(N, 2)`` and affines ``(N, 2, 2)``) and returns its ``(alpha, beta)`` in radians. The result
-    may be a tuple starting with ``alpha, beta`` or an object with ``alpha`` and ``beta``
-    attributes; adapt `_alpha_beta` if the final API differs. Both benchmarks (paper and speed)
-    time and score '1AC + voting' only through this function.
-
-    Raises:
-        VotingUnavailable: the voting estimator does not exist yet.
+    `planar_vo.geometry.vote_planar_motion` on normalised coordinates ``(N, 2)`` and affines
+    ``(N, 2, 2)``; returns ``(alpha, beta)`` in radians (NaN when it found nothing). Both
+    benchmarks (paper and speed) time and score '1AC + voting' through this function.
     """
-    if not voting_available():
-        raise VotingUnavailable('1AC + voting: planar_vo.geometry.vote_planar_motion is not '
-                                'implemented yet (lead, in progress); not run')
     from planar_vo.geometry import vote_planar_motion
 
-    return _alpha_beta(vote_planar_motion(q1, q2, A))
-
-
-def _alpha_beta(result) -> tuple[float, float]:
-    if hasattr(result, 'alpha') and hasattr(result, 'beta'):
-        return float(result.alpha), float(result.beta)
-    return float(result[0]), float(result[1])
+    motion, _ = vote_planar_motion(q1, q2, A)
+    return float(motion.alpha), float(motion.beta)
 
 
 def peer_threshold_px(sigma: float) -> float:
@@ -202,8 +175,7 @@ METHODS: tuple[Method, ...] = (
     Method('5PC RANSAC (PoseLib)', 'robust', 'calibrated', 0, _5pc_poselib,
            'PoseLib estimate_relative_pose (RANSAC + LO + bundle, p=0.999)'),
     Method('1AC+voting', 'robust', 'calibrated', 0, _1ac_voting,
-           'HOOK estimate_1ac_voting -> planar_vo.geometry.vote_planar_motion',
-           voting_available),
+           'planar_vo vote_planar_motion (histogram voting + refinement)'),
     Method('1ACf', 'minimal', 'focal', 1, _1acf, 'planar_vo solve_1acf'),
     Method('6PC (PoseLib)', 'minimal', 'focal', 6, _6pc_minimal,
            'PoseLib shared_focal_relpose_6pt'),

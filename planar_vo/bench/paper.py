@@ -575,7 +575,7 @@ def findings(rows: list[dict], noise_free: dict, sigmas: Sequence[float]) -> str
     out.append(
         '- Robust estimators use all 50 points of a run and minimal solvers one sample, so '
         'under noise the RANSAC rows are expected to beat every minimal solver; the fair '
-        'comparison for them is 1AC + voting on the same 50 ACs (hook in place, see "Not run").')
+        'comparison for them is 1AC + voting on the same 50 ACs.')
     return '## Findings\n\n' + '\n'.join(out)
 
 
