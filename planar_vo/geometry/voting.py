@@ -34,7 +34,9 @@ from planar_vo.config import VotingConfig
 from planar_vo.errors import ConfigError, InputError
 from planar_vo.geometry.minimal import (
     _ac_matrix,
+    _ac_null_vectors,
     _check_ac,
+    _cheirality_flip,
     _solve_1ac_unchecked,
     solve_1ac,
     solve_1acf,
@@ -110,6 +112,30 @@ class VotingStats:
     focal_std: float = float('nan')
 
 
+def _quantile(x: np.ndarray, q: float) -> float:
+    """Lower ``q``-quantile of ``x`` by partial sorting (np.quantile's interpolation costs more
+    than the whole selection here)."""
+    k = int(q * (x.size - 1))
+    return float(np.partition(x, k)[k])
+
+
+# The peak's statistics (beta votes, mean shift, noise scales) need a sample of a peak, not all
+# of it: above this many items a deterministic stride subsample is used. The final selection,
+# refinement and covariance always use every AC.
+_STAT_SAMPLE = 1500
+
+
+def _thin(idx: np.ndarray, limit: int = _STAT_SAMPLE) -> np.ndarray:
+    """Every k-th entry of ``idx`` so that at most about ``limit`` remain (deterministic)."""
+    step = -(-idx.size // limit)
+    return idx if step <= 1 else idx[::step]
+
+
+def _wrap(x: np.ndarray) -> np.ndarray:
+    """Angles to ``[-pi, pi)`` (the cheap form for internal use)."""
+    return np.remainder(x + np.pi, TWO_PI) - np.pi
+
+
 # ------------------------------------------------------------------------------------------------
 # Circular histogram voting
 # ------------------------------------------------------------------------------------------------
@@ -141,7 +167,7 @@ def _mean_shift(angles: np.ndarray, weights: np.ndarray, start: float, bandwidth
     """Mode of the weighted angle density near ``start`` (Gaussian kernel, circular)."""
     # Work on offsets from the start inside a window (the kernel is negligible beyond it).
     d0 = np.remainder(angles - start + np.pi, TWO_PI) - np.pi
-    near = np.abs(d0) <= 4.0 * bandwidth
+    near = _thin(np.flatnonzero(np.abs(d0) <= 4.0 * bandwidth))
     d0, weights = d0[near], weights[near]
     offset = 0.0
     for _ in range(iterations):
@@ -240,10 +266,10 @@ def _robust_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, quantile: float 
         return _POINT_SCALE_FLOOR, _AFFINE_SCALE_FLOOR
     q = _HALF_NORMAL_Q25 if quantile == 0.25 else 1.0 / _MAD
     e1 = np.abs(r[:, 0]) / np.sqrt(g[:, 0] + 1e-300)
-    sp = max(float(np.quantile(e1, quantile)) / q, _POINT_SCALE_FLOOR)
+    sp = max(_quantile(e1, quantile) / q, _POINT_SCALE_FLOOR)
     ea = (np.abs(r[:, 1:]) / np.sqrt(h[:, 1:] + 1e-300)).ravel()
-    raw = float(np.quantile(ea, quantile)) / q
-    point_share = sp * sp * float(np.median(g[:, 1:] / (h[:, 1:] + 1e-300)))
+    raw = _quantile(ea, quantile) / q
+    point_share = sp * sp * _quantile((g[:, 1:] / (h[:, 1:] + 1e-300)).ravel(), 0.5)
     sa = math.sqrt(max(raw * raw - point_share, 0.0))
     return sp, max(sa, _AFFINE_SCALE_FLOOR, 0.1 * raw)
 
@@ -356,18 +382,35 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     if config.method == 'ransac':
         return _ransac(q1, q2, A, w, config, clusters)
     n = q1.shape[0]
-    alpha_c, beta_c = (solve_1ac(q1, q2, A, refine=True) if config.refine_candidates
-                       else _solve_1ac_unchecked(q1, q2, A))
+    if config.refine_candidates:
+        alpha_c, beta_c = solve_1ac(q1, q2, A, refine=True)
+        signed = True
+    else:
+        # Alpha does not depend on the null vector's sign (flipping it adds pi to both angles),
+        # so cheirality is resolved below only for the ACs that vote on beta.
+        nv = _ac_null_vectors(q1, q2, A)
+        theta_c = np.arctan2(nv[:, 1], nv[:, 0])
+        beta_c = np.arctan2(nv[:, 3], nv[:, 2])
+        alpha_c = _wrap(theta_c - beta_c)
+        alpha_c[((nv[:, 0] == 0.0) & (nv[:, 1] == 0.0)) | ((nv[:, 2] == 0.0)
+                                                          & (nv[:, 3] == 0.0))] = np.nan
+        signed = False
     valid = np.isfinite(alpha_c) & (w > 0)
     num_candidates = int(np.count_nonzero(valid))
     if num_candidates < config.min_inliers:
         return _failed(n, 'too_few_candidates', num_candidates)
-    a_v, b_v, w_v = alpha_c[valid], beta_c[valid], w[valid]
+    valid_idx = np.flatnonzero(valid)
+    a_v, w_v = alpha_c[valid_idx], w[valid_idx]
 
     exclusion = 6.0 * config.kernel_bins * TWO_PI / config.bins
     alpha0, sharpness, ambiguity, bw = _peak(a_v, w_v, config, exclusion)
-    near_alpha = np.abs(wrap_angle(a_v - alpha0)) <= 3.0 * bw
-    beta0, _, _, bw_b = _peak(b_v[near_alpha], w_v[near_alpha], config, exclusion)
+    near_alpha = np.abs(_wrap(a_v - alpha0)) <= 3.0 * bw
+    near_idx = _thin(valid_idx[near_alpha])
+    b_near = beta_c[near_idx]
+    if not signed:
+        flip = _cheirality_flip(q1[near_idx], q2[near_idx], alpha_c[near_idx], b_near)
+        b_near = _wrap(b_near + np.pi * flip)
+    beta0, _, _, bw_b = _peak(b_near, w[near_idx], config, exclusion)
 
     # Residual terms at the voted motion: the peak's members (near both modes) calibrate the
     # noise scales, and the resulting whitening is kept for a first refinement (the vote is
@@ -375,22 +418,27 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     B = _ac_matrix(q1, q2, A)
     theta0 = alpha0 + beta0
     r, g, h = _residual_terms(q1, q2, A, B, theta0, beta0)
-    near_beta = np.abs(wrap_angle(b_v - beta0)) <= 3.0 * bw_b
-    members = np.flatnonzero(valid)[near_alpha & near_beta]
+    beta_offsets = np.abs(_wrap(b_near - beta0))
+    members = near_idx[beta_offsets <= 3.0 * bw_b]
     sp_cap = config.max_noise_factor * config.point_noise
     sa_cap = config.max_noise_factor * config.affine_noise
     sp, sa = _robust_scales(r[members], g[members], h[members])
     sp, sa = min(sp, sp_cap), min(sa, sa_cap)
     Bw = B / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)[:, :, None]
-    theta, beta, inliers, cov, rms = _select_and_refine(Bw, w, theta0, beta0, config, clusters)
+    theta, beta, inliers, cov, rms = _select_and_refine(Bw, w, theta0, beta0, config, passes=1,
+                                                        covariance=not config.refine)
     if config.refine and np.count_nonzero(inliers) >= max(config.min_inliers, 4):
         # Second round: noise scales from the inliers at the refined motion (clean, so the
         # median is the right statistic), then the same selection and refinement again.
         r, g, h = _residual_terms(q1, q2, A, B, theta, beta)
-        sp, sa = _robust_scales(r[inliers], g[inliers], h[inliers], quantile=0.5)
+        sample = _thin(np.flatnonzero(inliers))
+        sp, sa = _robust_scales(r[sample], g[sample], h[sample], quantile=0.5)
         sp, sa = min(sp, sp_cap), min(sa, sa_cap)
         Bw = B / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)[:, :, None]
-        theta, beta, inliers, cov, rms = _select_and_refine(Bw, w, theta, beta, config, clusters)
+        theta, beta, inliers, cov, rms = _select_and_refine(Bw, w, theta, beta, config, clusters,
+                                                            passes=3)
+    elif config.refine:
+        _, _, _, cov, rms = _select_and_refine(Bw, w, theta, beta, config, clusters, passes=1)
     motion = PlanarMotion(float(wrap_angle(theta - beta)), float(wrap_angle(beta)))
     num_inliers = int(np.count_nonzero(inliers))
     # The refined motion must stay in the voted peak: leaving it means the inliers' constraints
@@ -398,9 +446,8 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     # Alpha candidates are sharp; beta candidates can spread widely (forward motion), so beta is
     # judged against the robust spread of the peak's own beta candidates.
     beta_spread = bw_b
-    if near_alpha.any():
-        beta_spread = max(bw_b, _MAD * float(np.median(np.abs(
-            wrap_angle(b_v[near_alpha] - beta0)))))
+    if beta_offsets.size:
+        beta_spread = max(bw_b, _MAD * _quantile(beta_offsets, 0.5))
     drift = max(abs(float(wrap_angle(motion.alpha - alpha0))) / (3.0 * bw),
                 abs(float(wrap_angle(motion.beta - beta0))) / (3.0 * beta_spread))
     flag = None
@@ -423,76 +470,83 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
 def _spatial_clusters(q: np.ndarray, config: VotingConfig) -> np.ndarray:
     """Cluster id of each AC: its cell in a ``grid x grid`` partition of image-1 positions."""
     k = config.covariance_grid
-    lo, hi = q.min(axis=0), q.max(axis=0)
-    cell = np.minimum(((q - lo) / np.maximum(hi - lo, 1e-12) * k).astype(np.intp), k - 1)
-    return cell[:, 0] * k + cell[:, 1]
+    u, v = q[:, 0], q[:, 1]
+    u0, v0 = float(u.min()), float(v.min())
+    su = k / max(float(u.max()) - u0, 1e-12)
+    sv = k / max(float(v.max()) - v0, 1e-12)
+    iu = np.minimum(((u - u0) * su).astype(np.intp), k - 1)
+    iv = np.minimum(((v - v0) * sv).astype(np.intp), k - 1)
+    return iu * k + iv
 
 
-def _fit_whitened(Bw: np.ndarray, w: np.ndarray, theta: float, beta: float,
-                  clusters: np.ndarray | None = None) -> tuple[float, float, np.ndarray, float]:
-    """Least squares over ``(theta, beta)`` of the whitened rows ``Bw`` (N, 3, 4), weights ``w``.
+def _fit_whitened(flat: np.ndarray, w3: np.ndarray, theta: float, beta: float
+                  ) -> tuple[float, float, np.ndarray, float]:
+    """Least squares over ``(theta, beta)`` of the whitened rows ``flat`` ``(3N, 4)`` with row
+    weights ``w3`` ``(3N,)``; returns ``theta, beta``, the Gauss-Newton matrix ``H`` and the
+    objective (see `_minimize_form`)."""
+    M = (flat * w3[:, None]).T @ flat
+    return _minimize_form(M, theta, beta)
 
-    The covariance is cluster-robust (a sandwich ``H^-1 (sum_c s_c s_c^T) H^-1`` with ``s_c`` the
-    summed score ``J^T e`` of cluster ``c``; Liang and Zeger 1986): neighbouring ACs share errors
-    (one surface, overlapping patches, one fitted homography), which the plain ``sigma^2 H^-1``
-    ignores and which would make it overconfident. Without clusters it is ``sigma^2 H^-1`` with
-    the posterior variance factor. Either way it does not depend on the scale of ``w``.
 
-    Returns ``theta, beta``, the 2x2 covariance of ``(theta, beta)`` and the whitened RMS.
+def _covariance(flat: np.ndarray, w: np.ndarray, theta: float, beta: float, H: np.ndarray,
+                f: float, clusters: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """Covariance of ``(theta, beta)`` at the solution of `_fit_whitened`, and the whitened RMS.
+
+    Cluster-robust (a sandwich ``H^-1 (sum_c s_c s_c^T) H^-1`` with ``s_c`` the summed score
+    ``J^T e`` of cluster ``c``; Liang and Zeger 1986): neighbouring ACs share errors (one
+    surface, overlapping patches, one fitted homography), which the plain ``sigma^2 H^-1``
+    ignores and which would make it overconfident. Never smaller than ``sigma^2 H^-1`` with the
+    posterior variance factor. Neither depends on the scale of ``w``.
     """
-    flat = Bw.reshape(-1, 4)
-    M = (flat * np.repeat(w, 3)[:, None]).T @ flat
-    theta, beta, H, f = _minimize_form(M, theta, beta)
     m = int(np.count_nonzero(w > 0))
     wsum = float(w.sum())
     rms = math.sqrt(max(f, 0.0) / (3.0 * wsum)) if wsum > 0 else float('nan')
     det = H[0, 0] * H[1, 1] - H[0, 1] ** 2
     if m < 2 or not np.all(np.isfinite(H)) or not det > 0:
-        return theta, beta, np.full((2, 2), np.inf), rms
+        return np.full((2, 2), np.inf), rms
     Hinv = np.array([[H[1, 1], -H[0, 1]], [-H[0, 1], H[0, 0]]]) / det
-    sigma2 = max(f, 1e-300) / max(3 * m - 2, 1)
-    cov = sigma2 * Hinv
+    cov = max(f, 1e-300) / max(3 * m - 2, 1) * Hinv
     if clusters is not None:
         ct, st, cb, sb = math.cos(theta), math.sin(theta), math.cos(beta), math.sin(beta)
-        x = np.array([ct, st, cb, sb])
-        e = (flat @ x).reshape(-1, 3)
-        jt = (flat @ np.array([-st, ct, 0.0, 0.0])).reshape(-1, 3)
-        jb = (flat @ np.array([0.0, 0.0, -sb, cb])).reshape(-1, 3)
-        s0 = np.bincount(clusters, weights=w * (jt * e).sum(axis=1))
-        s1 = np.bincount(clusters, weights=w * (jb * e).sum(axis=1))
+        # Per-row residual and its derivatives, contracted to per-AC scores J^T e.
+        proj = flat @ np.array([[ct, -st, 0.0], [st, ct, 0.0], [cb, 0.0, -sb], [sb, 0.0, cb]])
+        proj = proj.reshape(-1, 3, 3)                   # (N, row, [e, de/dtheta, de/dbeta])
+        s0 = np.bincount(clusters, weights=w * (proj[:, :, 0] * proj[:, :, 1]).sum(axis=1))
+        s1 = np.bincount(clusters, weights=w * (proj[:, :, 0] * proj[:, :, 2]).sum(axis=1))
         meat = np.array([[s0 @ s0, s0 @ s1], [s0 @ s1, s1 @ s1]])
         robust = Hinv @ meat @ Hinv
-        # Never report less than the independent-errors covariance.
         if np.all(np.isfinite(robust)) and np.trace(robust) > np.trace(cov):
             cov = robust
-    return theta, beta, cov, rms
+    return cov, rms
 
 
 def _select_and_refine(Bw: np.ndarray, w: np.ndarray, theta: float, beta: float,
-                       config: VotingConfig, clusters: np.ndarray | None = None):
+                       config: VotingConfig, clusters: np.ndarray | None = None,
+                       passes: int = 4, covariance: bool = True):
     """Inlier selection (chi-square of the whitened residuals) alternated with refitting, until
-    the inlier set no longer changes (at most four passes)."""
+    the inlier set no longer changes (at most ``passes`` times); then, if asked, the
+    covariance."""
     n = Bw.shape[0]
     flat = Bw.reshape(-1, 4)
     inliers = np.zeros(n, bool)
-    cov = np.full((2, 2), np.inf)
-    rms = float('nan')
-    for _ in range(4 if config.refine else 1):
+    H, f = np.full((2, 2), np.nan), float('nan')
+    fitted = False
+    for _ in range(passes if config.refine else 1):
         x = np.array([math.cos(theta), math.sin(theta), math.cos(beta), math.sin(beta)])
         e = (flat @ x).reshape(n, 3)
-        chi2 = (e * e).sum(axis=1)
-        selected = (chi2 <= config.inlier_chi2) & (w > 0)
+        selected = ((e * e).sum(axis=1) <= config.inlier_chi2) & (w > 0)
         if np.count_nonzero(selected) < 2:
             break
-        converged = np.array_equal(selected, inliers)
+        if fitted and np.array_equal(selected, inliers):
+            break                                   # the last fit already used this set
         inliers = selected
-        t2, b2, cov, rms = _fit_whitened(Bw, w * selected, theta, beta, clusters)
-        if not config.refine:
-            break
-        step = abs(t2 - theta) + abs(b2 - beta)
-        theta, beta = t2, b2
-        if converged and step < 1e-9:
-            break
+        t2, b2, H, f = _fit_whitened(flat, np.repeat(w * selected, 3), theta, beta)
+        fitted = True
+        if config.refine:
+            theta, beta = t2, b2
+    if not covariance or not np.count_nonzero(inliers):
+        return theta, beta, inliers, np.full((2, 2), np.inf), float('nan')
+    cov, rms = _covariance(flat, w * inliers, theta, beta, H, f, clusters)
     return theta, beta, inliers, cov, rms
 
 
@@ -554,7 +608,8 @@ def _ransac(q1, q2, A, w, config: VotingConfig, clusters: np.ndarray
             theta, beta = float(th[k]), float(be[k])
             inl = chi2[:, k] <= config.inlier_chi2
             if np.count_nonzero(inl) >= 2:                                      # local optimisation
-                t2, b2, _, _ = _fit_whitened(whiten(theta, beta), w * inl, theta, beta)
+                t2, b2, _, _ = _fit_whitened(whiten(theta, beta).reshape(-1, 4),
+                                             np.repeat(w * inl, 3), theta, beta)
                 s2, _ = score(t2, b2)
                 if s2 <= scores[k]:
                     theta, beta, scores[k] = t2, b2, s2
