@@ -72,7 +72,8 @@ class ConfigSection:
         unknown = sorted(set(data) - names)
         if unknown:
             where = f'{path}.' if path else ''
-            raise ConfigError(f'unknown configuration key(s) {", ".join(where + k for k in unknown)}'
+            keys = ', '.join(where + k for k in unknown)
+            raise ConfigError(f'unknown configuration key(s) {keys}'
                               f'; known keys: {", ".join(sorted(names))}')
         values = {}
         for name, raw in data.items():
@@ -591,9 +592,9 @@ def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = 'plana
 
     config = PlanarVoConfig() if config is None else config
     docs = describe()
-    out = ['# planar_vo parameters, in ROS 2 parameter-file form (ros2 run planar_vo planar_vo_node',
-           '#   --ros-args --params-file FILE). The planar_vo command reads the same file with',
-           '# --config. Mirrors planar_vo.config.PlanarVoConfig; units are SI and radians.',
+    out = ['# planar_vo parameters, in ROS 2 parameter-file form (ros2 run planar_vo',
+           '#   planar_vo_node --ros-args --params-file FILE). The planar_vo command reads the',
+           '# same file with --config. Mirrors planar_vo.config.PlanarVoConfig (SI units, rad).',
            f'{node_name}:', '  ros__parameters:']
     for section, values in config.to_dict().items():
         out.append(f'    {section}:')

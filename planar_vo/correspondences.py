@@ -1,4 +1,5 @@
-"""`AffineCorrespondences`: the one type every AC source returns (front-end, renderer, synthetic)."""
+"""`AffineCorrespondences`: the one type every AC source returns (front-end, renderer,
+synthetic data)."""
 
 from __future__ import annotations
 

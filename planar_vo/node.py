@@ -145,7 +145,8 @@ class PlanarVoNode(Node):
             self.create_subscription(Image, 'image', self._on_image, **sensor)
         self._pending: tuple | None = None
         # With estimate_focal the pipeline runs without CameraInfo: no image waits for one.
-        self._expects_camera_info = self.config.camera.fx <= 0 and not self.config.camera.estimate_focal
+        camera = self.config.camera
+        self._expects_camera_info = camera.fx <= 0 and not camera.estimate_focal
         if not self._expects_camera_info:
             self.get_logger().info('camera intrinsics from the camera.* parameters; not '
                                    'subscribing to camera_info')

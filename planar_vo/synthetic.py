@@ -109,7 +109,8 @@ def paper_intrinsics(focal: float = PAPER_FOCAL) -> np.ndarray:
 
 def random_planar_motion(rng: np.random.Generator, n: int | None = None, *,
                          max_yaw_deg: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
-    """Random planar motions: ``alpha`` uniform in ``+-max_yaw_deg``, ``beta`` uniform on the circle.
+    """Random planar motions: ``alpha`` uniform in ``+-max_yaw_deg``, ``beta`` uniform on the
+    circle.
 
     Returns ``alpha, beta`` in radians, scalars (shape ``()``) when ``n`` is None.
     """
@@ -332,7 +333,8 @@ def shared_motion_acs(rng: np.random.Generator, n: int, sigma: float, *,
     acs = ACSet(K=K, alpha=np.asarray(alpha), beta=np.asarray(beta), R=rotation_y(alpha),
                 t=translation_direction(beta), **cat)
     object.__setattr__(acs, '_outliers', mask)
-    object.__setattr__(acs, '_planes', np.repeat(np.arange(len(groups)), max(points_per_plane, 4))[:n])
+    object.__setattr__(acs, '_planes', np.repeat(
+        np.arange(len(groups)), max(points_per_plane, 4))[:n])
     return acs
 
 

@@ -205,7 +205,7 @@ def test_planar_sampson_errors_match_the_essential_matrix(rng):
         E = planar_essential(alpha[k], beta[k])
         l2, l1 = h1 @ E.T, h2 @ E
         ref = np.abs(np.sum(h2 * l2, 1)) / np.sqrt(l2[:, 0] ** 2 + l2[:, 1] ** 2
-                                                    + l1[:, 0] ** 2 + l1[:, 1] ** 2)
+                                                   + l1[:, 0] ** 2 + l1[:, 1] ** 2)
         np.testing.assert_allclose(err[k], ref, rtol=1e-12)
 
 

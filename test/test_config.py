@@ -59,8 +59,9 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
 
 
 @pytest.mark.parametrize(('data', 'match'), [
-    ({'voting': {'binz': 3}}, r'unknown configuration key\(s\) voting.binz; known keys: affine_noise, '
-                                     r'ambiguity_ratio, bins'),
+    ({'voting': {'binz': 3}}, r'unknown configuration key\(s\) voting.binz; known keys: '
+                              r'affine_noise, '
+     r'ambiguity_ratio, bins'),
     ({'votes': {}}, r'unknown configuration key\(s\) votes'),
     ({'voting': {'bins': 'x'}}, r"voting.bins: expected int, got str 'x'"),
     ({'voting': {'bins': 10}}, r'voting.bins: expected at least 36, got 10'),
@@ -69,7 +70,7 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
                                        r"'asift'\], got 'sift'"),
     ({'camera': {'distortion': [0.1, 'a']}}, r"camera.distortion\[1\]: expected float"),
     ({'ros': {'odom_frame': 'x', 'base_frame': 'x'}}, r'ros.base_frame: expected a frame id '
-                                                     r'other than odom_frame'),
+     r'other than odom_frame'),
     ({'voting': 3}, r'voting: expected a mapping, got int'),
 ])
 def test_invalid_values_are_reported_with_their_key(data, match):

@@ -62,7 +62,7 @@ GOOD = '1.0 0 0 0 0 0 0 1'
     ([GOOD, '2.0 1 2 3 0 0 0'], r't\.tum line 2: expected 8 values \'timestamp tx ty tz qx qy qz '
                                 r"qw', got 7"),
     (['# header', '', GOOD, '2.0 1 2 x 0 0 0 1'], r"t\.tum line 4: expected 8 numbers, got "
-                                                   r"'2\.0 1 2 x 0 0 0 1'"),
+     r"'2\.0 1 2 x 0 0 0 1'"),
     ([GOOD, '2.0 1 2 nan 0 0 0 1'], r't\.tum line 2: expected finite values'),
     ([GOOD, '2.0 1 2 3 0 0 0 0'], r't\.tum line 2: expected a non-zero quaternion'),
     ([GOOD, '1.0 1 2 3 0 0 0 1'], r't\.tum line 2: expected increasing timestamps, got 1\.0 '
@@ -248,7 +248,7 @@ def test_evo_reads_our_bags_and_agrees_on_ate(tmp_path, rng, evo_env, storage):
     out = run_evo(evo_env, 'evo_traj', 'bag2', str(bag), '--all_topics', cwd=tmp_path)
     assert out.count('40 poses') == 2 and 'name:\t/odom' in out
     evo = evo_ape_stats(evo_env, tmp_path, 'bag2', str(bag), '/ground_truth/odom', '/odom',
-                         '-a')
+                        '-a')
     ours = evaluate(read_bag_trajectory(bag, '/ground_truth/odom'),
                     read_bag_trajectory(bag, '/odom')).metrics()['ate_m']
     for key in ('rmse', 'mean', 'median', 'max'):

@@ -204,7 +204,7 @@ def test_asift_view_sampling_and_keypoint_frames():
     points, frames = keypoint_frames([kp], tilts, rolls)
     phi, th, t = np.deg2rad(rolls[view]), np.deg2rad(40.0), tilts[view]
     P = np.diag([1.0 / t, 1.0]) @ np.array([[np.cos(phi), -np.sin(phi)],
-                                              [np.sin(phi), np.cos(phi)]])
+                                            [np.sin(phi), np.cos(phi)]])
     S = 3.0 * np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
     np.testing.assert_allclose(points, [[10.0, 20.0]])
     np.testing.assert_allclose(frames[0], np.linalg.inv(P) @ S, atol=1e-12)
@@ -688,7 +688,8 @@ def test_mount_tilt_from_a_rendered_drive_makes_voting_work_on_a_tilted_camera()
     tilt = estimator.estimate()
     assert tilt.frames == len(pairs)
     assert abs(tilt.pitch - pitch) < np.deg2rad(0.2) and abs(tilt.roll - roll) < np.deg2rad(0.2)
-    assert abs(tilt.pitch - pitch) < 3 * tilt.pitch_std and abs(tilt.roll - roll) < 3 * tilt.roll_std
+    assert abs(tilt.pitch - pitch) < 3 * tilt.pitch_std
+    assert abs(tilt.roll - roll) < 3 * tilt.roll_std
 
     def yaw_errors(pitch_used, roll_used):
         errors = []

@@ -111,7 +111,7 @@ def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
     import_kitti(tmp_path / 'seq2', tmp_path / 'bag2', rate_hz=4.0, start=0)
     with open_bag(tmp_path / 'bag2') as bag:
         assert [f.stamp_ns for f in iter_camera_frames(bag)] == [0, 250_000_000, 500_000_000,
-                                                                  750_000_000]
+                                                                 750_000_000]
 
 
 @pytest.mark.parametrize('damage, match', [

@@ -186,7 +186,7 @@ def test_compressed_rclpy_message():
     ('bmp', b'BM...', r"compressed_image\.format: expected 'jpeg' or 'png', got 'bmp'"),
     ('16UC1; compressedDepth png', b'x', r"got '16UC1; compressedDepth png'"),
     ('jpeg', b'\xff\xd8 not really a jpeg', r'compressed_image\.data: expected decodable jpeg '
-                                             r'data, got 20 bytes OpenCV cannot decode'),
+     r'data, got 20 bytes OpenCV cannot decode'),
     ('png', b'', r'got 0 bytes'),
 ])
 def test_compressed_errors(fmt, data, match):

@@ -256,7 +256,7 @@ GOOD_A = np.tile(np.eye(2), (3, 1, 1))
     ((GOOD_Q, GOOD_Q, GOOD_A[:2]), r'same number of items: q1 has 3, q2 has 3, A has 2'),
     ((np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2, 2))), r'q1: expected at least 1 item'),
     ((np.where(GOOD_Q == GOOD_Q, np.nan, 0), GOOD_Q, GOOD_A), r'q1: expected finite values, '
-                                                               r'got 6 NaN or infinite'),
+     r'got 6 NaN or infinite'),
     ((GOOD_Q, GOOD_Q, GOOD_A + np.inf), r'A: expected finite values'),
     (('abc', GOOD_Q, GOOD_A), r'q1: expected a numeric array'),
 ])

@@ -1,4 +1,5 @@
-"""VisualOdometry on rendered drives: accuracy bounds, scale sources, keyframes, every drop reason."""
+"""VisualOdometry on rendered drives: accuracy bounds, scale sources, keyframes, and every drop
+reason."""
 
 from __future__ import annotations
 
@@ -67,7 +68,7 @@ def test_drive_accuracy_with_ground_scale(name):
     trajectory, results, vo = _run(name)
     assert results[0].reason is DropReason.FIRST_FRAME
     assert all(r.ok for r in results[1:]), [(i, r.reason, r.message) for i, r in
-                                             enumerate(results) if not r.ok][:5]
+                                            enumerate(results) if not r.ok][:5]
     pos, yaw, distance = _errors(trajectory, results)
     assert yaw < 0.1, yaw                              # degrees of drift at the end
     assert pos < 0.005 * distance + 0.02, (pos, distance)
@@ -198,7 +199,7 @@ def test_bad_frames_are_counted_and_do_not_stop_the_odometry():
         result = vo.process(image, stamp)
         expect.append(reason)
         assert (result.reason is reason) if reason else result.ok, (result.reason,
-                                                                     result.message)
+                                                                    result.message)
         return result
 
     feed(images[0], stamps[0], DropReason.FIRST_FRAME)

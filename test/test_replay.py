@@ -1,4 +1,5 @@
-"""End to end: a rendered drive recorded as a bag (both storages), replayed, evaluated, read by evo."""
+"""End to end: a rendered drive recorded as a bag (both storages), replayed, evaluated, and read
+by evo."""
 
 from __future__ import annotations
 

@@ -92,7 +92,8 @@ class CameraBagWriter(BagWriter):
             roi=t['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0,
                                                       do_rectify=False))
         msg = t[IMAGE_TYPE](header=header, height=height, width=width, encoding='mono8',
-                            is_bigendian=0, step=width, data=np.ascontiguousarray(image).reshape(-1))
+                            is_bigendian=0, step=width,
+                            data=np.ascontiguousarray(image).reshape(-1))
         self.write_message(CAMERA_INFO_TOPIC, int(stamp_ns), info)
         self.write_message(IMAGE_TOPIC, int(stamp_ns), msg)
         if pose is not None and self._ground_truth:

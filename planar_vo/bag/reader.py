@@ -81,7 +81,7 @@ class BagReader:
     def topics(self) -> dict[str, str]:
         """Topic name -> message type (``'sensor_msgs/msg/Image'``), sorted by name."""
         return {c.topic: c.msgtype for c in sorted(self._reader.connections,
-                                                    key=lambda c: c.topic)}
+                                                   key=lambda c: c.topic)}
 
     def describe_topics(self) -> str:
         """``'/a (pkg/msg/A), /b (pkg/msg/B)'`` for error messages."""

@@ -45,7 +45,7 @@ __all__ = ['HELP', 'VARIANTS', 'add_arguments', 'register', 'run', 'time_methods
 logger = logging.getLogger(__name__)
 
 HELP = 'front-end speed (ratio to DIS flow) and accuracy (rendered, KITTI) of extract_acs'
-DEFAULT_KITTI = Path('/work/shared/data/kitti06_excerpt')
+DEFAULT_KITTI = Path('..') / 'shared' / 'data' / 'kitti06_excerpt'   # beside the repository
 KITTI_K = np.array([[707.0912, 0.0, 601.8873], [0.0, 707.0912, 183.1104], [0.0, 0.0, 1.0]])
 RENDER_SIZES = ((640, 480, 500.0), (1241, 376, 718.856))
 
@@ -364,7 +364,7 @@ def run(args: argparse.Namespace) -> int:
             header = ['pair'] + [f'{label}: {what}' for label, _, _ in table
                                  for what in ('yaw', 'heading')]
             frame_rows = [[f'{k}-{k + 1}'] + [f'{e[k]:.3f}' for _, yaw, head in table
-                                               for e in (yaw, head)]
+                                              for e in (yaw, head)]
                           for k in range(len(table[0][1]))]
             print('\nPer frame pair, absolute errors in degrees:\n')
             print(_markdown(header, frame_rows))

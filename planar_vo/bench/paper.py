@@ -537,7 +537,8 @@ def findings(rows: list[dict], noise_free: dict, sigmas: Sequence[float]) -> str
                          for i, f in enumerate(('rot', 'trans'))}
                 out.append(
                     f'- For 1AC the tilt alone is {"worse" if worse["rot"] else "better"} than '
-                    f'{top:g} px of noise for rotation and {"worse" if worse["trans"] else "better"}'
+                    f'{top:g} px of noise for rotation and '
+                    f'{"worse" if worse["trans"] else "better"}'
                     f' for translation (medians, sigma-0 tilted vs sigma-{top:g} untilted). '
                     'The paper finds 1AC "works reasonably well" with corrupted planarity; here '
                     'that holds where the tilt is the smaller error.')
@@ -583,6 +584,7 @@ def exactness_table(noise_free: dict) -> str:
     """Share of noise-free estimates that are exact (rotation and translation within 1e-6 deg)."""
     scenarios = [k for k in ('general', 'forward') if k in noise_free]
     names = [m.name for m in METHODS if any(m.name in noise_free[k] for k in scenarios)]
+
     def exact(e) -> float:
         return float(np.mean((e['rot'] < 1e-6) & (e['trans'] < 1e-6)))
 

@@ -225,7 +225,8 @@ def kitti_table(folder: Path, height: float, pitch: float | None) -> str:
         lines.append(f"| {label} | {m['ate_m']['rmse']:.3f} | {y['mean']:.3f} / {y['rmse']:.3f} "
                      f"/ {y['max']:.3f} | {h['mean']:.3f} / {h['rmse']:.3f} / {h['max']:.3f} | "
                      f'{1e3 * ms:.1f} |')
-    lines += ['', 'Both use the same front-end correspondences; the five-point peer gets only their '
+    lines += ['', 'Both use the same front-end correspondences; the five-point peer gets only '
+                  'their '
                   'points (it cannot use the affinities), with a 1 px RANSAC threshold.']
     return '\n'.join(lines)
 

@@ -250,7 +250,7 @@ def _gauss_newton_step(T: np.ndarray, Gx: np.ndarray, Gy: np.ndarray, Hinv: np.n
     g = np.stack([q[:, 0, 1], q[:, 0, 2], q[:, 1, 1], q[:, 1, 2], q[:, 0, 0], q[:, 1, 0]])
     d = -np.einsum('ijn,jn->in', Hinv, g.astype(np.float64))        # (6, M)
     step = np.hypot(d[4], d[5]) + radius * np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2
-                                                    + d[3] ** 2)
+                                                   + d[3] ** 2)
     # W <- W o W(d)^-1: A <- A (I + dA)^-1, p2 <- p2 - A_new dt.
     m00, m01, m10, m11 = 1.0 + d[0], d[1], d[2], 1.0 + d[3]
     with np.errstate(divide='ignore', invalid='ignore'):

@@ -111,7 +111,7 @@ class ASIFTExtractor:
             return empty
         matches = self._matcher.knnMatch(d1, d2, k=2)
         pairs = np.array([(m[0].queryIdx, m[0].trainIdx, m[0].distance / max(m[1].distance,
-                                                                              1e-12))
+                                                                             1e-12))
                           for m in matches if len(m) == 2])
         if len(pairs) == 0:
             return empty

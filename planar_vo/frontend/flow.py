@@ -57,8 +57,8 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 # Re-seeding (`FlowExtractor._reseed`): neighbour cells searched (edge-adjacent first),
-# rounds of propagation (one: a second round gained little for its cost), and how different (pixels, Frobenius) a prediction must be from the
-# flow's start to be worth a retry.
+# rounds of propagation (one: a second round gained little for its cost), and how different
+# (pixels, Frobenius) a prediction must be from the flow's start to be worth a retry.
 _NEIGHBOURS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))
 _RESEED_ROUNDS = 1
 _RESEED_MIN_POINT_CHANGE = 1.0

@@ -23,7 +23,8 @@ def as_gray(name: str, image: object) -> np.ndarray:
 
     Args:
         name: argument name for error messages (``'image1'``).
-        image: ``(H, W)``, ``(H, W, 1)``, ``(H, W, 3)`` (BGR) or ``(H, W, 4)`` (BGRA) ``uint8`` array.
+        image: ``(H, W)``, ``(H, W, 1)``, ``(H, W, 3)`` (BGR) or ``(H, W, 4)`` (BGRA) ``uint8``
+            array.
 
     Raises:
         ImageError: not an array, wrong dtype or shape, empty, or smaller than

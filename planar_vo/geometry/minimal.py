@@ -208,7 +208,8 @@ def _cheirality_sign(lam1: np.ndarray, lam2: np.ndarray) -> np.ndarray:
 
 
 def _angles_from_x(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``theta = a + b`` and ``b`` from ``x ~ [cos th, sin th, cos b, sin b]`` (halves unnormalised)."""
+    """``theta = a + b`` and ``b`` from ``x ~ [cos th, sin th, cos b, sin b]`` (halves need not
+    be unit vectors)."""
     return np.arctan2(x[..., 1], x[..., 0]), np.arctan2(x[..., 3], x[..., 2])
 
 

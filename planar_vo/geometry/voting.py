@@ -37,7 +37,6 @@ from planar_vo.geometry.minimal import (
     _ac_null_vectors,
     _check_ac,
     _cheirality_flip,
-    _solve_1ac_unchecked,
     solve_1ac,
     solve_1acf,
 )
@@ -258,7 +257,8 @@ def _robust_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, quantile: float 
     The members are the ACs whose candidates fell in the voted peak; with many outliers a good
     share of them are outliers too, so by default the scales come from the lower quartile of the
     normalised residuals (for ``|N(0, s^2)|`` the quartile is ``0.3186 s``), which tolerates up to
-    three quarters of contamination; for clean inliers ``quantile=0.5`` (the median) is used. Epipolar rows see point noise only: ``e1 = r1 / |dr1/dp|``.
+    three quarters of contamination; for clean inliers ``quantile=0.5`` (the median) is used.
+    Epipolar rows see point noise only: ``e1 = r1 / |dr1/dp|``.
     Affine rows see ``sqrt(sp^2 g + sa^2 h)``; ``sa`` comes from ``r / sqrt(h)`` with the point
     share removed.
     """
@@ -393,7 +393,7 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
         beta_c = np.arctan2(nv[:, 3], nv[:, 2])
         alpha_c = _wrap(theta_c - beta_c)
         alpha_c[((nv[:, 0] == 0.0) & (nv[:, 1] == 0.0)) | ((nv[:, 2] == 0.0)
-                                                          & (nv[:, 3] == 0.0))] = np.nan
+                                                           & (nv[:, 3] == 0.0))] = np.nan
         signed = False
     valid = np.isfinite(alpha_c) & (w > 0)
     num_candidates = int(np.count_nonzero(valid))

@@ -144,7 +144,7 @@ def _tile(rng: np.random.Generator, size: int, beta: float, noise: float, blobs:
                           (int(a[0] + wh[0] + dx), int(a[1] + wh[1] + dy)), value, -1),
             cv2.rectangle(im, (int(a[0] + dx), int(a[1] + dy)),
                           (int(a[0] + wh[0] + dx), int(a[1] + wh[1] + dy)), frame, 2)), shapes,
-            size)
+                 size)
     img += shapes
     img = (img - img.mean()) / img.std()
     # Squash the rare extremes (stacked dark or bright shapes) so that no surface saturates.
