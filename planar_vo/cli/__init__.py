@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from planar_vo import __version__
 from planar_vo.errors import PlanarVoError
 
-__all__ = ['build_parser', 'main']
+__all__ = ['build_parser', 'main', 'show_progress']
 
 # Subcommand modules, in --help order.
 COMMANDS = ('demo', 'replay', 'eval', 'import-kitti', 'bench')
@@ -28,6 +28,11 @@ EPILOG = """examples:
   planar_vo eval kitti06_vo --out-dir kitti06_eval
   planar_vo bench pipeline                        speed per stage, KITTI accuracy vs five-point
 """
+
+
+def show_progress(args: argparse.Namespace) -> bool:
+    """Progress bars on stderr unless ``--no-progress`` or stderr is not a terminal (CI logs)."""
+    return not getattr(args, 'no_progress', False) and sys.stderr.isatty()
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -48,6 +48,8 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from planar_vo.cli import show_progress
+
     start = time.perf_counter()
     if args.solvers:
         from planar_vo.experiments import format_accuracy_table, solver_accuracy
@@ -62,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.demo import run_demo
 
     result = run_demo(args.out, camera=args.camera, seed=args.seed, frames=args.frames,
-                      storage=args.storage, force=args.force, progress=not args.no_progress)
+                      storage=args.storage, force=args.force, progress=show_progress(args))
     m = result.metrics
     print()
     print(f'demo drive: {result.frames} frames, {result.distance:.1f} m; odometry at '

@@ -43,10 +43,12 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from planar_vo.cli import show_progress
+
     from planar_vo.bag.kitti import import_kitti
 
     summary = import_kitti(args.folder, args.out, storage=args.storage,
                            camera_height=args.camera_height, rate_hz=args.rate_hz,
-                           start=args.start, progress=not args.no_progress)
+                           start=args.start, progress=show_progress(args))
     print(summary.format())
     return 0

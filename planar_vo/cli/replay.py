@@ -46,6 +46,8 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from planar_vo.cli import show_progress
+
     from planar_vo.bag.replay import replay_bag
     from planar_vo.config import load_config
     from planar_vo.pipeline import VisualOdometry
@@ -55,6 +57,6 @@ def run(args: argparse.Namespace) -> int:
         args.input, args.out, VisualOdometry(config), image_topic=args.image_topic,
         camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
         tum_path=args.tum, storage=args.storage, odom_frame=config.ros.odom_frame,
-        base_frame=config.ros.base_frame, progress=not args.no_progress)
+        base_frame=config.ros.base_frame, progress=show_progress(args))
     print(summary.format())
     return 0
