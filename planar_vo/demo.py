@@ -35,7 +35,6 @@ class DemoResult:
     distance: float
     metrics: dict
     replay_fps: float
-    summary_text: str
 
 
 def _prepare(out_dir: Path, force: bool) -> None:
@@ -93,10 +92,9 @@ def run_demo(out_dir: str | Path = 'planar_vo_demo', *, camera: str = '640x480',
     est = load_trajectory(files['odometry'], '/odom', role='est-topic')
     ref = load_trajectory(files['odometry'], '/ground_truth/odom', role='gt-topic')
     evaluation = evaluate(ref, est, align='se3')
-    text = evaluation.format_table()
-    log(text)
+    log(evaluation.format_table())
     for path in write_report(evaluation, files['evaluation'], estimate=files['odometry'],
                              reference=files['drive']):
         files[path.stem] = path
     return DemoResult(out_dir, files, recorded.frames, recorded.distance, evaluation.metrics(),
-                      summary.throughput, text)
+                      summary.throughput)

@@ -10,6 +10,8 @@ Used by ``planar_vo import-kitti`` and by the recorder of rendered drives
 
 from __future__ import annotations
 
+from decimal import Decimal
+
 import numpy as np
 
 from planar_vo.bag.images import CAMERA_INFO_TYPE, IMAGE_TYPE
@@ -20,6 +22,7 @@ from planar_vo.messages import ns_to_stamp_fields
 
 __all__ = [
     'CAMERA_INFO_TOPIC',
+    'DEFAULT_START',
     'GROUND_TRUTH_TOPIC',
     'IMAGE_TOPIC',
     'SPEED_TOPIC',
@@ -30,6 +33,9 @@ IMAGE_TOPIC = '/camera/image_raw'
 CAMERA_INFO_TOPIC = '/camera/camera_info'
 GROUND_TRUTH_TOPIC = '/ground_truth/odom'
 SPEED_TOPIC = '/speed'
+# Seconds added to drives whose own times start at 0 (KITTI, rendered), so that bags start at a
+# plausible epoch.
+DEFAULT_START = Decimal('1700000000')
 TWIST_STAMPED_TYPE = 'geometry_msgs/msg/TwistStamped'
 
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from planar_vo.bag.camera_bag import (
     CAMERA_INFO_TOPIC,
+    DEFAULT_START,
     GROUND_TRUTH_TOPIC,
     IMAGE_TOPIC,
     CameraBagWriter,
@@ -53,8 +54,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-DEFAULT_START = Decimal('1700000000')     # seconds; KITTI times start at 0
 
 
 @dataclass(frozen=True)

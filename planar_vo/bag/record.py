@@ -11,15 +11,13 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from planar_vo.bag.camera_bag import CameraBagWriter
+from planar_vo.bag.camera_bag import DEFAULT_START, CameraBagWriter
 from planar_vo.camera import CameraModel
 from planar_vo.config import MountConfig
 from planar_vo.geometry.frames import mount_transform
 from planar_vo.messages import seconds_to_ns
 
 __all__ = ['RecordSummary', 'record_drive']
-
-DEFAULT_START = 1700000000.0          # seconds: the rendered drive starts at t = 0
 
 
 @dataclass(frozen=True)
@@ -35,7 +33,7 @@ class RecordSummary:
 
 def record_drive(out_path: str | Path, trajectory, *, camera: CameraModel,
                  mount: MountConfig | None = None, seed: int = 0, storage: str = 'mcap',
-                 start: float = DEFAULT_START, progress: bool = False,
+                 start: float = float(DEFAULT_START), progress: bool = False,
                  world=None) -> RecordSummary:
     """Render ``trajectory`` in a street world and write it as a bag (never overwrites).
 

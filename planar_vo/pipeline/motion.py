@@ -13,12 +13,11 @@ import math
 
 import numpy as np
 
-from planar_vo.geometry.frames import camera_motion_to_base, invert, se3, yaw_of
+from planar_vo.geometry.frames import camera_motion_to_base, se3, yaw_of
 from planar_vo.geometry.planar import rotation_y, translation_direction
 
 __all__ = [
     'base_step',
-    'compose',
     'compose_covariance',
     'planar_delta',
     'ros_covariance',
@@ -58,11 +57,6 @@ def step_covariance(alpha: float, beta: float, scale: float, cov_ab: np.ndarray,
     return J @ C @ J.T
 
 
-def compose(pose: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """``T_odom_base2 = T_odom_base1 T_base1_base2``."""
-    return pose @ step
-
-
 def compose_covariance(pose: np.ndarray, cov_pose: np.ndarray, delta: np.ndarray,
                        cov_delta: np.ndarray) -> np.ndarray:
     """Covariance of ``(x, y, yaw)`` after composing a pose with a body-frame step ``delta``.
@@ -89,8 +83,3 @@ def ros_covariance(cov3: np.ndarray, planar_variance: tuple[float, float, float]
     C[np.ix_(idx, idx)] = cov3
     C[2, 2], C[3, 3], C[4, 4] = planar_variance
     return C
-
-
-def relative(T1: np.ndarray, T2: np.ndarray) -> np.ndarray:
-    """``T1^-1 T2``."""
-    return invert(T1) @ T2

@@ -206,10 +206,6 @@ class VisualOdometry:
             return self._drop(stamp, DropReason.SIZE_CHANGED,
                               f'image is {gray.shape[1]}x{gray.shape[0]} but the camera model is '
                               f'{camera.width}x{camera.height}')
-        if self._keyframe is not None and self._keyframe.shape != gray.shape:
-            self._keyframe = None
-            return self._drop(stamp, DropReason.SIZE_CHANGED,
-                              f'image size changed to {gray.shape[1]}x{gray.shape[0]}')
         if _is_blank(gray, self.config.odometry.min_contrast):
             return self._drop(stamp, DropReason.BLANK_IMAGE,
                               'image is blank (black, saturated or without texture)')
