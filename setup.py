@@ -60,7 +60,7 @@ setup(
     entry_points={
         'console_scripts': [
             f'{PACKAGE} = {PACKAGE}.cli:main',
-            f'{PACKAGE}_node = {PACKAGE}.node:main',
+            f'{PACKAGE}_node = {PACKAGE}.ros.node:main',
         ],
     },
     classifiers=[

@@ -4,9 +4,12 @@ Implements Hajder and Barath, "Relative planar motion for vehicle-mounted camera
 affine correspondence" (1AC and 1ACf minimal solvers, weighted histogram voting) with an
 optical-flow affine front-end, a ROS 2 node and offline rosbag replay.
 
-Layout, one stage per subpackage: `geometry` (numpy-only maths: solvers, voting, poses),
-`synthetic` (the paper's synthetic protocol), `baselines` (OpenCV/PoseLib peers), `cli` (the
-`planar_vo` command), `node` (the ROS 2 node, the only module that imports rclpy).
+Layout, one stage per subpackage, imports pointing down the data flow: `core` (numpy-only
+geometry: conventions, camera, ACs, solvers, robust estimation), `frontend` (images to ACs,
+the only OpenCV owner for images), `pipeline` (frames in, motions out), `ros` (the node and its
+message conversions, the only rclpy owner), `io` (bags, the only rosbags owner), `tools`
+(replay, record, demo, evaluation), `sim` (rendered world, synthetic protocol), `bench` (peers and
+benchmarks, never imported by the runtime), `config` and `cli`.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Test data builders shared by the bag, evaluation and KITTI tests: rosbags messages and tiny
-bags written with the rosbags writer directly (independently of planar_vo.bag's writer)."""
+bags written with the rosbags writer directly (independently of planar_vo.io's writer)."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ The player runs in its own process, like ``ros2 bag play`` would::
     python test/ros_tools.py play BAG [--topics T ...] [--compress png|jpeg] [--rate R]
                                       [--reliable] [--hold]
 
-It reads the bag with `planar_vo.bag`, waits until every publisher has a matched subscriber,
+It reads the bag with `planar_vo.io`, waits until every publisher has a matched subscriber,
 then publishes the Image, CompressedImage, CameraInfo, TwistStamped and Odometry messages of the
 chosen topics in log-time order at the recorded rate (header stamps as recorded), and prints
 ``played N``. Publishers use the sensor-data QoS of camera drivers (best effort), or reliable
@@ -66,7 +66,7 @@ def compress(msg: Any, fmt: str) -> Any:
     import cv2
     from sensor_msgs.msg import CompressedImage
 
-    from planar_vo.messages import image_to_array
+    from planar_vo.ros.messages import image_to_array
 
     pixels = image_to_array(msg, gray=False)
     if pixels.ndim == 3 and msg.encoding.startswith('rgb'):
@@ -90,7 +90,7 @@ def play(bag_path: str, topics: list[str] | None, compress_fmt: str | None, rate
     from rclpy.executors import ExternalShutdownException
     from rclpy.qos import qos_profile_sensor_data
 
-    from planar_vo.bag import open_bag
+    from planar_vo.io import open_bag
 
     rclpy.init()
     node = rclpy.create_node('bag_player')

@@ -1,4 +1,4 @@
-"""planar_vo.bag: reading (both storages, every failure mode), writing, and replay plumbing
+"""planar_vo.io: reading (both storages, every failure mode), writing, and replay plumbing
 driven by a test double (the real pipeline is tested end to end elsewhere)."""
 
 from __future__ import annotations
@@ -20,19 +20,14 @@ from bagdata import (
     write_bag,
 )
 
-from planar_vo.bag import (
-    OdometryBagWriter,
-    iter_camera_frames,
-    iter_messages,
-    open_bag,
-    replay_bag,
-)
-from planar_vo.camera import CameraModel
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.conventions import planar_pose
 from planar_vo.errors import BagError
-from planar_vo.evaluation import read_tum
-from planar_vo.geometry.frames import planar_pose
-from planar_vo.messages import pose_from_message, stamp_to_ns
+from planar_vo.io import OdometryBagWriter, iter_camera_frames, iter_messages, open_bag
 from planar_vo.pipeline.types import DropReason, FrameResult
+from planar_vo.ros.messages import pose_from_message, stamp_to_ns
+from planar_vo.tools.evaluation import read_tum
+from planar_vo.tools.replay import replay_bag
 
 STORAGES = ['mcap', 'sqlite3']
 IMAGE = 'sensor_msgs/msg/Image'

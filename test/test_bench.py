@@ -11,24 +11,22 @@ import csv
 import numpy as np
 import pytest
 
-from planar_vo import baselines
-from planar_vo.bench import common, methods
+from planar_vo.bench import common, methods, peers
 from planar_vo.bench.metrics import (
     focal_error,
     rotation_error_deg,
     translation_error_deg,
 )
-from planar_vo.bench.speed import shared_motion_acs
 from planar_vo.cli import build_parser, main
-from planar_vo.errors import InputError
-from planar_vo.geometry import (
+from planar_vo.core import (
     angle_difference,
     planar_essential,
     rotation_y,
     solve_1ac,
     translation_direction,
 )
-from planar_vo.synthetic import paper_trial
+from planar_vo.errors import InputError
+from planar_vo.sim.synthetic import paper_trial, shared_motion_acs
 
 EXACT_DEG = 1e-7
 
@@ -38,9 +36,11 @@ def _angle_err(a, b) -> np.ndarray:
 
 
 def _exact_scene(rng, n=60, outlier_ratio=0.0):
-    """Noise-free ACs of one planar motion on 40 planes (a non-planar scene)."""
-    return shared_motion_acs(rng, n, outlier_ratio=outlier_ratio, sigma_px=0.0, sigma_affine=0.0,
-                             alpha=0.05, beta=-1.4)
+    """Noise-free ACs of one planar motion on 40 planes (a non-planar scene), and the outlier
+    mask."""
+    acs = shared_motion_acs(rng, n, 0.0, outlier_ratio=outlier_ratio, alpha=0.05, beta=-1.4,
+                            points_per_plane=-(-n // 40))
+    return acs, acs.outliers
 
 
 # ---------------------------------------------------------------------------------------------
@@ -141,19 +141,19 @@ def test_bench_speed_quick_times_voting_against_the_peers(tmp_path, capfd):
     (5, [17, 146, 4714, 460515]),
 ])
 def test_ransac_iterations_equal_the_paper_table(m, expected):
-    k = baselines.ransac_iterations(np.array([0.25, 0.5, 0.75, 0.9]), m, 0.99)
+    k = peers.ransac_iterations(np.array([0.25, 0.5, 0.75, 0.9]), m, 0.99)
     np.testing.assert_array_equal(k, expected)
     if m == 5:
         assert 4.5e5 < k[-1] < 5.5e5                    # the paper prints ~5e5
 
 
 def test_ransac_iterations_edge_cases_and_bad_input():
-    assert baselines.ransac_iterations(0.0, 5) == 1.0
-    assert np.isinf(baselines.ransac_iterations(1.0, 2))
+    assert peers.ransac_iterations(0.0, 5) == 1.0
+    assert np.isinf(peers.ransac_iterations(1.0, 2))
     with pytest.raises(InputError, match=r'outlier_ratio: expected values in \[0, 1\], got'):
-        baselines.ransac_iterations(1.5, 2)
+        peers.ransac_iterations(1.5, 2)
     with pytest.raises(InputError, match='confidence: expected a probability'):
-        baselines.ransac_iterations(0.5, 2, confidence=1.0)
+        peers.ransac_iterations(0.5, 2, confidence=1.0)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -198,9 +198,9 @@ def test_translation_and_focal_errors():
 def test_planar_sampson_errors_match_the_essential_matrix(rng):
     t = paper_trial(rng, 1.0)
     alpha, beta = rng.uniform(-1, 1, 3), rng.uniform(-3, 3, 3)
-    err = baselines.planar_sampson_errors(t.q1, t.q2, alpha, beta)
-    h1 = np.column_stack([t.q1, np.ones(len(t.q1))])
-    h2 = np.column_stack([t.q2, np.ones(len(t.q2))])
+    err = peers.planar_sampson_errors(t.normalized.p1, t.normalized.p2, alpha, beta)
+    h1 = np.column_stack([t.normalized.p1, np.ones(len(t.normalized.p1))])
+    h2 = np.column_stack([t.normalized.p2, np.ones(len(t.normalized.p2))])
     for k in range(3):
         E = planar_essential(alpha[k], beta[k])
         l2, l1 = h1 @ E.T, h2 @ E
@@ -212,52 +212,55 @@ def test_planar_sampson_errors_match_the_essential_matrix(rng):
 def test_shared_motion_scene_is_exact_and_has_the_outlier_ratio(rng):
     acs, outlier = _exact_scene(rng, 400, outlier_ratio=0.3)
     assert outlier.sum() == 120
-    a, b = solve_1ac(acs.q1[~outlier], acs.q2[~outlier], acs.A_norm[~outlier])
+    n = acs.normalized.subset(~outlier)
+    a, b = solve_1ac(n.p1, n.p2, n.A)
     err = _angle_err(a, acs.alpha) + _angle_err(b, acs.beta)
     # Exact ACs: machine precision, except the rare AC near the horizon row (ill-conditioned).
     assert np.median(err) < 1e-12 and np.mean(err < 1e-8) > 0.97 and np.max(err) < 1e-6
     # The scene is not one plane: the points' depths spread over the 4..30 range.
-    a, b = solve_1ac(acs.q1[outlier], acs.q2[outlier], acs.A_norm[outlier])
+    n = acs.normalized.subset(outlier)
+    a, b = solve_1ac(n.p1, n.p2, n.A)
     assert np.median(_angle_err(a, acs.alpha)) > 1e-3
 
 
-@pytest.mark.parametrize('solver', baselines.TWO_PC_SOLVERS)
+@pytest.mark.parametrize('solver', peers.TWO_PC_SOLVERS)
 def test_2pc_ransac_recovers_exact_motion_among_outliers(rng, solver):
     if solver == 'poselib':
         pytest.importorskip('poselib')
     acs, outlier = _exact_scene(rng, 300, outlier_ratio=0.4)
-    est = baselines.estimate_2pc_ransac(acs.q1, acs.q2, solver=solver, threshold=1e-4,
-                                        rng=np.random.default_rng(1))
+    n = acs.normalized
+    est = peers.estimate_2pc_ransac(n.p1, n.p2, solver=solver, threshold=1e-4,
+                                    rng=np.random.default_rng(1))
     assert _angle_err(est.alpha, acs.alpha) < 1e-9 and _angle_err(est.beta, acs.beta) < 1e-9
     assert est.inliers[~outlier].all()
     assert np.count_nonzero(est.inliers & outlier) <= 2     # an outlier may hit the line by chance
     with pytest.raises(InputError, match="solver: expected one of"):
-        baselines.estimate_2pc_ransac(acs.q1, acs.q2, solver='opengv')
+        peers.estimate_2pc_ransac(acs.normalized.p1, acs.normalized.p2, solver='opengv')
 
 
 def test_poselib_2pc_minimal_solver_matches_ours_on_exact_samples(rng):
     pytest.importorskip('poselib')
     t = paper_trial(rng, 0.0)
     i = np.argsort(rng.random((40, 50)), axis=1)[:, :2]
-    a, b = baselines.solve_2pc_poselib(t.q1[i], t.q2[i])
+    a, b = peers.solve_2pc_poselib(t.normalized.p1[i], t.normalized.p2[i])
     assert a.shape == (40, 2)
     err = np.nanmin(_angle_err(a, t.alpha) + _angle_err(b, t.beta), axis=1)
     assert np.max(err) < 1e-9
     with pytest.raises(InputError, match=r'q1: expected shape \(N, 2, 2\)'):
-        baselines.solve_2pc_poselib(t.q1[:4], t.q2[:4])
+        peers.solve_2pc_poselib(t.normalized.p1[:4], t.normalized.p2[:4])
 
 
 def test_poselib_5pc_recovers_exact_motion(rng):
     pytest.importorskip('poselib')
     acs, _ = _exact_scene(rng, 200)
-    for estimate in (baselines.estimate_5pc_poselib, baselines.estimate_5pc_opencv):
-        est = estimate(acs.q1, acs.q2, threshold=1e-5)
+    for estimate in (peers.estimate_5pc_poselib, peers.estimate_5pc_opencv):
+        est = estimate(acs.normalized.p1, acs.normalized.p2, threshold=1e-5)
         assert est.ok and est.inliers.mean() > 0.95
         assert rotation_error_deg(est.R, acs.R) < EXACT_DEG
         assert translation_error_deg(est.t, acs.t) < EXACT_DEG
         assert _angle_err(est.alpha, acs.alpha) < 1e-9
     i = np.argsort(rng.random((20, 200)), axis=1)[:, :5]
-    R, t = baselines.solve_5pc_poselib(acs.q1[i], acs.q2[i])
+    R, t = peers.solve_5pc_poselib(acs.normalized.p1[i], acs.normalized.p2[i])
     assert R.shape == (20, 10, 3, 3)
     best = np.nanmin(rotation_error_deg(R, acs.R) + translation_error_deg(t, acs.t), axis=1)
     # Some random 5-point samples are nearly degenerate (several points on one scene plane).
@@ -269,10 +272,10 @@ def test_poselib_6pc_recovers_exact_focal_on_a_non_planar_scene(rng):
     acs, _ = _exact_scene(rng, 120)
     c1, c2 = acs.centered
     i = np.argsort(rng.random((20, 120)), axis=1)[:, :6]
-    R, t, f = baselines.solve_6pc_focal_poselib(c1[i], c2[i])
+    R, t, f = peers.solve_6pc_focal_poselib(c1[i], c2[i])
     best = np.nanmin(np.abs(f / acs.focal - 1.0), axis=1)
     assert np.median(best) < 1e-8
-    est = baselines.estimate_6pc_focal_poselib(c1, c2, threshold=0.01)
+    est = peers.estimate_6pc_focal_poselib(c1, c2, threshold=0.01)
     assert est.ok and abs(est.focal / acs.focal - 1.0) < 1e-6
     assert rotation_error_deg(est.R, acs.R) < 1e-4
 
@@ -283,7 +286,8 @@ def test_poselib_6pc_recovers_exact_focal_on_a_non_planar_scene(rng):
 
 def test_1ac_voting_method_is_exact_on_exact_data(rng):
     acs, _ = _exact_scene(rng, 200)
-    alpha, beta = methods.estimate_1ac_voting(acs.q1, acs.q2, acs.A_norm)
+    n = acs.normalized
+    alpha, beta = methods.estimate_1ac_voting(n.p1, n.p2, n.A)
     assert abs(alpha - float(acs.alpha)) < 1e-9 and abs(beta - float(acs.beta)) < 1e-9
 
 
@@ -292,7 +296,7 @@ def test_translation_direction_convention_is_poselibs(rng):
     pytest.importorskip('poselib')
     t = paper_trial(rng, 0.0)
     i = np.argsort(rng.random((5, 50)), axis=1)[:, :2]
-    a, b = baselines.solve_2pc_poselib(t.q1[i], t.q2[i])
+    a, b = peers.solve_2pc_poselib(t.normalized.p1[i], t.normalized.p2[i])
     k = np.nanargmin(_angle_err(a, t.alpha), axis=1)
     np.testing.assert_allclose(rotation_y(a[np.arange(5), k]), np.broadcast_to(t.R, (5, 3, 3)),
                                atol=1e-12)

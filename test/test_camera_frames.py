@@ -7,10 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from planar_vo.camera import CameraModel
-from planar_vo.correspondences import AffineCorrespondences
-from planar_vo.errors import CameraModelError, InputError
-from planar_vo.geometry.frames import (
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.conventions import (
     R_BASE_OPTICAL,
     camera_motion_to_base,
     invert,
@@ -21,6 +19,8 @@ from planar_vo.geometry.frames import (
     rotation_rpy,
     yaw_of,
 )
+from planar_vo.core.correspondences import AffineCorrespondences
+from planar_vo.errors import CameraModelError, InputError
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 510.0, 240.0], [0.0, 0.0, 1.0]])
 CAMERAS = {
@@ -101,7 +101,7 @@ def test_mount_transform_conventions():
 def test_camera_yaw_maps_to_positive_base_yaw_for_left_turn():
     # Camera turns by Ry(alpha) with alpha > 0 (a left turn, see geometry.planar): the camera-2
     # pose in camera 1 is [R^T | -R^T t]; the vehicle must yaw left (positive about z up).
-    from planar_vo.geometry import rotation_y
+    from planar_vo.core import rotation_y
     alpha = 0.1
     T_c1_c2 = np.eye(4)
     T_c1_c2[:3, :3] = rotation_y(alpha).T

@@ -1,5 +1,6 @@
-"""planar_vo.evaluation: TUM I/O, association, Umeyama alignment, ATE/RPE/yaw/heading metrics on
-exact synthetic trajectories, plots and the eval CLI; cross-checked against evo (run as a tool)."""
+"""planar_vo.tools.evaluation: TUM I/O, association, Umeyama alignment, ATE/RPE/yaw/heading
+metrics on exact synthetic trajectories, plots and the eval CLI; cross-checked against evo (run as
+a tool)."""
 
 from __future__ import annotations
 
@@ -11,11 +12,12 @@ import numpy as np
 import pytest
 from evo_tools import evo_ape_stats, run_evo
 
-from planar_vo.bag import OdometryBagWriter
 from planar_vo.cli import main
+from planar_vo.core.conventions import planar_pose, rotation_rpy
+from planar_vo.core.trajectory import Trajectory
 from planar_vo.errors import BagError, InputError
-from planar_vo.evaluation import (
-    Trajectory,
+from planar_vo.io import OdometryBagWriter
+from planar_vo.tools.evaluation import (
     associate,
     evaluate,
     read_bag_trajectory,
@@ -23,7 +25,6 @@ from planar_vo.evaluation import (
     umeyama,
     write_tum,
 )
-from planar_vo.geometry.frames import planar_pose, rotation_rpy
 
 T0 = 1_700_000_000_123_456_789
 
@@ -78,11 +79,14 @@ def test_tum_errors_name_the_line(tmp_path, lines, match):
 def test_trajectory_validation():
     with pytest.raises(InputError, match=r'quaternions: expected non-zero quaternions, got a '
                                          r'zero one at index 1'):
-        Trajectory(np.array([0, 1]), np.zeros((2, 3)), np.array([[0, 0, 0, 1], [0, 0, 0, 0]]))
+        Trajectory.from_quaternions(np.array([0, 1]), np.zeros((2, 3)),
+                                    np.array([[0, 0, 0, 1], [0, 0, 0, 0]]))
     with pytest.raises(InputError, match=r'positions: expected shape \(2, 3\), got \(3, 3\)'):
-        Trajectory(np.array([0, 1]), np.zeros((3, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+        Trajectory.from_quaternions(np.array([0, 1]), np.zeros((3, 3)),
+                                    np.tile([0, 0, 0, 1.0], (2, 1)))
     with pytest.raises(InputError, match=r'stamps_ns: expected a 1-D integer array, got float64'):
-        Trajectory(np.array([0.5, 1.0]), np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+        Trajectory.from_quaternions(np.array([0.5, 1.0]), np.zeros((2, 3)),
+                                    np.tile([0, 0, 0, 1.0], (2, 1)))
 
 
 def test_associate_nearest_one_to_one():
@@ -204,7 +208,7 @@ def test_heading_undefined_when_standing_still(rng):
 
 def test_evaluate_needs_matching_stamps(rng):
     gt = _drive(rng, 5)
-    late = Trajectory(gt.stamps_ns + 10**9, gt.positions, gt.quaternions)
+    late = gt.shifted(10**9)
     with pytest.raises(InputError, match=r'association: expected at least 2 poses matched within '
                                          r'0\.02 s, got 0 \(estimate 5 poses 1700000001\.123\.\.'):
         evaluate(gt, late)
@@ -217,8 +221,9 @@ def test_evaluate_needs_matching_stamps(rng):
 
 def _noisy_estimate(rng, gt: Trajectory, scale: float) -> Trajectory:
     est = gt.transformed(_rotation(rng), np.array([3.0, -1.0, 0.5]), scale=scale)
-    return Trajectory(est.stamps_ns, est.positions + rng.normal(0, 0.2, est.positions.shape),
-                      est.quaternions)
+    return Trajectory.from_quaternions(
+        est.stamps_ns, est.positions + rng.normal(0, 0.2, est.positions.shape),
+        est.quaternions)
 
 
 @pytest.mark.parametrize('align, flags', [('se3', ['-a']), ('sim3', ['-as'])])

@@ -12,13 +12,21 @@ import cv2
 import numpy as np
 import pytest
 
-from planar_vo.camera import CameraModel
 from planar_vo.config import FrontendConfig
-from planar_vo.correspondences import AffineCorrespondences
+from planar_vo.core import angle_difference, solve_1ac, vote_planar_motion
+from planar_vo.core.camera import CameraModel, normalize_affines, normalize_points
+from planar_vo.core.conventions import (
+    invert,
+    mount_transform,
+    planar_motion_from_pose,
+    planar_pose,
+    rotation_y,
+)
+from planar_vo.core.correspondences import AffineCorrespondences
+from planar_vo.core.homography import apply_homography, homography_jacobian, plane_homography
 from planar_vo.errors import ConfigError, ImageError, InputError
 from planar_vo.frontend import (
     ACExtractor,
-    MountTiltEstimator,
     correct_acs,
     extract_acs,
     level_acs,
@@ -36,17 +44,8 @@ from planar_vo.frontend.affine_lk import (
 )
 from planar_vo.frontend.asift import asift_views, keypoint_frames
 from planar_vo.frontend.flow import neighbour_predictions, texture_grid
-from planar_vo.geometry import angle_difference, solve_1ac, vote_planar_motion
-from planar_vo.geometry.camera import (
-    apply_homography,
-    homography_jacobian,
-    normalize_affines,
-    normalize_points,
-    plane_homography,
-)
-from planar_vo.geometry.frames import invert, mount_transform, planar_pose
-from planar_vo.geometry.planar import planar_motion_from_pose, rotation_y
-from planar_vo.render import (
+from planar_vo.pipeline.calibration import MountTiltEstimator
+from planar_vo.sim import (
     GROUND_KIND,
     StreetWorld,
     concatenate,
@@ -580,7 +579,7 @@ def test_leveling_with_the_estimated_tilt_makes_1ac_exact_again(rng, tilted_driv
 
 
 # --------------------------------------------------------------------------------------------
-# The rendered street world (planar_vo.render): exact ACs of every visible plane
+# The rendered street world (planar_vo.sim): exact ACs of every visible plane
 # --------------------------------------------------------------------------------------------
 
 RENDER_CAMERA = CameraModel.pinhole(640, 480, 500.0)

@@ -9,12 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from planar_vo.bag import import_kitti, iter_camera_frames, iter_messages, open_bag
-from planar_vo.camera import CameraModel
 from planar_vo.cli import main
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.conventions import yaw_of
 from planar_vo.errors import BagError, InputError
-from planar_vo.geometry.frames import yaw_of
-from planar_vo.messages import pose_from_message
+from planar_vo.io import import_kitti, iter_camera_frames, iter_messages, open_bag
+from planar_vo.ros.messages import pose_from_message
 
 P0 = np.array([[50.0, 0.0, 19.5, 0.0], [0.0, 50.0, 14.5, 0.0], [0.0, 0.0, 1.0, 0.0]])
 TURN = math.radians(10.0)

@@ -10,12 +10,19 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
-from bagdata import ENCODING_LAYOUT, T, compressed_msg, image_bytes, image_msg, odometry_msg
-from bagdata import twist_msg
+from bagdata import (
+    ENCODING_LAYOUT,
+    T,
+    compressed_msg,
+    image_bytes,
+    image_msg,
+    odometry_msg,
+    twist_msg,
+)
 
+from planar_vo.core.conventions import planar_pose, rotation_rpy, se3
 from planar_vo.errors import ImageError, InputError
-from planar_vo.geometry.frames import planar_pose, rotation_rpy, se3
-from planar_vo.messages import (
+from planar_vo.ros.messages import (
     compressed_to_array,
     covariance_to_list,
     image_to_array,
@@ -250,7 +257,7 @@ def test_pose_and_speed_from_messages():
     assert speed_from_message(twist_msg(0, -2.5)) == 2.5      # a speed is a magnitude
     geo = 'geometry_msgs/msg/'
     R = rotation_rpy(0.1, -0.2, 0.3)
-    from planar_vo.geometry.frames import quaternion_from_rotation
+    from planar_vo.core.conventions import quaternion_from_rotation
 
     qx, qy, qz, qw = quaternion_from_rotation(R)
     stamped = T[geo + 'PoseStamped'](

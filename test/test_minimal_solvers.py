@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planar_vo.errors import InputError, PlanarVoError
-from planar_vo.geometry import (
+from planar_vo.core import (
     ac_residuals,
     angle_difference,
     camera_displacement,
@@ -19,7 +18,8 @@ from planar_vo.geometry import (
     solve_3pc,
     translation_direction,
 )
-from planar_vo.synthetic import paper_trial, random_exact_acs
+from planar_vo.errors import InputError, PlanarVoError
+from planar_vo.sim.synthetic import paper_trial, random_exact_acs
 
 EXACT = 1e-9          # rad, the exact-data bound
 N_EXACT = 5000        # random cases for exact recovery
@@ -64,9 +64,9 @@ def test_forward_driving_is_beta_minus_90_and_left_turn_is_positive_alpha():
 @pytest.mark.parametrize('refine', [False, True])
 def test_1ac_exact_recovery(rng, refine):
     s = random_exact_acs(rng, N_EXACT)
-    alpha, beta = solve_1ac(s.q1, s.q2, s.A_norm, refine=refine)
+    alpha, beta = solve_1ac(s.normalized.p1, s.normalized.p2, s.normalized.A, refine=refine)
     err = np.maximum(_err(alpha, s.alpha), _err(beta, s.beta))
-    cond = _cond(planar_ac_matrix(s.q1, s.q2, s.A_norm))
+    cond = _cond(planar_ac_matrix(s.normalized.p1, s.normalized.p2, s.normalized.A))
     good = cond < MAX_COND
     assert good.mean() > 0.99
     assert err[good].max() < EXACT                      # includes the sign of t (beta mod 2 pi)
@@ -77,21 +77,21 @@ def test_1ac_exact_recovery(rng, refine):
 
 def test_1ac_sign_of_translation_from_cheirality(rng):
     s = random_exact_acs(rng, 2000)
-    _, beta = solve_1ac(s.q1, s.q2, s.A_norm)
+    _, beta = solve_1ac(s.normalized.p1, s.normalized.p2, s.normalized.A)
     # Flipping t would be an error of pi; none may occur.
     assert np.all(_err(beta, s.beta) < 1e-6)
 
 
 def test_1ac_forward_motion_gives_beta_minus_90(rng):
     t = paper_trial(rng, 0.0, motion='forward')
-    alpha, beta = solve_1ac(t.q1, t.q2, t.A_norm)
+    alpha, beta = solve_1ac(t.normalized.p1, t.normalized.p2, t.normalized.A)
     np.testing.assert_allclose(alpha, 0.0, atol=EXACT)
     np.testing.assert_allclose(beta, -np.pi / 2, atol=EXACT)
 
 
 def test_1ac_residuals_vanish_at_truth(rng):
     s = random_exact_acs(rng, 500)
-    r = ac_residuals(s.q1, s.q2, s.A_norm, s.alpha, s.beta)
+    r = ac_residuals(s.normalized.p1, s.normalized.p2, s.normalized.A, s.alpha, s.beta)
     assert r.shape == (500, 3)
     assert np.abs(r).max() < 1e-12
 
@@ -112,8 +112,9 @@ def test_1ac_refinement_helps_under_noise(rng):
     plain, refined = [], []
     for _ in range(100):
         t = paper_trial(rng, 0.5)
-        plain.append(_err(solve_1ac(t.q1, t.q2, t.A_norm)[1], t.beta))
-        refined.append(_err(solve_1ac(t.q1, t.q2, t.A_norm, refine=True)[1], t.beta))
+        n = t.normalized
+        plain.append(_err(solve_1ac(n.p1, n.p2, n.A)[1], t.beta))
+        refined.append(_err(solve_1ac(n.p1, n.p2, n.A, refine=True)[1], t.beta))
     assert np.median(np.concatenate(refined)) < np.median(np.concatenate(plain))
 
 
@@ -121,7 +122,7 @@ def _median_errors_deg(rng, sigma, trials=150, refine=True):
     ea, eb = [], []
     for _ in range(trials):
         t = paper_trial(rng, sigma)
-        a, b = solve_1ac(t.q1, t.q2, t.A_norm, refine=refine)
+        a, b = solve_1ac(t.normalized.p1, t.normalized.p2, t.normalized.A, refine=refine)
         ea.append(_err(a, t.alpha))
         eb.append(_err(b, t.beta))
     return np.rad2deg(np.median(np.concatenate(ea))), np.rad2deg(np.median(np.concatenate(eb)))
@@ -149,8 +150,8 @@ def test_1ac_noise_errors_grow_smoothly_and_stay_bounded(rng):
 def test_1acf_exact_focal_and_motion(rng):
     s = random_exact_acs(rng, N_EXACT)
     p1, p2 = s.centered
-    alpha, beta, focal, weight = solve_1acf(p1, p2, s.A, return_weight=True)
-    cond = _cond(planar_ac_matrix(s.q1, s.q2, s.A_norm))
+    alpha, beta, focal, weight = solve_1acf(p1, p2, s.acs.A, return_weight=True)
+    cond = _cond(planar_ac_matrix(s.normalized.p1, s.normalized.p2, s.normalized.A))
     good = (weight > 0.01) & (cond < MAX_COND)
     assert good.mean() > 0.9
     assert np.max(np.abs(focal[good] / s.focal - 1.0)) < 1e-9
@@ -164,7 +165,7 @@ def test_1acf_exact_focal_and_motion(rng):
 def test_1acf_other_focal_lengths(rng, focal):
     s = random_exact_acs(rng, 500, K=np.array([[focal, 0, 320.0], [0, focal, 240.0], [0, 0, 1]]))
     p1, p2 = s.centered
-    _, _, f, w = solve_1acf(p1, p2, s.A, return_weight=True)
+    _, _, f, w = solve_1acf(p1, p2, s.acs.A, return_weight=True)
     good = w > 0.05
     assert np.nanmedian(np.abs(f[good] / focal - 1.0)) < 1e-12
 
@@ -173,7 +174,7 @@ def test_1acf_straight_driving_is_not_a_confident_focal(rng):
     # alpha = 0: n2^2 = n4^2 and n1^2 = n3^2, f^2 = 0/0. Must be NaN or carry ~zero weight.
     t = paper_trial(rng, 0.0, motion='forward')
     p1, p2 = t.centered
-    _, _, focal, weight = solve_1acf(p1, p2, t.A, return_weight=True)
+    _, _, focal, weight = solve_1acf(p1, p2, t.acs.A, return_weight=True)
     assert np.all(np.isnan(focal) | (weight < 1e-6))
     wrong = np.isfinite(focal) & (np.abs(focal / t.focal - 1.0) > 0.01)
     assert np.all(weight[wrong] < 1e-6)
@@ -185,7 +186,7 @@ def test_1acf_weight_tracks_yaw(rng):
     for yaw in (0.5, 2.0, 8.0):
         s = random_exact_acs(np.random.default_rng(1), 2000, max_yaw_deg=yaw)
         p1, p2 = s.centered
-        ws.append(np.median(solve_1acf(p1, p2, s.A, return_weight=True)[3]))
+        ws.append(np.median(solve_1acf(p1, p2, s.acs.A, return_weight=True)[3]))
     assert ws[0] < ws[1] < ws[2]
 
 
@@ -196,7 +197,7 @@ def test_1acf_noise_bounds(rng):
         for _ in range(150):
             t = paper_trial(rng, sigma)
             p1, p2 = t.centered
-            _, _, f, w = solve_1acf(p1, p2, t.A, return_weight=True)
+            _, _, f, w = solve_1acf(p1, p2, t.acs.A, return_weight=True)
             rel.append(np.abs(f[w > 0.1] / t.focal - 1.0))
         errors[sigma] = np.nanmedian(np.concatenate(rel))
     assert errors[0.5] < errors[1.0] < 0.3
@@ -211,8 +212,8 @@ def test_3pc_exact(rng):
     errs = []
     for _ in range(300):
         t = paper_trial(rng, 0.0)
-        idx = rng.permutation(len(t.p1))[:30].reshape(10, 3)
-        a, b = solve_3pc(t.q1[idx], t.q2[idx])
+        idx = rng.permutation(len(t))[:30].reshape(10, 3)
+        a, b = solve_3pc(t.normalized.p1[idx], t.normalized.p2[idx])
         errs.append(np.maximum(_err(a, t.alpha), _err(b, t.beta)))
     assert np.max(errs) < EXACT
 
@@ -221,8 +222,8 @@ def test_2pc_exact_one_root_is_the_truth(rng):
     errs = []
     for _ in range(300):
         t = paper_trial(rng, 0.0)
-        idx = rng.permutation(len(t.p1))[:20].reshape(10, 2)
-        a, b = solve_2pc(t.q1[idx], t.q2[idx])
+        idx = rng.permutation(len(t))[:20].reshape(10, 2)
+        a, b = solve_2pc(t.normalized.p1[idx], t.normalized.p2[idx])
         assert a.shape == b.shape == (10, 2)
         e = np.maximum(_err(a, t.alpha), _err(b, t.beta))
         errs.append(np.nanmin(e, axis=1))
@@ -235,8 +236,8 @@ def test_point_solvers_degrade_with_noise(rng):
         e = []
         for _ in range(100):
             t = paper_trial(rng, sigma)
-            idx = rng.permutation(len(t.p1))[:30].reshape(10, 3)
-            e.append(_err(solve_3pc(t.q1[idx], t.q2[idx])[0], t.alpha))
+            idx = rng.permutation(len(t))[:30].reshape(10, 3)
+            e.append(_err(solve_3pc(t.normalized.p1[idx], t.normalized.p2[idx])[0], t.alpha))
         med.append(np.median(np.concatenate(e)))
     assert med[0] < 1e-10 < med[1] < med[2]
 

@@ -21,14 +21,14 @@ import pytest
 from bagdata import camera_info_msg, image_msg
 from ros_tools import NodeProcess, Probe, player_args, to_rclpy
 
-from planar_vo.bag import iter_camera_frames, iter_messages, open_bag
-from planar_vo.bag.camera_bag import CAMERA_INFO_TOPIC, GROUND_TRUTH_TOPIC, IMAGE_TOPIC
-from planar_vo.bag.record import record_drive
-from planar_vo.camera import CameraModel
 from planar_vo.config import MountConfig
-from planar_vo.geometry.frames import invert, rotation_from_quaternion, se3, yaw_of
-from planar_vo.messages import pose_from_message, stamp_to_ns
-from planar_vo.render import straight, turn
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.conventions import invert, rotation_from_quaternion, se3, yaw_of
+from planar_vo.io import iter_camera_frames, iter_messages, open_bag
+from planar_vo.io.camera_bag import CAMERA_INFO_TOPIC, GROUND_TRUTH_TOPIC, IMAGE_TOPIC
+from planar_vo.ros.messages import pose_from_message, stamp_to_ns
+from planar_vo.sim import straight, turn
+from planar_vo.tools.record import record_drive
 
 # rclpy's imports pull in lark, which uses deprecated sre_* modules.
 pytestmark = [pytest.mark.ros,
@@ -36,7 +36,8 @@ pytestmark = [pytest.mark.ros,
 rclpy = pytest.importorskip('rclpy')
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
-from nav_msgs.msg import Odometry, Path as PathMsg  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from nav_msgs.msg import Path as PathMsg  # noqa: E402
 
 MOUNT = MountConfig(height=1.4, pitch=0.05)
 CAMERA = CameraModel.pinhole(640, 480, 500.0)
@@ -439,7 +440,7 @@ def test_run_time_parameter_changes_are_validated(prefix, ros_env, tmp_path):
 # -- the warning throttle --------------------------------------------------------------------------
 
 def test_warning_throttle_admits_one_per_period_per_key_and_counts_the_rest():
-    from planar_vo.node import WarningThrottle
+    from planar_vo.ros.node import WarningThrottle
 
     throttle = WarningThrottle(5.0)
     assert throttle.admit('bad_image', now=100.0) == 0
@@ -461,7 +462,7 @@ def local_node(monkeypatch, ros_env):
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
 
-    import planar_vo.node as node_module
+    import planar_vo.ros.node as node_module
 
     for key, value in ros_env.items():
         monkeypatch.setenv(key, value)
@@ -511,7 +512,7 @@ def feed(node, bag: Path, count: int, before=None) -> None:
 def test_tf_follows_the_odometry_and_can_be_switched_off(monkeypatch, local_node, drive_bag):
     from rclpy.parameter import Parameter
 
-    import planar_vo.node as node_module
+    import planar_vo.ros.node as node_module
 
     sent = []
 

@@ -6,17 +6,17 @@ import cv2
 import numpy as np
 import pytest
 
-from planar_vo.camera import CameraModel
 from planar_vo.config import MountConfig
+from planar_vo.core import ac_residuals, camera_displacement, solve_1ac, wrap_angle
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.conventions import invert, mount_transform, yaw_of
+from planar_vo.core.trajectory import Trajectory
 from planar_vo.errors import InputError
-from planar_vo.geometry import ac_residuals, camera_displacement, solve_1ac, wrap_angle
-from planar_vo.geometry.frames import invert, mount_transform, yaw_of
-from planar_vo.render import (
+from planar_vo.sim import (
     FACADE_KIND,
     GROUND_KIND,
     OBSTACLE_KIND,
     StreetWorld,
-    Trajectory,
     backproject,
     concatenate,
     exact_acs,
@@ -132,7 +132,7 @@ def test_ground_texture_does_not_repeat_with_the_detail_tile(world, poses):
     # Shift the camera by one period of the ground's detail tile (a lattice vector of its
     # texel coordinates): that layer looks identical, but the coarse and macro layers, rotated
     # and incommensurate, must make the image differ. A small shift is the control.
-    from planar_vo.render.textures import TILE
+    from planar_vo.sim.textures import TILE
     cam = CAMERAS['pinhole']
     M = world.texture_map[0, :, :2]                          # ground: (a, b) = odom (x, y) + c
     rows, cols = slice(300, 470), slice(100, 540)            # near ground ahead
@@ -382,7 +382,7 @@ def test_concatenate_chains_segments_without_duplicates():
     (lambda: turn(0.0), r'angle: expected a non-zero finite angle \(rad\), got 0.0'),
     (lambda: s_curve(max_heading=2.0), r'max_heading: expected 0 < \|max_heading\| < pi/2'),
     (lambda: concatenate(), r'segments: expected at least one Trajectory'),
-    (lambda: Trajectory(np.zeros(2), np.broadcast_to(np.eye(4), (2, 4, 4))),
+    (lambda: Trajectory.from_poses(np.zeros(2), np.broadcast_to(np.eye(4), (2, 4, 4))),
      r'stamps: expected strictly increasing times'),
     (lambda: StreetWorld.along(np.zeros((3, 3))), r'path: expected shape \(N, 2\), got \(3, 3\)'),
     (lambda: StreetWorld.along(straight(), setback=(9.0, 7.0)),

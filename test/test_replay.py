@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 from evo_tools import evo_ape_stats, run_evo
 
-from planar_vo.bag import open_bag
-from planar_vo.bag.record import record_drive
-from planar_vo.camera import CameraModel
 from planar_vo.cli import main
 from planar_vo.config import MountConfig
-from planar_vo.demo import run_demo
-from planar_vo.evaluation import load_trajectory, read_tum
-from planar_vo.render import straight, turn
+from planar_vo.core.camera import CameraModel
+from planar_vo.io import open_bag
+from planar_vo.sim import straight, turn
+from planar_vo.tools.demo import run_demo
+from planar_vo.tools.evaluation import load_trajectory, read_tum
+from planar_vo.tools.record import record_drive
 
 CAMERA = CameraModel.pinhole(640, 480, 500.0)
 

@@ -6,16 +6,23 @@ import numpy as np
 import pytest
 
 from planar_vo.config import VotingConfig
-from planar_vo.errors import ConfigError, InputError
-from planar_vo.geometry import (
-    FocalCalibrator,
+from planar_vo.core import (
+    AffineCorrespondences,
     angle_difference,
     vote_planar_motion,
     vote_planar_motion_focal,
 )
-from planar_vo.synthetic import outlier_mask, plane_index, shared_motion_acs
+from planar_vo.errors import ConfigError, InputError
+from planar_vo.pipeline.calibration import FocalCalibrator
+from planar_vo.sim.synthetic import shared_motion_acs
 
 DEG = np.pi / 180.0
+
+
+def _vote(acs, **kwargs):
+    """`vote_planar_motion` on a synthetic set's normalised ACs."""
+    n = acs.normalized
+    return vote_planar_motion(n.p1, n.p2, n.A, **kwargs)
 
 
 def _errors_deg(motion, acs) -> tuple[float, float]:
@@ -32,20 +39,20 @@ def _errors_deg(motion, acs) -> tuple[float, float]:
 def test_noise_free_exact_through_the_whole_estimator(rng, outliers, method):
     for _ in range(3):
         acs = shared_motion_acs(rng, 2000, 0.0, outlier_ratio=outliers)
-        motion, stats = vote_planar_motion(acs.q1, acs.q2, acs.A_norm,
-                                           config=VotingConfig(method=method))
+        motion, stats = _vote(acs,
+                              config=VotingConfig(method=method))
         assert stats.reliable, stats.flag
         assert abs(angle_difference(motion.alpha, acs.alpha)) < 1e-9
         assert abs(angle_difference(motion.beta, acs.beta)) < 1e-9
         # Every true AC is an inlier; mismatches are not.
-        truth = ~outlier_mask(acs)
+        truth = ~acs.outliers
         assert np.all(stats.inliers[truth])
         assert np.count_nonzero(stats.inliers & ~truth) <= 0.01 * np.count_nonzero(~truth) + 1
 
 
 def test_forward_motion_exact(rng):
     acs = shared_motion_acs(rng, 1000, 0.0, motion='forward')
-    motion, stats = vote_planar_motion(acs.q1, acs.q2, acs.A_norm)
+    motion, stats = _vote(acs)
     assert abs(motion.alpha) < 1e-9 and abs(motion.beta + np.pi / 2) < 1e-9
 
 
@@ -57,7 +64,7 @@ def test_forward_motion_exact(rng):
 def test_accuracy_4000_acs_half_pixel(outliers):
     for seed in range(6):
         acs = shared_motion_acs(np.random.default_rng(seed), 4000, 0.5, outlier_ratio=outliers)
-        motion, stats = vote_planar_motion(acs.q1, acs.q2, acs.A_norm)
+        motion, stats = _vote(acs)
         ea, eb = _errors_deg(motion, acs)
         assert stats.reliable, stats.flag
         assert ea < 0.05, (seed, ea)
@@ -68,7 +75,7 @@ def test_accuracy_at_90_percent_outliers_is_correct_or_flagged():
     correct = 0
     for seed in range(8):
         acs = shared_motion_acs(np.random.default_rng(100 + seed), 4000, 0.5, outlier_ratio=0.9)
-        motion, stats = vote_planar_motion(acs.q1, acs.q2, acs.A_norm)
+        motion, stats = _vote(acs)
         ea, eb = _errors_deg(motion, acs)
         if stats.reliable:
             assert ea < 0.05 and eb < 0.5, (seed, ea, eb)
@@ -82,8 +89,8 @@ def test_accuracy_at_90_percent_outliers_is_correct_or_flagged():
 def test_ransac_comparison_is_accurate_too(outliers):
     for seed in range(3):
         acs = shared_motion_acs(np.random.default_rng(seed), 4000, 0.5, outlier_ratio=outliers)
-        motion, stats = vote_planar_motion(acs.q1, acs.q2, acs.A_norm,
-                                           config=VotingConfig(method='ransac'))
+        motion, stats = _vote(acs,
+                              config=VotingConfig(method='ransac'))
         ea, eb = _errors_deg(motion, acs)
         assert stats.reliable and stats.iterations >= 1
         assert ea < 0.1 and eb < 0.5
@@ -95,7 +102,7 @@ def test_errors_shrink_with_more_correspondences():
         errs = []
         for seed in range(8):
             acs = shared_motion_acs(np.random.default_rng(seed), n, 0.5)
-            motion, _ = vote_planar_motion(acs.q1, acs.q2, acs.A_norm)
+            motion, _ = _vote(acs)
             errs.append(_errors_deg(motion, acs)[0])
         spread.append(np.sqrt(np.mean(np.square(errs))))
     assert spread[1] < 0.5 * spread[0]
@@ -111,8 +118,8 @@ def test_covariance_is_calibrated():
     z = []
     for seed in range(24):
         acs = shared_motion_acs(np.random.default_rng(seed), 4000, 0.5, outlier_ratio=0.5)
-        motion, stats = vote_planar_motion(acs.q1, acs.q2, acs.A_norm,
-                                           clusters=plane_index(acs))
+        motion, stats = _vote(acs,
+                              clusters=acs.planes)
         sigma = np.sqrt(np.diag(stats.covariance))
         z.append([float(angle_difference(motion.alpha, acs.alpha)) / sigma[0],
                   float(angle_difference(motion.beta, acs.beta)) / sigma[1]])
@@ -123,8 +130,8 @@ def test_covariance_is_calibrated():
 def test_covariance_grows_when_the_frame_is_weak(rng):
     strong = shared_motion_acs(np.random.default_rng(1), 4000, 0.3)
     weak = shared_motion_acs(np.random.default_rng(1), 300, 1.5, outlier_ratio=0.6)
-    _, s_strong = vote_planar_motion(strong.q1, strong.q2, strong.A_norm)
-    _, s_weak = vote_planar_motion(weak.q1, weak.q2, weak.A_norm)
+    _, s_strong = _vote(strong)
+    _, s_weak = _vote(weak)
     assert np.trace(s_weak.covariance) > 10 * np.trace(s_strong.covariance)
     assert np.all(np.linalg.eigvalsh(s_strong.covariance) > 0)
 
@@ -132,16 +139,16 @@ def test_covariance_grows_when_the_frame_is_weak(rng):
 def test_weights_scale_does_not_change_the_result(rng):
     acs = shared_motion_acs(rng, 2000, 0.5, outlier_ratio=0.3)
     w = rng.uniform(0.5, 2.0, 2000)
-    m1, s1 = vote_planar_motion(acs.q1, acs.q2, acs.A_norm, weights=w)
-    m2, s2 = vote_planar_motion(acs.q1, acs.q2, acs.A_norm, weights=10.0 * w)
+    m1, s1 = _vote(acs, weights=w)
+    m2, s2 = _vote(acs, weights=10.0 * w)
     assert m1.alpha == pytest.approx(m2.alpha, abs=1e-12)
     np.testing.assert_allclose(s1.covariance, s2.covariance, rtol=1e-9)
 
 
 def test_zero_weights_exclude_correspondences(rng):
     acs = shared_motion_acs(rng, 2000, 0.5, outlier_ratio=0.5)
-    good = ~outlier_mask(acs)
-    m_w, s_w = vote_planar_motion(acs.q1, acs.q2, acs.A_norm, weights=good.astype(float))
+    good = ~acs.outliers
+    m_w, s_w = _vote(acs, weights=good.astype(float))
     assert not np.any(s_w.inliers[~good])
     assert s_w.num_candidates == np.count_nonzero(good)
     assert _errors_deg(m_w, acs)[0] < 0.05
@@ -153,7 +160,7 @@ def test_zero_weights_exclude_correspondences(rng):
 
 def test_too_few_correspondences_is_flagged(rng):
     acs = shared_motion_acs(rng, 10, 0.5)
-    motion, stats = vote_planar_motion(acs.q1, acs.q2, acs.A_norm)
+    motion, stats = _vote(acs)
     assert not stats.reliable and stats.flag == 'too_few_candidates'
     assert np.isnan(motion.alpha) and np.all(np.isinf(stats.covariance))
 
@@ -167,15 +174,15 @@ def test_stationary_vehicle_is_flagged(rng):
 
 def test_pure_outliers_are_flagged(rng):
     acs = shared_motion_acs(rng, 3000, 0.5, outlier_ratio=0.999)
-    _, stats = vote_planar_motion(acs.q1, acs.q2, acs.A_norm)
+    _, stats = _vote(acs)
     assert not stats.reliable
 
 
 def test_two_equal_motions_are_ambiguous(rng):
     a = shared_motion_acs(rng, 1500, 0.2, alpha=0.05, beta=-1.4)
     b = shared_motion_acs(rng, 1500, 0.2, alpha=-0.15, beta=-1.9)
-    motion, stats = vote_planar_motion(np.concatenate([a.q1, b.q1]), np.concatenate([a.q2, b.q2]),
-                                       np.concatenate([a.A_norm, b.A_norm]))
+    n = AffineCorrespondences.concatenate([a.normalized, b.normalized])
+    motion, stats = vote_planar_motion(n.p1, n.p2, n.A)
     assert not stats.reliable and stats.flag == 'ambiguous'
     assert stats.ambiguity >= 0.8
 
@@ -183,8 +190,8 @@ def test_two_equal_motions_are_ambiguous(rng):
 def test_a_dominant_motion_wins_over_a_minor_one(rng):
     a = shared_motion_acs(rng, 3000, 0.3, alpha=0.05, beta=-1.4)
     b = shared_motion_acs(rng, 600, 0.3, alpha=-0.15, beta=-1.9)
-    motion, stats = vote_planar_motion(np.concatenate([a.q1, b.q1]), np.concatenate([a.q2, b.q2]),
-                                       np.concatenate([a.A_norm, b.A_norm]))
+    n = AffineCorrespondences.concatenate([a.normalized, b.normalized])
+    motion, stats = vote_planar_motion(n.p1, n.p2, n.A)
     assert stats.reliable
     assert _errors_deg(motion, a)[0] < 0.05
     assert stats.ambiguity < 0.5
@@ -196,7 +203,7 @@ def test_a_dominant_motion_wins_over_a_minor_one(rng):
 
 def test_input_errors(rng):
     acs = shared_motion_acs(rng, 100, 0.5)
-    q1, q2, A = acs.q1, acs.q2, acs.A_norm
+    q1, q2, A = acs.normalized.p1, acs.normalized.p2, acs.normalized.A
     with pytest.raises(InputError, match=r'weights: expected shape \(N,\), got \(100, 1\)'):
         vote_planar_motion(q1, q2, A, weights=np.ones((100, 1)))
     with pytest.raises(InputError, match=r'same number of items: q1 has 100, weights has 99'):
@@ -218,7 +225,7 @@ def test_input_errors(rng):
 def test_focal_variant_exact(rng):
     acs = shared_motion_acs(rng, 2000, 0.0, alpha=0.12, beta=-1.3, outlier_ratio=0.3)
     p1, p2 = acs.centered
-    motion, stats = vote_planar_motion_focal(p1, p2, acs.A)
+    motion, stats = vote_planar_motion_focal(p1, p2, acs.acs.A)
     assert stats.reliable, stats.flag
     assert motion.focal == pytest.approx(acs.focal, rel=1e-9)
     assert abs(angle_difference(motion.alpha, acs.alpha)) < 1e-9
@@ -230,7 +237,7 @@ def test_focal_variant_noisy_turn(rng):
     for seed in range(4):
         acs = shared_motion_acs(np.random.default_rng(seed), 3000, 0.5, alpha=0.15,
                                 beta=-1.4, outlier_ratio=0.3)
-        motion, stats = vote_planar_motion_focal(*acs.centered, acs.A, clusters=plane_index(acs))
+        motion, stats = vote_planar_motion_focal(*acs.centered, acs.acs.A, clusters=acs.planes)
         assert stats.reliable, stats.flag
         errors.append(abs(motion.focal / acs.focal - 1.0))
         assert abs(float(angle_difference(motion.alpha, acs.alpha))) < 0.2 * DEG
@@ -240,7 +247,7 @@ def test_focal_variant_noisy_turn(rng):
 
 def test_straight_driving_does_not_reveal_the_focal_length(rng):
     acs = shared_motion_acs(rng, 3000, 0.5, alpha=0.0, beta=-np.pi / 2)
-    motion, stats = vote_planar_motion_focal(*acs.centered, acs.A)
+    motion, stats = vote_planar_motion_focal(*acs.centered, acs.acs.A)
     assert not stats.reliable and stats.flag == 'focal_unobservable'
 
 
@@ -252,7 +259,7 @@ def test_focal_calibrator_accumulates_turning_frames_only():
         yaw = rng.uniform(3.0, 8.0) * rng.choice([-1, 1]) if i % 3 == 0 else 0.0
         acs = shared_motion_acs(rng, 2000, 0.5, alpha=yaw * DEG,
                                 beta=-np.pi / 2 + rng.normal(0.0, 0.05), outlier_ratio=0.3)
-        informative.append(calibrator.add(*acs.centered, acs.A))
+        informative.append(calibrator.add(*acs.centered, acs.acs.A))
     # Straight frames (alpha = 0) never count; turning ones mostly do.
     assert not any(informative[i] for i in range(24) if i % 3)
     assert calibrator.informative_frames >= 5
@@ -265,5 +272,5 @@ def test_focal_calibrator_without_turns_has_no_estimate(rng):
     calibrator = FocalCalibrator()
     for _ in range(3):
         acs = shared_motion_acs(rng, 1000, 0.5, alpha=0.0, beta=-np.pi / 2)
-        assert not calibrator.add(*acs.centered, acs.A)
+        assert not calibrator.add(*acs.centered, acs.acs.A)
     assert np.isnan(calibrator.estimate) and np.isinf(calibrator.std)

@@ -4,19 +4,18 @@ Speed: wall time per frame pair of each method (`planar_vo.frontend.extract_acs`
 ``klt``, ``asift``) as a RATIO to DIS optical flow alone (``cv2.DISOpticalFlow``, preset
 ``fast``, one forward flow: the peer) on the same frames, measured in the same process and
 interleaved (per pair the minimum over ``--repeat`` runs, then the median over pairs, so other
-load on the machine hits both alike). Frames: a rendered street drive (`planar_vo.render`) at
+load on the machine hits both alike). Frames: a rendered street drive (`planar_vo.sim`) at
 640x480 and 1241x376, and the KITTI 06 excerpt (1226x370) when present. Run once with OpenCV's
 default threads and once with one thread (``--threads``).
 
 Accuracy (rendered drive, about 1 m forward and 1.5 deg yaw per frame): point and Frobenius
-affine errors of the ACs against the exact plane-induced ACs (`planar_vo.render.exact_acs`),
+affine errors of the ACs against the exact plane-induced ACs (`planar_vo.sim.exact_acs`),
 all planes, and the ground alone.
 
 Motion (KITTI 06 excerpt, 51 frames): per-frame yaw and heading errors of front-end + planar
 motion estimation against the ground-truth poses, beside OpenCV's five-point pipeline
-(`planar_vo.baselines.estimate_5pc_opencv`) on the same points. Planar estimation uses
-``planar_vo.geometry.vote_planar_motion`` when it exists, else the median of the per-AC 1AC
-solutions (``solve_1ac(refine=True)``); the table says which. Rows with ``levelled`` first
+(`planar_vo.bench.peers.estimate_5pc_opencv`) on the same points. Planar estimation is 1AC +
+voting (`planar_vo.core.vote_planar_motion`). Rows with ``levelled`` first
 remove the camera's tilt estimated from the five-point poses of the whole excerpt
 (`MountTiltEstimator`; an angle with a standard deviation above 0.5 deg is left at 0,
 `TiltEstimate.levelling_angles`); their ground truth is expressed in the same levelled frame.
@@ -33,14 +32,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from planar_vo.camera import CameraModel
+from planar_vo.bench.common import write_markdown
 from planar_vo.config import FrontendConfig
+from planar_vo.core import angle_difference, planar_motion_from_pose, vote_planar_motion
+from planar_vo.core.camera import CameraModel, normalize_affines, normalize_points
 from planar_vo.errors import InputError
-from planar_vo.frontend import ACExtractor, MountTiltEstimator, level_acs, leveling_rotation
-from planar_vo.geometry import angle_difference, planar_motion_from_pose, solve_1ac
-from planar_vo.geometry.camera import normalize_affines, normalize_points
+from planar_vo.frontend import ACExtractor, level_acs, leveling_rotation
+from planar_vo.pipeline.calibration import MountTiltEstimator
 
-__all__ = ['HELP', 'VARIANTS', 'add_arguments', 'register', 'run', 'time_methods']
+__all__ = ['HELP', 'VARIANTS', 'add_arguments', 'run', 'time_methods']
 
 logger = logging.getLogger(__name__)
 
@@ -49,15 +49,9 @@ DEFAULT_KITTI = Path('..') / 'shared' / 'data' / 'kitti06_excerpt'   # beside th
 KITTI_K = np.array([[707.0912, 0.0, 601.8873], [0.0, 707.0912, 183.1104], [0.0, 0.0, 1.0]])
 RENDER_SIZES = ((640, 480, 500.0), (1241, 376, 718.856))
 
-EXAMPLES = """examples:
-  planar_vo bench frontend                       everything (about 2 minutes)
-  planar_vo bench frontend --methods flow klt    skip the slow ASIFT
-  planar_vo bench frontend --kitti /data/kitti06_excerpt --pairs 20 --repeat 5
-"""
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The benchmark's options (used by `register` and by ``planar_vo bench``)."""
+    """The benchmark's options (``planar_vo bench frontend``)."""
     parser.add_argument('--methods', nargs='+', default=['flow', 'klt', 'asift'],
                         choices=['flow', 'klt', 'asift'],
                         help='methods to time (default: all); flow is also timed with the '
@@ -76,15 +70,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--seed', type=int, default=3, help='rendered world seed (default: 3)')
     parser.add_argument('--per-frame', action='store_true',
                         help='also print the KITTI yaw and heading errors of every frame pair')
-
-
-def register(subparsers) -> argparse.ArgumentParser:
-    """Add ``frontend`` to an argparse subparsers object (``planar_vo bench``)."""
-    parser = subparsers.add_parser('frontend', help=HELP, description=__doc__, epilog=EXAMPLES,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    parser.set_defaults(run=run)
-    return parser
 
 
 # --------------------------------------------------------------------------------------------
@@ -107,8 +92,8 @@ class FrameSet:
 def rendered_frames(width: int, height: int, focal: float, count: int, seed: int) -> FrameSet:
     """A rendered street drive: 1 m per frame, straight then a 38 m-radius left turn (1.5 deg
     of yaw per frame), camera 1.5 m above the ground."""
-    from planar_vo.geometry.frames import mount_transform
-    from planar_vo.render import StreetWorld, concatenate, render, straight, turn
+    from planar_vo.core.conventions import mount_transform
+    from planar_vo.sim import StreetWorld, concatenate, render, straight, turn
 
     traj = concatenate(straight(5.0, speed=10.0),
                        turn(np.deg2rad(1.5) * (count + 2), radius=38.0, speed=10.0))
@@ -202,7 +187,7 @@ def time_methods(frames: FrameSet, variants: list[str], pairs: int, repeat: int,
 
 def rendered_accuracy(frames: FrameSet, method: str, pairs: int) -> dict[str, float]:
     """Median point and affine errors of ``method``'s ACs against the exact ones."""
-    from planar_vo.render import GROUND_KIND, exact_acs
+    from planar_vo.sim import GROUND_KIND, exact_acs
 
     extractor = ACExtractor(FrontendConfig())
     point, affine, ground, counts = [], [], [], []
@@ -227,30 +212,18 @@ def rendered_accuracy(frames: FrameSet, method: str, pairs: int) -> dict[str, fl
 # Motion on KITTI
 # --------------------------------------------------------------------------------------------
 
-def _planar_estimator():
-    """``(name, f(q1, q2, A_n) -> (alpha, beta))``: voting if the lead's voting exists."""
-    try:
-        from planar_vo.geometry import vote_planar_motion
-    except ImportError:
-        vote_planar_motion = None
-    if vote_planar_motion is not None:
-        def vote(q1, q2, A, weights):
-            motion, _ = vote_planar_motion(q1, q2, A, weights=weights)
-            return float(motion.alpha), float(motion.beta)
-        return '1AC + vote_planar_motion', vote
-
-    def median(q1, q2, A, weights):
-        alpha, beta = solve_1ac(q1, q2, A, refine=True)
-        ok = np.isfinite(alpha)
-        return float(np.median(alpha[ok])), float(np.median(beta[ok]))
-    return '1AC, median of per-AC solutions', median
+def _vote(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, weights: np.ndarray
+          ) -> tuple[float, float]:
+    """``(alpha, beta)`` of 1AC + voting on normalised ACs."""
+    motion, _ = vote_planar_motion(q1, q2, A, weights=weights)
+    return float(motion.alpha), float(motion.beta)
 
 
 def kitti_motion(frames: FrameSet) -> tuple[list[tuple[str, np.ndarray, np.ndarray]], dict]:
     """Per-frame |yaw| and |heading| errors (degrees) of planar estimation and five-point."""
-    from planar_vo.baselines import estimate_5pc_opencv
+    from planar_vo.bench.peers import estimate_5pc_opencv
 
-    name, estimate = _planar_estimator()
+    name, estimate = '1AC + vote_planar_motion', _vote
     K = frames.camera.K
     extractor = ACExtractor(FrontendConfig())
     tilt_estimator = MountTiltEstimator()
@@ -303,13 +276,15 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f'--pairs, --repeat: expected at least 1, got {args.pairs}, '
                          f'{args.repeat}')
     start = time.perf_counter()
+    sections: list[str] = []
+    out = sections.append
     count = max(args.pairs, 8) + 1
     sets = [rendered_frames(w, h, f, count, args.seed) for w, h, f in RENDER_SIZES]
     kitti = kitti_frames(args.kitti) if (args.kitti / 'poses.txt').exists() else None
-    print('## Front-end speed: time per frame pair, as a ratio to DIS optical flow alone '
-          '(preset fast)\n')
-    print(f'Interleaved in one process; per pair the minimum of {args.repeat} runs, median '
-          f'over {args.pairs} pairs (ASIFT: {args.asift_pairs} pair, 1 run).\n')
+    out('## Front-end speed: time per frame pair, as a ratio to DIS optical flow alone '
+        '(preset fast)\n')
+    out(f'Interleaved in one process; per pair the minimum of {args.repeat} runs, median '
+        f'over {args.pairs} pairs (ASIFT: {args.asift_pairs} pair, 1 run).\n')
     rows = []
     variants = [v for v in VARIANTS if VARIANTS[v][0] in args.methods]
     default_threads = cv2.getNumThreads()
@@ -327,11 +302,11 @@ def run(args: argparse.Namespace) -> int:
                                  f'{t["acs"]:.0f}'])
     finally:
         cv2.setNumThreads(default_threads)
-    print(_markdown(['frames', 'OpenCV threads', 'method', 'ms / pair', 'DIS fast ms / pair',
-                     'ratio to DIS (wall)', 'ratio to DIS (CPU, 1 thread)', 'ACs / pair'],
-                    rows))
+    out(_markdown(['frames', 'OpenCV threads', 'method', 'ms / pair', 'DIS fast ms / pair',
+                   'ratio to DIS (wall)', 'ratio to DIS (CPU, 1 thread)', 'ACs / pair'],
+                  rows))
 
-    print('\n## Front-end accuracy against exact ACs (rendered street, all planes)\n')
+    out('\n## Front-end accuracy against exact ACs (rendered street, all planes)\n')
     rows = []
     for frames in sets:
         for method in args.methods:
@@ -340,46 +315,39 @@ def run(args: argparse.Namespace) -> int:
             rows.append([frames.name, method, f'{acc["acs"]:.0f}', f'{acc["point"]:.3f}',
                          f'{acc["affine"]:.4f}', f'{100 * acc["ground_share"]:.0f}%',
                          f'{acc["ground_point"]:.3f}', f'{acc["ground_affine"]:.4f}'])
-    print(_markdown(['frames', 'method', 'ACs / pair', 'median point error (px)',
-                     'median |A - A_true|_F', 'ground share', 'ground: point (px)',
-                     'ground: |A - A_true|_F'], rows))
+    out(_markdown(['frames', 'method', 'ACs / pair', 'median point error (px)',
+                   'median |A - A_true|_F', 'ground share', 'ground: point (px)',
+                   'ground: |A - A_true|_F'], rows))
 
     if kitti is not None:
         table, info = kitti_motion(kitti)
         tilt = info['tilt']
-        print(f'\n## Motion on {kitti.name} ({info["frames"]} frame pairs, flow front-end, '
-              f'median {info["acs"]:.0f} ACs per pair)\n')
-        print(f'Estimated camera tilt w.r.t. the motion plane (from the five-point poses): '
-              f'pitch {np.degrees(tilt.pitch):.2f} +- {np.degrees(tilt.pitch_std):.2f} deg, '
-              f'roll {np.degrees(tilt.roll):.2f} +- {np.degrees(tilt.roll_std):.2f} deg '
-              f'({tilt.frames} pairs); levelled by pitch {np.degrees(info["level"][0]):.2f}, '
-              f'roll {np.degrees(info["level"][1]):.2f} deg (an angle with a standard deviation '
-              f'above 0.5 deg is left at 0).\n')
+        out(f'\n## Motion on {kitti.name} ({info["frames"]} frame pairs, flow front-end, '
+            f'median {info["acs"]:.0f} ACs per pair)\n')
+        out(f'Estimated camera tilt w.r.t. the motion plane (from the five-point poses): '
+            f'pitch {np.degrees(tilt.pitch):.2f} +- {np.degrees(tilt.pitch_std):.2f} deg, '
+            f'roll {np.degrees(tilt.roll):.2f} +- {np.degrees(tilt.roll_std):.2f} deg '
+            f'({tilt.frames} pairs); levelled by pitch {np.degrees(info["level"][0]):.2f}, '
+            f'roll {np.degrees(info["level"][1]):.2f} deg (an angle with a standard deviation '
+            f'above 0.5 deg is left at 0).\n')
         rows = [[label, f'{yaw.mean():.3f}', f'{np.median(yaw):.3f}', f'{yaw.max():.3f}',
                  f'{head.mean():.3f}', f'{np.median(head):.3f}', f'{head.max():.3f}']
                 for label, yaw, head in table]
-        print(_markdown(['estimator', 'yaw err mean (deg)', 'median', 'max',
-                         'heading err mean (deg)', 'median', 'max'], rows))
+        out(_markdown(['estimator', 'yaw err mean (deg)', 'median', 'max',
+                       'heading err mean (deg)', 'median', 'max'], rows))
         if getattr(args, 'per_frame', False):
             header = ['pair'] + [f'{label}: {what}' for label, _, _ in table
                                  for what in ('yaw', 'heading')]
             frame_rows = [[f'{k}-{k + 1}'] + [f'{e[k]:.3f}' for _, yaw, head in table
                                               for e in (yaw, head)]
                           for k in range(len(table[0][1]))]
-            print('\nPer frame pair, absolute errors in degrees:\n')
-            print(_markdown(header, frame_rows))
+            out('\nPer frame pair, absolute errors in degrees:\n')
+            out(_markdown(header, frame_rows))
     else:
-        print(f'\n(KITTI excerpt not found at {args.kitti}: motion table skipped)')
-    print(f'\ndone in {time.perf_counter() - start:.0f} s')
+        out(f'\n(KITTI excerpt not found at {args.kitti}: motion table skipped)')
+    out(f'Wall time: {time.perf_counter() - start:.0f} s.')
+    path = Path(args.out) / 'frontend.md'
+    print(write_markdown(path, 'planar_vo bench frontend', args.command,
+                         [text.strip('\n') for text in sections]))
+    print(f'wrote {path}')
     return 0
-
-
-if __name__ == '__main__':          # python -m planar_vo.bench.frontend (before the CLI wiring)
-    import sys
-
-    _parser = argparse.ArgumentParser(prog='python -m planar_vo.bench.frontend',
-                                      description=__doc__, epilog=EXAMPLES,
-                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(_parser)
-    logging.basicConfig(level=logging.WARNING)
-    sys.exit(run(_parser.parse_args()))

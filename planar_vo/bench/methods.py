@@ -1,6 +1,6 @@
 """The methods compared in the paper benchmark, and how each produces its estimates per run.
 
-Every run is one `planar_vo.synthetic.paper_trial` (50 ACs sharing one motion). Two kinds:
+Every run is one `planar_vo.sim.synthetic.paper_trial` (50 ACs sharing one motion). Two kinds:
 
 - ``minimal``: the solver alone, as in the paper's Fig. 3. Each run draws ``samples`` random
   minimal samples (the first ``m`` indices of a random permutation of the 50 correspondences,
@@ -13,7 +13,7 @@ Every run is one `planar_vo.synthetic.paper_trial` (50 ACs sharing one motion). 
   `peer_threshold_px` of the noise level (an oracle threshold).
 
 `estimate_1ac_voting` runs the paper's own robust estimator (1AC + histogram voting,
-``planar_vo.geometry.vote_planar_motion``) on all 50 ACs of a run.
+``planar_vo.core.vote_planar_motion``) on all 50 ACs of a run.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planar_vo import baselines
+from planar_vo.bench import peers
 from planar_vo.bench.metrics import planar_pose
-from planar_vo.geometry import solve_1ac, solve_1acf, solve_2pc, solve_3pc
-from planar_vo.synthetic import ACSet
+from planar_vo.core import solve_1ac, solve_1acf, solve_2pc, solve_3pc
+from planar_vo.sim.synthetic import SyntheticACs
 
 __all__ = [
     'Candidates',
@@ -40,11 +40,11 @@ __all__ = [
 def estimate_1ac_voting(q1: np.ndarray, q2: np.ndarray, A: np.ndarray) -> tuple[float, float]:
     """'1AC + voting', the paper's robust estimator, on all ACs of one image pair.
 
-    `planar_vo.geometry.vote_planar_motion` on normalised coordinates ``(N, 2)`` and affines
+    `planar_vo.core.vote_planar_motion` on normalised coordinates ``(N, 2)`` and affines
     ``(N, 2, 2)``; returns ``(alpha, beta)`` in radians (NaN when it found nothing). Both
     benchmarks (paper and speed) time and score '1AC + voting' through this function.
     """
-    from planar_vo.geometry import vote_planar_motion
+    from planar_vo.core import vote_planar_motion
 
     motion, _ = vote_planar_motion(q1, q2, A)
     return float(motion.alpha), float(motion.beta)
@@ -80,16 +80,14 @@ class Method:
         sample_size: correspondences per sample (robust: all, recorded as 0).
         solve: ``(trial, samples, sigma) -> Candidates``; ``samples`` is ``(S, n)`` permutations.
         source: where the implementation comes from (for the report).
-        available: a callable telling whether the method can run (dependencies, hooks).
     """
 
     name: str
     kind: str
     problem: str
     sample_size: int
-    solve: Callable[[ACSet, np.ndarray, float], Candidates]
+    solve: Callable[[SyntheticACs, np.ndarray, float], Candidates]
     source: str
-    available: Callable[[], bool] = lambda: True
 
 
 def _one(alpha: np.ndarray, beta: np.ndarray, focal: np.ndarray | None = None) -> Candidates:
@@ -102,61 +100,65 @@ def _one(alpha: np.ndarray, beta: np.ndarray, focal: np.ndarray | None = None) -
     return Candidates(R, t, focal)
 
 
-def _pose(est: baselines.PoseEstimate, with_focal: bool = False) -> Candidates:
+def _pose(est: peers.PoseEstimate, with_focal: bool = False) -> Candidates:
     return Candidates(est.R[None, None], est.t[None, None],
                       np.array([[est.focal]]) if with_focal else None)
 
 
 def _1ac(refine: bool):
-    def solve(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+    def solve(trial: SyntheticACs, samples: np.ndarray, sigma: float) -> Candidates:
         i = samples[:, 0]
-        return _one(*solve_1ac(trial.q1[i], trial.q2[i], trial.A_norm[i], refine=refine))
+        n = trial.normalized.subset(i)
+        return _one(*solve_1ac(n.p1, n.p2, n.A, refine=refine))
     return solve
 
 
-def _1acf(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+def _1acf(trial: SyntheticACs, samples: np.ndarray, sigma: float) -> Candidates:
     i = samples[:, 0]
     c1, c2 = trial.centered
-    alpha, beta, focal = solve_1acf(c1[i], c2[i], trial.A[i])
+    alpha, beta, focal = solve_1acf(c1[i], c2[i], trial.acs.A[i])
     return _one(alpha, beta, focal)
 
 
 def _points(solver, m: int):
-    def solve(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+    def solve(trial: SyntheticACs, samples: np.ndarray, sigma: float) -> Candidates:
         i = samples[:, :m]
-        return _one(*solver(trial.q1[i], trial.q2[i]))
+        return _one(*solver(trial.normalized.p1[i], trial.normalized.p2[i]))
     return solve
 
 
-def _5pc_minimal(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+def _5pc_minimal(trial: SyntheticACs, samples: np.ndarray, sigma: float) -> Candidates:
     i = samples[:, :5]
-    return Candidates(*baselines.solve_5pc_poselib(trial.q1[i], trial.q2[i]))
+    return Candidates(*peers.solve_5pc_poselib(trial.normalized.p1[i], trial.normalized.p2[i]))
 
 
-def _6pc_minimal(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+def _6pc_minimal(trial: SyntheticACs, samples: np.ndarray, sigma: float) -> Candidates:
     i = samples[:, :6]
     c1, c2 = trial.centered
-    return Candidates(*baselines.solve_6pc_focal_poselib(c1[i], c2[i]))
+    return Candidates(*peers.solve_6pc_focal_poselib(c1[i], c2[i]))
 
 
-def _5pc_opencv(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+def _5pc_opencv(trial: SyntheticACs, samples: np.ndarray, sigma: float) -> Candidates:
     thr = peer_threshold_px(sigma) / trial.focal
-    return _pose(baselines.estimate_5pc_opencv(trial.q1, trial.q2, threshold=thr))
+    n = trial.normalized
+    return _pose(peers.estimate_5pc_opencv(n.p1, n.p2, threshold=thr))
 
 
-def _5pc_poselib(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+def _5pc_poselib(trial: SyntheticACs, samples: np.ndarray, sigma: float) -> Candidates:
     thr = peer_threshold_px(sigma) / trial.focal
-    return _pose(baselines.estimate_5pc_poselib(trial.q1, trial.q2, threshold=thr))
+    n = trial.normalized
+    return _pose(peers.estimate_5pc_poselib(n.p1, n.p2, threshold=thr))
 
 
-def _6pc_poselib(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
+def _6pc_poselib(trial: SyntheticACs, samples: np.ndarray, sigma: float) -> Candidates:
     c1, c2 = trial.centered
-    est = baselines.estimate_6pc_focal_poselib(c1, c2, threshold=peer_threshold_px(sigma))
+    est = peers.estimate_6pc_focal_poselib(c1, c2, threshold=peer_threshold_px(sigma))
     return _pose(est, with_focal=True)
 
 
-def _1ac_voting(trial: ACSet, samples: np.ndarray, sigma: float) -> Candidates:
-    return _one(*estimate_1ac_voting(trial.q1, trial.q2, trial.A_norm))
+def _1ac_voting(trial: SyntheticACs, samples: np.ndarray, sigma: float) -> Candidates:
+    n = trial.normalized
+    return _one(*estimate_1ac_voting(n.p1, n.p2, n.A))
 
 
 METHODS: tuple[Method, ...] = (
@@ -166,7 +168,7 @@ METHODS: tuple[Method, ...] = (
     Method('2PC', 'minimal', 'calibrated', 2, _points(solve_2pc, 2),
            'planar_vo solve_2pc (Choi and Kim 2018)'),
     Method('2PC (PoseLib)', 'minimal', 'calibrated', 2,
-           _points(baselines.solve_2pc_poselib, 2), 'PoseLib relpose_upright_planar_2pt'),
+           _points(peers.solve_2pc_poselib, 2), 'PoseLib relpose_upright_planar_2pt'),
     Method('3PC', 'minimal', 'calibrated', 3, _points(solve_3pc, 3), 'planar_vo solve_3pc'),
     Method('5PC (PoseLib)', 'minimal', 'calibrated', 5, _5pc_minimal,
            'PoseLib relpose_5pt (Nister); the paper\'s 5PC'),

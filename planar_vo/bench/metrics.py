@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from planar_vo.geometry.planar import rotation_y, translation_direction
+from planar_vo.core.conventions import rotation_y, translation_direction
 
 __all__ = [
     'ROTATION_PROBE',

@@ -5,10 +5,10 @@ forward motion, (b) focal length estimation, (c) corrupted planarity (the second
 vertical tilted by a random rotation with sigma = 1 degree), and the table "computational
 complexity" (RANSAC iterations by formula, beside measured per-call solver times).
 
-Protocol: `planar_vo.synthetic.paper_trial` (f = 600 px, principal point (300, 300), 50 points on
-a random plane, Gaussian noise sigma on the points, ACs from the homography fitted to the noisy
-points). ``--runs`` trials per noise level, sigma from 0 to 2 px; how each method turns a trial
-into estimates is documented in `planar_vo.bench.methods`. Errors are the paper's
+Protocol: `planar_vo.sim.synthetic.paper_trial` (f = 600 px, principal point (300, 300), 50
+points on a random plane, Gaussian noise sigma on the points, ACs from the homography fitted to
+the noisy points). ``--runs`` trials per noise level, sigma from 0 to 2 px; how each method
+turns a trial into estimates is documented in `planar_vo.bench.methods`. Errors are the paper's
 (`planar_vo.bench.metrics`); tables give the mean (as the paper plots) and the median.
 
 Outputs in ``--out``: ``paper.md`` (the command, the tables, the findings), ``paper.csv`` (every
@@ -40,7 +40,7 @@ from planar_vo.bench.common import (
 from planar_vo.bench.methods import METHODS, Candidates, Method
 from planar_vo.bench.metrics import focal_error, rotation_error_deg, translation_error_deg
 from planar_vo.errors import InputError
-from planar_vo.synthetic import ACSet, paper_trial
+from planar_vo.sim.synthetic import SyntheticACs, paper_trial
 
 __all__ = ['HELP', 'SCENARIOS', 'Scenario', 'add_arguments', 'run', 'run_experiments']
 
@@ -77,7 +77,7 @@ FIELDS = ('rot', 'trans', 'focal')
 # Running
 # --------------------------------------------------------------------------------------------
 
-def _select(c: Candidates, trial: ACSet, problem: str) -> dict[str, np.ndarray]:
+def _select(c: Candidates, trial: SyntheticACs, problem: str) -> dict[str, np.ndarray]:
     """Errors of the root nearest to the truth in each sample (``(S,)`` each; NaN = failed)."""
     rot = rotation_error_deg(c.R, trial.R)
     trans = translation_error_deg(c.t, trial.t)
@@ -150,7 +150,7 @@ def run_experiments(sigmas: Sequence[float], *, runs: int, samples: int, seed: i
                          f'samples={samples}')
     if not sigmas or any(not (s >= 0.0) for s in sigmas):
         raise InputError(f'sigmas: expected non-negative noise levels, got {list(sigmas)}')
-    names = [m.name for m in METHODS if m.available()] if methods is None else list(methods)
+    names = [m.name for m in METHODS] if methods is None else list(methods)
     cells = [(i, j, sc, s) for i, sc in enumerate(SCENARIOS) for j, s in enumerate(sigmas)]
     tasks = [(sc, names, float(s), runs, samples, (seed, i, j)) for i, j, sc, s in cells]
     results = []
@@ -207,21 +207,21 @@ def measure_solver_times(rng: np.random.Generator, *, batch: int = 10000, calls:
     """
     import cv2
 
-    from planar_vo import baselines
-    from planar_vo.geometry import solve_1ac, solve_1acf, solve_2pc, solve_3pc
-    from planar_vo.synthetic import random_exact_acs
+    from planar_vo.bench import peers
+    from planar_vo.core import solve_1ac, solve_1acf, solve_2pc, solve_3pc
+    from planar_vo.sim.synthetic import random_exact_acs
 
     acs = random_exact_acs(rng, batch)
-    q1, q2, A = acs.q1, acs.q2, acs.A_norm
+    q1, q2, A = acs.normalized.p1, acs.normalized.p2, acs.normalized.A
     c1, c2 = acs.centered
     pts = paper_trial(rng, 0.5, n_points=400)
     perm = np.argsort(rng.random((batch, 400)), axis=1)
-    P1, P2 = pts.q1[perm[:, :6]], pts.q2[perm[:, :6]]
+    P1, P2 = pts.normalized.p1[perm[:, :6]], pts.normalized.p2[perm[:, :6]]
     C1, C2 = pts.centered[0][perm[:, :6]], pts.centered[1][perm[:, :6]]
     ours = {
         '1AC': (1, lambda s: solve_1ac(q1[s], q2[s], A[s])),
         '1AC+LS': (1, lambda s: solve_1ac(q1[s], q2[s], A[s], refine=True)),
-        '1ACf': (1, lambda s: solve_1acf(c1[s], c2[s], acs.A[s])),
+        '1ACf': (1, lambda s: solve_1acf(c1[s], c2[s], acs.acs.A[s])),
         '2PC': (2, lambda s: solve_2pc(P1[s, :2], P2[s, :2])),
         '3PC': (3, lambda s: solve_3pc(P1[s, :3], P2[s, :3])),
     }
@@ -233,9 +233,9 @@ def measure_solver_times(rng: np.random.Generator, *, batch: int = 10000, calls:
                      'call_us': 1e6 * _median_time(lambda: fn(slice(0, 1)), repeats, calls)})
     import poselib
 
-    B1, B2 = baselines._bearings(P1), baselines._bearings(P2)
+    B1, B2 = peers._bearings(P1), peers._bearings(P2)
     s = float(np.sqrt(np.mean(C1 ** 2) + np.mean(C2 ** 2)))
-    F1, F2 = baselines._bearings(C1 / s), baselines._bearings(C2 / s)
+    F1, F2 = peers._bearings(C1 / s), peers._bearings(C2 / s)
     peers = [
         ('5PC (OpenCV)', 'OpenCV findEssentialMat, 5 points', 5,
          lambda k: cv2.findEssentialMat(P1[k, :5], P2[k, :5], np.eye(3), cv2.RANSAC, 0.999,
@@ -258,7 +258,7 @@ def measure_solver_times(rng: np.random.Generator, *, batch: int = 10000, calls:
 
 def complexity_section(timings: list[dict]) -> str:
     """Markdown: the paper's iteration table recomputed, and measured solver cost per RANSAC."""
-    from planar_vo.baselines import ransac_iterations
+    from planar_vo.bench.peers import ransac_iterations
 
     iters = {m: ransac_iterations(np.array(OUTLIER_RATIOS), m, 0.99) for m in (1, 2, 3, 5, 6)}
     head = ['sample size m'] + [f'outliers {r:.2f}' for r in OUTLIER_RATIOS] + ['paper', 'equal']
@@ -612,8 +612,7 @@ def exactness_table(noise_free: dict) -> str:
     return '\n\n'.join(parts)
 
 
-def _methods_section(ran: Sequence[Method], skipped: Sequence[Method], samples: int,
-                     runs: int) -> str:
+def _methods_section(ran: Sequence[Method], samples: int, runs: int) -> str:
     rows = [[m.name, m.kind, m.problem, m.sample_size or 'all 50',
              f'{samples} per run, nearest root' if m.kind == 'minimal' else '1 per run',
              m.source] for m in ran]
@@ -627,9 +626,6 @@ def _methods_section(ran: Sequence[Method], skipped: Sequence[Method], samples: 
             'angle between translation vectors; focal error relative (shown in %).',
             markdown_table(['method', 'kind', 'problem', 'sample', 'estimates', 'implementation'],
                            rows, 'llllll')]
-    if skipped:
-        text.append('**Not run**: ' + '; '.join(
-            f'{m.name} ({m.source}): its implementation does not exist yet' for m in skipped))
     return '\n\n'.join(text)
 
 
@@ -670,8 +666,7 @@ def run(args: argparse.Namespace) -> int:
     if args.quick:
         runs, samples, sigmas = QUICK['runs'], QUICK['samples'], list(QUICK['sigmas'])
     out = Path(args.out)
-    skipped = [m for m in METHODS if not m.available()]
-    ran = [m for m in METHODS if m.available()]
+    ran = list(METHODS)
     start = time.perf_counter()
     rows, noise_free = run_experiments(sigmas, runs=runs, samples=samples, seed=args.seed,
                                        methods=[m.name for m in ran], jobs=args.jobs)
@@ -708,13 +703,13 @@ def run(args: argparse.Namespace) -> int:
     ]
     sections = [
         'Hajder and Barath, section 4 (Fig. 3 and the complexity table), on '
-        '`planar_vo.synthetic.paper_trial`. Cells are **mean / median**; rotation and '
+        '`planar_vo.sim.synthetic.paper_trial`. Cells are **mean / median**; rotation and '
         'translation errors in degrees, focal errors in %. Figures: ' +
         ', '.join(f'`{p.name}`' for p in figs) + ' (top row means, bottom row medians, log '
         'scale; noise-free points of the untilted settings are in the exactness table and the '
         'focal histogram; '
         'solid = minimal solvers, dashed = robust estimators on all 50 points).',
-        _methods_section(ran, skipped, samples, runs),
+        _methods_section(ran, samples, runs),
         findings(rows, noise_free, sigmas),
         exactness_table(noise_free),
         complexity_section(timings),

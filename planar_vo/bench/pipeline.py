@@ -87,21 +87,20 @@ def speed_table(frames: int) -> str:
     """Per-stage medians (ms) on rendered 1241x376 frames, and ratios to DIS alone."""
     import cv2
 
-    from planar_vo.bag.reader import TYPESTORE
-    from planar_vo.bag.writer import ODOMETRY_TYPE, odometry_message
     from planar_vo.config import PlanarVoConfig
-    from planar_vo.demo import CAMERAS
-    from planar_vo.geometry.frames import mount_transform
-    from planar_vo.messages import image_to_array
+    from planar_vo.core.conventions import mount_transform
+    from planar_vo.io.reader import TYPESTORE
+    from planar_vo.io.writer import ODOMETRY_TYPE, odometry_message
     from planar_vo.pipeline import VisualOdometry
-    from planar_vo.render import StreetWorld
-    from planar_vo.render.drive import demo_drive, render_drive
-    from planar_vo.render.trajectory import Trajectory
+    from planar_vo.ros.messages import image_to_array
+    from planar_vo.sim import StreetWorld
+    from planar_vo.sim.drive import demo_drive, render_drive
+    from planar_vo.tools.demo import CAMERAS
 
     camera = CAMERAS['1241x376']()
     config = PlanarVoConfig()
     drive = demo_drive()
-    drive = Trajectory(drive.stamps[:frames], drive.poses[:frames])
+    drive = drive.subset(slice(0, frames))
     world = StreetWorld.along(drive, seed=0)
     mount = mount_transform(height=config.mount.height)
     t = TYPESTORE.types
@@ -171,11 +170,12 @@ def speed_table(frames: int) -> str:
 
 def kitti_table(folder: Path, height: float, pitch: float | None) -> str:
     """planar_vo and the OpenCV five-point pipeline on the same KITTI frames."""
-    from planar_vo.bag import import_kitti, iter_camera_frames, iter_messages, open_bag
     from planar_vo.config import PlanarVoConfig
-    from planar_vo.evaluation import Trajectory, evaluate
-    from planar_vo.messages import pose_from_message
+    from planar_vo.core.trajectory import Trajectory
+    from planar_vo.io import import_kitti, iter_camera_frames, iter_messages, open_bag
     from planar_vo.pipeline import VisualOdometry
+    from planar_vo.ros.messages import pose_from_message
+    from planar_vo.tools.evaluation import evaluate
 
     with tempfile.TemporaryDirectory() as tmp:
         bag_path = Path(tmp) / 'kitti'
@@ -191,7 +191,7 @@ def kitti_table(folder: Path, height: float, pitch: float | None) -> str:
     runs: dict[str, tuple[np.ndarray, float]] = {}
     mount = {'height': height}
     if pitch is None:
-        mount.update(estimate_tilt=True, tilt_tolerance=0.005)
+        mount.update(estimate_tilt=True)
     else:
         mount['pitch'] = float(pitch)
     for label, scale in (('planar_vo (1AC + voting), ground-plane scale', 'ground'),
@@ -234,11 +234,11 @@ def kitti_table(folder: Path, height: float, pitch: float | None) -> str:
 def _five_point_run(frames, steps: np.ndarray, height: float, pitch: float
                     ) -> tuple[np.ndarray, float]:
     """Frame-to-frame OpenCV five-point odometry on our front-end's points, GT step lengths."""
-    from planar_vo.baselines import estimate_5pc_opencv
+    from planar_vo.bench.peers import estimate_5pc_opencv
     from planar_vo.config import FrontendConfig
+    from planar_vo.core.camera import normalize_points
+    from planar_vo.core.conventions import camera_motion_to_base, mount_transform, se3
     from planar_vo.frontend import ACExtractor
-    from planar_vo.geometry.camera import normalize_points
-    from planar_vo.geometry.frames import camera_motion_to_base, mount_transform, se3
 
     extractor = ACExtractor(FrontendConfig())
     T_bc = mount_transform(height=height, pitch=pitch)

@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     if args.solvers:
-        from planar_vo.experiments import format_accuracy_table, solver_accuracy
+        from planar_vo.bench.solvers import format_accuracy_table, solver_accuracy
 
         rows = solver_accuracy(args.sigmas, trials=args.trials, seed=args.seed)
         print(f'Minimal-solver accuracy on the paper protocol ({args.trials} trials x 50 ACs per '
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         print(f'done in {time.perf_counter() - start:.1f} s')
         return 0
 
-    from planar_vo.demo import run_demo
+    from planar_vo.tools.demo import run_demo
 
     result = run_demo(args.out, camera=args.camera, seed=args.seed, frames=args.frames,
                       storage=args.storage, force=args.force, progress=show_progress(args))

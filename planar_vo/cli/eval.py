@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from planar_vo.evaluation.align import ALIGNMENTS
+from planar_vo.tools.evaluation.align import ALIGNMENTS
 
 EXAMPLES = """examples:
   planar_vo eval drive_vo                         estimate and ground truth from one bag
@@ -50,8 +50,8 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError
-    from planar_vo.evaluation import evaluate, load_trajectory, write_report
-    from planar_vo.evaluation.trajectory import is_bag_path
+    from planar_vo.tools.evaluation import evaluate, load_trajectory, write_report
+    from planar_vo.tools.evaluation.files import is_bag_path
 
     if any(not (math.isfinite(s) and s > 0) for s in args.segments):
         raise InputError(f'segments: expected positive lengths in metres, got {args.segments}')

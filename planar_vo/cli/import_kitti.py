@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-STORAGES = ('mcap', 'sqlite3')       # planar_vo.bag.writer.STORAGES (rosbags not imported here)
+STORAGES = ('mcap', 'sqlite3')       # planar_vo.io.writer.STORAGES (rosbags not imported here)
 
 EXAMPLES = """examples:
   planar_vo import-kitti dataset/sequences/06 --out kitti06
@@ -44,8 +44,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from planar_vo.cli import show_progress
-
-    from planar_vo.bag.kitti import import_kitti
+    from planar_vo.io.kitti import import_kitti
 
     summary = import_kitti(args.folder, args.out, storage=args.storage,
                            camera_height=args.camera_height, rate_hz=args.rate_hz,

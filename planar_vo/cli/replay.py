@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-STORAGES = ('mcap', 'sqlite3')       # planar_vo.bag.writer.STORAGES (rosbags not imported here)
+STORAGES = ('mcap', 'sqlite3')       # planar_vo.io.writer.STORAGES (rosbags not imported here)
 
 EXAMPLES = """examples:
   planar_vo replay drive.mcap --out drive_vo
@@ -47,10 +47,9 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from planar_vo.cli import show_progress
-
-    from planar_vo.bag.replay import replay_bag
     from planar_vo.config import load_config
     from planar_vo.pipeline import VisualOdometry
+    from planar_vo.tools.replay import replay_bag
 
     config = load_config(args.config)
     summary = replay_bag(

@@ -2,10 +2,11 @@
 
 - `extract_acs` / `ACExtractor`: ACs between two images by DIS flow + affine Lucas-Kanade
   (``'flow'``, the default), KLT tracks (``'klt'``) or ASIFT (``'asift'``, slow).
-- `undistort_acs`, `level_acs`, `correct_acs`: move ACs to an ideal, level pinhole camera
-  (``A' = J(p2) A J(p1)^-1``).
-- `MountTiltEstimator`: the camera's pitch and roll relative to the plane of motion, from many
-  frame pairs.
+- `undistort_acs`, `level_acs`, `correct_acs`, `leveling_rotation`: move ACs to an ideal, level
+  pinhole camera (``A' = J(p2) A J(p1)^-1``).
+- `images`: the one place that decodes pixels (raw ROS encodings, JPEG/PNG) into 8-bit grey.
+
+The only subpackage that uses OpenCV on images.
 """
 
 from __future__ import annotations
@@ -18,13 +19,10 @@ from planar_vo.frontend.correction import (
     undistort_acs,
 )
 from planar_vo.frontend.extract import METHODS, ACExtractor, extract_acs
-from planar_vo.frontend.tilt import MountTiltEstimator, TiltEstimate
 
 __all__ = [
     'METHODS',
     'ACExtractor',
-    'MountTiltEstimator',
-    'TiltEstimate',
     'correct_acs',
     'extract_acs',
     'level_acs',

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from planar_vo.config import FrontendConfig
-from planar_vo.correspondences import AffineCorrespondences
+from planar_vo.core.correspondences import AffineCorrespondences
 
 __all__ = ['ASIFTExtractor', 'asift_views', 'keypoint_frames']
 

@@ -6,12 +6,14 @@ Both corrections are smooth per-image point maps ``g`` and act on an AC by the c
     p1' = g(p1),  p2' = g(p2),  A' = J_g(p2) A J_g(p1)^-1
 
 - Undistortion: distorted pixels -> pixels of the ideal pinhole camera with the same ``K``,
-  ``p' = K undistort(K^-1 p)`` (`planar_vo.camera.CameraModel`, ``plumb_bob`` or
+  ``p' = K undistort(K^-1 p)`` (`planar_vo.core.camera.CameraModel`, ``plumb_bob`` or
   ``equidistant``).
-- Levelling: the camera is mounted with pitch and roll (`planar_vo.config.MountConfig`: the
-  optical frame rotated by ``Rz(yaw) Ry(pitch) Rx(roll)`` about the base_link axes; positive
-  pitch looks down). The level camera has the same centre and yaw but zero pitch and roll, so
-  its y axis is vertical and vehicle motion on a plane is exactly planar for it. A point seen
+- Levelling (`leveling_rotation`, applied by `AffineCorrespondences.mapped`: to normalised ACs
+  as the pipeline does, or to pixels by `level_acs`): the camera is mounted with pitch and roll
+  (`planar_vo.config.MountConfig`: the optical frame rotated by ``Rz(yaw) Ry(pitch) Rx(roll)``
+  about the base_link axes; positive pitch looks down). The level camera has the same centre
+  and yaw but zero pitch and roll, so its y axis is vertical and vehicle motion on a plane is
+  exactly planar for it. A point seen
   by the real camera at ``X_c`` is ``X_l = R_lc X_c`` in the level camera, with
   ``R_lc = R_BO^T Ry(pitch) Rx(roll) R_BO`` (``R_BO`` = `R_BASE_OPTICAL`; the yaw cancels), and
   pixels map by the rotation homography ``H = K R_lc K^-1``.
@@ -21,11 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from planar_vo.camera import CameraModel
-from planar_vo.correspondences import AffineCorrespondences
-from planar_vo._checks import as_array
-from planar_vo.geometry.camera import apply_homography, homography_jacobian
-from planar_vo.geometry.frames import R_BASE_OPTICAL, rotation_rpy
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.checks import as_array
+from planar_vo.core.conventions import R_BASE_OPTICAL, rotation_rpy
+from planar_vo.core.correspondences import AffineCorrespondences
 
 __all__ = [
     'correct_acs',
@@ -100,12 +101,7 @@ def level_acs(acs: AffineCorrespondences, K: np.ndarray, pitch: float, roll: flo
         ``A' = J_H(p2) A J_H(p1)^-1`` (`homography_jacobian`). Points the homography sends to
         infinity (90 degrees of tilt) are dropped.
     """
-    H = leveling_homography(K, pitch, roll)
-
-    def g(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return apply_homography(H, p), homography_jacobian(H, p)
-
-    return acs.transformed(g, g)
+    return acs.mapped(leveling_homography(K, pitch, roll))
 
 
 def correct_acs(acs: AffineCorrespondences, camera: CameraModel, pitch: float = 0.0,

@@ -17,7 +17,7 @@ import threading
 import numpy as np
 
 from planar_vo.config import FrontendConfig
-from planar_vo.correspondences import AffineCorrespondences
+from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.errors import InputError
 from planar_vo.frontend.images import check_pair
 

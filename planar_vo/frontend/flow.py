@@ -17,8 +17,9 @@
 6. Re-seeding (``reseed``): failed candidates get a second start from an accepted neighbour's
    affine (the ground close to the car, where DIS fails).
 
-Cost (`planar_vo.bench.frontend`): about 1.7-2.2 times one DIS 'fast' flow on the same frames,
-for about 1,000 ACs at 640x480 and 1,000-1,500 at KITTI size.
+Cost: see ``planar_vo bench frontend`` (`planar_vo/bench/results/frontend/frontend.md`): about
+twice one DIS 'fast' flow on the same frames, for about 1,000 ACs at 640x480 and 800-1,600 at
+KITTI size.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import cv2
 import numpy as np
 
 from planar_vo.config import FrontendConfig
-from planar_vo.correspondences import AffineCorrespondences
+from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.frontend.affine_lk import (
     MAX_STEP,
     PatchRefinement,

@@ -1,21 +1,54 @@
-"""Image input checks for the front-end: one place that turns what callers pass into 8-bit grey.
+"""Images in: the one place that turns pixels into the front-end's 8-bit grey.
 
-Accepted: numpy arrays ``(H, W)`` or ``(H, W, 1)`` grey, ``(H, W, 3)`` BGR or ``(H, W, 4)`` BGRA, of
-dtype ``uint8``. Anything else raises `ImageError` naming the argument, what was received and
-what was expected.
+- `as_gray`, `check_pair`: numpy arrays ``(H, W)`` or ``(H, W, 1)`` grey, ``(H, W, 3)`` BGR or
+  ``(H, W, 4)`` BGRA, of dtype ``uint8``. Anything else raises `ImageError` naming the argument,
+  what was received and what was expected.
+- `decode_raw`, `decode_compressed`: the pixel buffers of ``sensor_msgs/Image`` and
+  ``CompressedImage`` (`planar_vo.ros.messages` reads the message fields) and image files:
+
+  - ``mono8``/``8UC1``: as stored.
+  - ``mono16``/``16UC1``: the 16-bit value shifted right by ``mono16_shift`` bits (default 8, the
+    top byte of the full 16-bit range) and clipped to 255. The map is the same for every frame, so
+    brightness constancy between frames (which optical flow relies on) is kept; a per-frame
+    min/max stretch would break it. For 12-bit sensors stored in 16 bits use ``mono16_shift=4``.
+  - ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``: ITU-R BT.601 luma (OpenCV ``cvtColor``).
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import cv2
 import numpy as np
 
-from planar_vo.errors import ImageError
+from planar_vo.errors import ImageError, InputError
 
-__all__ = ['MIN_IMAGE_SIZE', 'as_gray', 'check_pair']
+__all__ = [
+    'IMAGE_ENCODINGS',
+    'MIN_IMAGE_SIZE',
+    'as_gray',
+    'buffer',
+    'check_pair',
+    'decode_compressed',
+    'decode_raw',
+    'read_image',
+]
 
 # DIS optical flow and the patch refinement need a few patches' worth of pixels.
 MIN_IMAGE_SIZE = 32
+
+# encoding -> (channels, bytes per channel, cv2 code to grey or None for single channel)
+IMAGE_ENCODINGS: dict[str, tuple[int, int, int | None]] = {
+    'mono8': (1, 1, None),
+    '8UC1': (1, 1, None),
+    'mono16': (1, 2, None),
+    '16UC1': (1, 2, None),
+    'rgb8': (3, 1, cv2.COLOR_RGB2GRAY),
+    'bgr8': (3, 1, cv2.COLOR_BGR2GRAY),
+    'rgba8': (4, 1, cv2.COLOR_RGBA2GRAY),
+    'bgra8': (4, 1, cv2.COLOR_BGRA2GRAY),
+}
 
 
 def as_gray(name: str, image: object) -> np.ndarray:
@@ -62,3 +95,118 @@ def check_pair(image1: object, image2: object) -> tuple[np.ndarray, np.ndarray]:
         raise ImageError(f'image2: expected the size of image1 ({g1.shape[1]}x{g1.shape[0]}), got '
                          f'{g2.shape[1]}x{g2.shape[0]}')
     return g1, g2
+
+
+def buffer(data: Any) -> np.ndarray:
+    """A flat uint8 view of a byte buffer (bytes, array.array, numpy, list of ints)."""
+    if isinstance(data, np.ndarray):
+        return np.frombuffer(np.ascontiguousarray(data).data, dtype=np.uint8)
+    try:
+        return np.frombuffer(data, dtype=np.uint8)
+    except TypeError:
+        return np.asarray(data, dtype=np.uint8).reshape(-1)
+
+
+def _mono16_to_8(img: np.ndarray, shift: int) -> np.ndarray:
+    if not (isinstance(shift, (int, np.integer)) and 0 <= shift <= 8):
+        raise InputError(f'mono16_shift: expected an integer in 0..8, got {shift!r}')
+    return np.minimum(img >> np.uint16(shift), 255).astype(np.uint8)
+
+
+def decode_raw(data: Any, encoding: str, height: int, width: int, step: int,
+               is_bigendian: bool = False, *, gray: bool = True,
+               mono16_shift: int = 8) -> np.ndarray:
+    """Pixels of a raw image buffer (the fields of a ``sensor_msgs/Image``).
+
+    Honours ``step`` (row padding) and ``is_bigendian`` (16-bit encodings).
+
+    Args:
+        data: the pixel bytes (``height * step`` at least).
+        encoding, height, width, step, is_bigendian: as in ``sensor_msgs/Image``.
+        gray: return ``(H, W)`` uint8 grey (see the module docstring for the conversions).
+            ``False`` returns the pixels as stored: ``(H, W)`` for single-channel encodings,
+            ``(H, W, C)`` in the encoding's channel order, native-endian uint8 or uint16.
+        mono16_shift: right shift from 16-bit to 8-bit grey (0..8).
+
+    Raises:
+        ImageError: unsupported encoding, empty image, ``step`` too small for the width, or
+            ``data`` shorter than ``height * step``.
+    """
+    encoding = str(encoding)
+    if encoding not in IMAGE_ENCODINGS:
+        raise ImageError(f"image.encoding: expected one of {list(IMAGE_ENCODINGS)}, "
+                         f"got '{encoding}'")
+    channels, depth, code = IMAGE_ENCODINGS[encoding]
+    height, width, step = int(height), int(width), int(step)
+    buf = buffer(data)
+    if height <= 0 or width <= 0 or buf.size == 0:
+        raise ImageError(f'image: expected a non-empty image, got {width}x{height} pixels and '
+                         f'{buf.size} data bytes')
+    row_bytes = width * channels * depth
+    if step < row_bytes:
+        raise ImageError(f'image.step: expected at least width * bytes per pixel = {width} * '
+                         f'{channels * depth} = {row_bytes} for {encoding}, got {step}')
+    if buf.size < height * step:
+        raise ImageError(f'image.data: expected at least height * step = {height} * {step} = '
+                         f'{height * step} bytes, got {buf.size}')
+    rows = buf[:height * step].reshape(height, step)[:, :row_bytes]
+    if depth == 2:
+        dtype = np.dtype('>u2' if is_bigendian else '<u2')
+        img = np.ascontiguousarray(rows).view(dtype).astype(np.uint16)
+    else:
+        img = np.array(rows)                         # owned: never alias the message buffer
+    img = img.reshape((height, width, channels) if channels > 1 else (height, width))
+    if not gray:
+        return img
+    if depth == 2:
+        return _mono16_to_8(img, mono16_shift)
+    return cv2.cvtColor(img, code) if code is not None else img
+
+
+def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
+                      mono16_shift: int = 8) -> np.ndarray:
+    """Pixels of JPEG or PNG bytes (a ``sensor_msgs/CompressedImage`` or an image file).
+
+    Args:
+        data: the encoded bytes.
+        fmt: the format; must name ``jpeg``/``jpg`` or ``png`` (e.g. ``'jpeg'``,
+            ``'bgr8; jpeg compressed bgr8'``).
+        gray: return ``(H, W)`` uint8 grey; ``False`` returns what OpenCV decodes unchanged
+            (``(H, W)`` grey, or ``(H, W, 3|4)`` in BGR(A) order; uint8 or uint16 for 16-bit PNG).
+        mono16_shift: right shift from 16-bit to 8-bit grey for 16-bit PNGs.
+
+    Raises:
+        ImageError: unknown format or data OpenCV cannot decode.
+    """
+    lower = str(fmt).lower()
+    if not any(name in lower for name in ('jpeg', 'jpg', 'png')) or 'compresseddepth' in lower:
+        raise ImageError(f"compressed_image.format: expected 'jpeg' or 'png', got '{fmt}'")
+    buf = buffer(data)
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
+    if img is None or img.size == 0:
+        raise ImageError(f"compressed_image.data: expected decodable {fmt} data, got "
+                         f'{buf.size} bytes OpenCV cannot decode')
+    if not gray:
+        return img
+    if img.dtype == np.uint16:
+        img = _mono16_to_8(img, mono16_shift)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    return img
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """An image file (PNG or JPEG) as ``(H, W)`` uint8 grey.
+
+    Raises:
+        ImageError: the file cannot be read or decoded.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise ImageError(f"cannot read '{path}' ({err.strerror})") from err
+    try:
+        return decode_compressed(data, path.suffix.lstrip('.') or 'png')
+    except ImageError as err:
+        raise ImageError(f"cannot read '{path}' as an image ({err})") from err

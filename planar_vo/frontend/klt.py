@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from planar_vo.config import FrontendConfig
-from planar_vo.correspondences import AffineCorrespondences
+from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.frontend.affine_lk import MAX_STEP, refine_correspondences
 
 __all__ = ['KLTExtractor']

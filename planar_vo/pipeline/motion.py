@@ -1,7 +1,7 @@
 """Planar vehicle motion from camera motion, and the propagation of its covariance.
 
 The estimators give the motion of the *level* camera between two views,
-``X2 = Ry(alpha) X1 + s t(beta)`` (`planar_vo.geometry.planar`), with ``s`` the metric step. The
+``X2 = Ry(alpha) X1 + s t(beta)`` (`planar_vo.core.conventions`), with ``s`` the metric step. The
 vehicle's motion is ``T_base1_base2 = T_base_level T_level1_level2 T_base_level^-1``, with
 ``T_level1_level2 = [R^T | -R^T s t]`` the pose of view 2 in view 1. Everything below is in the
 plane: a pose is ``(x, y, yaw)`` and a covariance 3x3 in that order.
@@ -13,8 +13,13 @@ import math
 
 import numpy as np
 
-from planar_vo.geometry.frames import camera_motion_to_base, se3, yaw_of
-from planar_vo.geometry.planar import rotation_y, translation_direction
+from planar_vo.core.conventions import (
+    camera_motion_to_base,
+    rotation_y,
+    se3,
+    translation_direction,
+    yaw_of,
+)
 
 __all__ = [
     'base_step',

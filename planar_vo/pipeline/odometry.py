@@ -26,13 +26,15 @@ import time
 
 import numpy as np
 
-from planar_vo.camera import CameraModel
 from planar_vo.config import PlanarVoConfig
-from planar_vo.correspondences import AffineCorrespondences
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.conventions import R_BASE_OPTICAL, invert, rotation_rpy, se3
+from planar_vo.core.correspondences import AffineCorrespondences
+from planar_vo.core.robust import vote_planar_motion
 from planar_vo.errors import ImageError, PlanarVoError
-from planar_vo.geometry.camera import normalize_affines, normalize_points
-from planar_vo.geometry.frames import R_BASE_OPTICAL, invert, mount_transform, rotation_rpy, se3
-from planar_vo.geometry.voting import FocalCalibrator, vote_planar_motion
+from planar_vo.frontend import ACExtractor, leveling_rotation, undistort_acs
+from planar_vo.frontend.images import as_gray
+from planar_vo.pipeline.calibration import FocalCalibrator, MountTiltEstimator
 from planar_vo.pipeline.motion import (
     base_step,
     compose_covariance,
@@ -65,8 +67,6 @@ class VisualOdometry:
 
     def __init__(self, config: PlanarVoConfig | None = None,
                  camera: CameraModel | None = None) -> None:
-        from planar_vo.frontend import ACExtractor  # OpenCV stays at the edge of the import graph
-
         self.config = PlanarVoConfig() if config is None else config
         self._extractor = ACExtractor(self.config.frontend)
         self._camera = camera
@@ -78,8 +78,6 @@ class VisualOdometry:
         # calibration phase; its pitch and roll then replace the configured ones.
         self._tilt = None
         if mount.estimate_tilt:
-            from planar_vo.frontend import MountTiltEstimator
-
             self._tilt = MountTiltEstimator()
         self.tilt_estimate = None
         self.counters: dict[str, int] = {}
@@ -90,13 +88,11 @@ class VisualOdometry:
     def _set_tilt(self, pitch: float, roll: float) -> None:
         """Levelling for a camera pitched and rolled by ``pitch``, ``roll`` (MountConfig sense)."""
         mount = self.config.mount
-        self._T_base_camera = mount_transform(mount.x, mount.y, mount.height, roll, pitch,
-                                              mount.yaw)
-        # The level camera: same centre, optical axes rotated by the mount's yaw only.
+        # The level camera: the camera's centre, optical axes rotated by the mount's yaw only.
         self._T_base_level = se3(rotation_rpy(0.0, 0.0, mount.yaw) @ R_BASE_OPTICAL,
-                                 self._T_base_camera[:3, 3])
+                                 np.array([mount.x, mount.y, mount.height]))
         # Levelling rotation, level <- camera, applied to the ideal normalised rays.
-        self._R_level_camera = (invert(self._T_base_level) @ self._T_base_camera)[:3, :3]
+        self._R_level_camera = leveling_rotation(pitch, roll)
         self._level = not np.allclose(self._R_level_camera, np.eye(3), atol=1e-12)
 
     def _calibrate_tilt(self, q1: np.ndarray, q2: np.ndarray) -> None:
@@ -130,6 +126,7 @@ class VisualOdometry:
         self._kf_stamp = float('nan')
         self._kf_age = 0
         self._lost = 0
+        self._restart = False
         self._last_stamp: float | None = None
         self._last_out_stamp: float | None = None
         self._last_out_pose = np.eye(4)
@@ -210,6 +207,8 @@ class VisualOdometry:
             return self._drop(stamp, DropReason.BLANK_IMAGE,
                               'image is blank (black, saturated or without texture)')
         timings['decode'] = time.perf_counter() - t
+        if self._keyframe is None and self._restart:
+            return self._restart_chain(gray, stamp)
         if self._keyframe is None:
             self._new_keyframe(gray, stamp)
             self._last_out_stamp, self._last_out_pose = stamp, self.pose.copy()
@@ -219,7 +218,7 @@ class VisualOdometry:
         acs = self._extractor.extract(self._keyframe, gray)
         timings['correspondences'] = time.perf_counter() - t
         if len(acs) < self.config.odometry.min_correspondences:
-            return self._lost_frame(gray, stamp, DropReason.TOO_FEW_CORRESPONDENCES,
+            return self._lost_frame(stamp, DropReason.TOO_FEW_CORRESPONDENCES,
                                     f'{len(acs)} correspondences (minimum '
                                     f'{self.config.odometry.min_correspondences})', len(acs))
         parallax = float(np.median(np.linalg.norm(acs.p2 - acs.p1, axis=1)))
@@ -230,7 +229,7 @@ class VisualOdometry:
         motion, stats, scale_info = self._estimate(acs, camera, stamp)
         timings['solve'] = time.perf_counter() - t
         if not stats.reliable:
-            return self._lost_frame(gray, stamp, DropReason.UNRELIABLE,
+            return self._lost_frame(stamp, DropReason.UNRELIABLE,
                                     f'motion estimate flagged {stats.flag!r} '
                                     f'({stats.num_inliers} inliers of {len(acs)})', len(acs),
                                     stats.num_inliers)
@@ -292,23 +291,20 @@ class VisualOdometry:
 
     def _estimate(self, acs: AffineCorrespondences, camera: CameraModel, stamp: float):
         """Motion of the level camera since the keyframe, with its scale."""
-        from planar_vo.frontend import undistort_acs
-
-        ideal = undistort_acs(acs, camera) if camera.is_distorted else acs
         if self._camera is None and self._calibrator is not None:
+            ideal = undistort_acs(acs, camera)
             c = camera.K[:2, 2]
             self._calibrator.add(ideal.p1 - c, ideal.p2 - c, ideal.A, ideal.weights)
-        q1 = normalize_points(camera.K, ideal.p1)
-        q2 = normalize_points(camera.K, ideal.p2)
-        An = normalize_affines(camera.K, camera.K, ideal.A)
+        norm = acs.normalized(camera)                 # undistorted, K^-1
         if self._tilt is not None:
-            self._calibrate_tilt(q1, q2)
+            self._calibrate_tilt(norm.p1, norm.p2)
         if self._level:
-            q1, q2, An = _rotate(self._R_level_camera, q1, q2, An)
-        motion, stats = vote_planar_motion(q1, q2, An, ideal.weights, self.config.voting)
+            norm = norm.mapped(self._R_level_camera)
+        motion, stats = vote_planar_motion(norm.p1, norm.p2, norm.A, norm.weights,
+                                           self.config.voting)
         if not stats.reliable:
             return motion, stats, (float('nan'), float('inf'), '')
-        return motion, stats, self._scale(q1, q2, An, motion, stats, stamp)
+        return motion, stats, self._scale(norm.p1, norm.p2, norm.A, motion, stats, stamp)
 
     def _scale(self, q1, q2, An, motion, stats, stamp: float) -> tuple[float, float, str]:
         """Step length (m), its variance and the source used, with the configured fallback."""
@@ -356,23 +352,33 @@ class VisualOdometry:
         return self._result(stamp, True, keyframe=False, scale_source='stationary',
                             num_correspondences=count, alpha=0.0, beta=float('nan'))
 
-    def _lost_frame(self, gray: np.ndarray, stamp: float, reason: DropReason, message: str,
-                    count: int, inliers: int = 0) -> FrameResult:
-        """No update from this frame. After ``odometry.max_lost_frames`` in a row, re-anchor: the
-        keyframe becomes this frame and the pose is extrapolated at the last velocity, with its
-        covariance inflated, so that tracking can resume."""
+    def _lost_frame(self, stamp: float, reason: DropReason, message: str, count: int,
+                    inliers: int = 0) -> FrameResult:
+        """No update from this frame. After ``odometry.max_lost_frames`` in a row the keyframe
+        is dropped: the next usable frame starts a new keyframe chain (`_restart_chain`). The
+        failed frame itself never becomes the keyframe, since it may be the cause (a blank or
+        garbled image would leave the next real frame without correspondences)."""
         self._lost += 1
         self._kf_age += 1
         if self._lost >= self.config.odometry.max_lost_frames:
-            dt = stamp - (self._last_out_stamp if self._last_out_stamp is not None else stamp)
-            v, w = self._twist[:2], self._twist[5]
-            guess = se3(rotation_rpy(0.0, 0.0, w * dt), np.array([v[0] * dt, v[1] * dt, 0.0]))
-            self.pose = self._last_out_pose @ guess
-            self._cov = self._cov + np.diag(_LOST_VARIANCE)
-            self._new_keyframe(gray, stamp)
+            self._keyframe = None
+            self._restart = True
             self._lost = 0
-            message += '; tracking re-anchored at this frame (pose extrapolated)'
+            message += '; tracking lost: the next usable frame starts a new keyframe chain'
         return self._drop(stamp, reason, message, count, inliers)
+
+    def _restart_chain(self, gray: np.ndarray, stamp: float) -> FrameResult:
+        """A new keyframe chain after lost tracking: the pose is extrapolated to this frame at
+        the last velocity, with its covariance inflated."""
+        dt = stamp - (self._last_out_stamp if self._last_out_stamp is not None else stamp)
+        v, w = self._twist[:2], self._twist[5]
+        guess = se3(rotation_rpy(0.0, 0.0, w * dt), np.array([v[0] * dt, v[1] * dt, 0.0]))
+        self.pose = self._last_out_pose @ guess
+        self._cov = self._cov + np.diag(_LOST_VARIANCE)
+        self._new_keyframe(gray, stamp)
+        self._restart = False
+        return self._drop(stamp, DropReason.REINITIALISED,
+                          'new keyframe chain after lost tracking (pose extrapolated)')
 
     def _new_keyframe(self, gray: np.ndarray, stamp: float) -> None:
         self._keyframe = gray
@@ -418,8 +424,6 @@ def _with_timings(result: FrameResult, timings: dict[str, float]) -> FrameResult
 
 def _gray(image) -> np.ndarray:
     """8-bit grey image from grey or BGR input, or `ImageError`."""
-    from planar_vo.frontend.images import as_gray
-
     return as_gray('image', image)
 
 
@@ -427,13 +431,3 @@ def _is_blank(gray: np.ndarray, min_contrast: float) -> bool:
     """Black, saturated or flat: too little contrast for any correspondence (subsampled)."""
     sample = gray[::8, ::8]
     return float(sample.std()) < min_contrast
-
-
-def _rotate(R: np.ndarray, q1: np.ndarray, q2: np.ndarray, A: np.ndarray):
-    """Apply the rotation homography ``R`` to both views' normalised rays (levelling)."""
-    from planar_vo.geometry.camera import apply_homography, homography_jacobian
-
-    J1 = homography_jacobian(R, q1)
-    J2 = homography_jacobian(R, q2)
-    return (apply_homography(R, q1), apply_homography(R, q2),
-            J2 @ A @ np.linalg.inv(J1))

@@ -20,12 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planar_vo.core.conventions import rotation_y, translation_direction
+from planar_vo.core.robust.stats import MAD_TO_SIGMA, weighted_median
 from planar_vo.errors import InputError
-from planar_vo.geometry.planar import rotation_y, translation_direction
 
 __all__ = ['GroundScale', 'SpeedIntegrator', 'ground_plane_scale']
-
-_MAD = 1.4826
 
 
 class SpeedIntegrator:
@@ -141,13 +140,11 @@ def ground_plane_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, alpha: flo
     if np.count_nonzero(road) < min_count:
         return GroundScale(float('nan'), float('inf'), int(np.count_nonzero(road)))
     s, wr = s[road], wc[road]
-    order = np.argsort(s)
-    cum = np.cumsum(wr[order])
-    median = float(s[order][np.searchsorted(cum, 0.5 * cum[-1])])
+    median = weighted_median(s, wr)
     # A second, tighter pass around the median rejects the occasional non-road AC that matched.
-    close = np.abs(s - median) <= 3.0 * _MAD * np.median(np.abs(s - median)) + 1e-12
+    close = np.abs(s - median) <= 3.0 * MAD_TO_SIGMA * np.median(np.abs(s - median)) + 1e-12
     s, wr = s[close], wr[close]
     scale = float(np.average(s, weights=wr))
-    spread = _MAD * float(np.median(np.abs(s - scale)))
+    spread = MAD_TO_SIGMA * float(np.median(np.abs(s - scale)))
     std = spread / math.sqrt(max(len(s) / 10.0, 1.0))
     return GroundScale(scale, std, int(len(s)))

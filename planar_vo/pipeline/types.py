@@ -18,6 +18,7 @@ class DropReason(str, enum.Enum):
     """Why a frame produced no odometry update (stable keys for counters and logs)."""
 
     FIRST_FRAME = 'first_frame'            # initialises the pipeline; nothing to compare with yet
+    REINITIALISED = 'reinitialised'        # starts a new keyframe chain after lost tracking
     NO_CAMERA_INFO = 'no_camera_info'      # no intrinsics yet (and no focal self-calibration)
     BAD_IMAGE = 'bad_image'                # undecodable, unsupported encoding, wrong size
     BLANK_IMAGE = 'blank_image'            # black, saturated or textureless

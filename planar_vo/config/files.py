@@ -1,0 +1,73 @@
+"""Configuration files: the plain nested YAML form and the ROS 2 parameter-file form."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from planar_vo.config.keys import describe
+from planar_vo.config.sections import PlanarVoConfig
+from planar_vo.errors import ConfigError
+
+__all__ = ['load_config', 'to_ros_yaml']
+
+
+def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
+                ) -> PlanarVoConfig:
+    """Load a configuration file (None: the defaults).
+
+    Accepts the plain nested form and the ROS parameter-file form
+    (``<node_name>: {ros__parameters: {...}}``, or ``/**`` as the node name) that
+    ``config/planar_vo.yaml`` uses, so one file serves the node and the CLI.
+    """
+    if path is None:
+        return PlanarVoConfig()
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except OSError as err:
+        raise ConfigError(f'{path}: cannot read configuration ({err.strerror})') from err
+    except yaml.YAMLError as err:
+        raise ConfigError(f'{path}: not valid YAML ({err})') from err
+    if data is None:
+        return PlanarVoConfig()
+    if isinstance(data, dict):
+        for name in (node_name, f'/{node_name}', '/**'):
+            if isinstance(data.get(name), dict) and 'ros__parameters' in data[name]:
+                data = data[name]['ros__parameters']
+                break
+    try:
+        return PlanarVoConfig.from_dict(data)
+    except ConfigError as err:
+        raise ConfigError(f'{path}: {err}') from None
+
+
+def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = 'planar_vo') -> str:
+    """The configuration as a commented ROS 2 parameter file (the form of
+    ``config/planar_vo.yaml``, which is this function's output for the defaults)."""
+    import textwrap
+
+    import yaml
+
+    config = PlanarVoConfig() if config is None else config
+    docs = describe()
+    out = ['# planar_vo parameters, in ROS 2 parameter-file form (ros2 run planar_vo',
+           '#   planar_vo_node --ros-args --params-file FILE). The planar_vo command reads the',
+           '# same file with --config. Mirrors planar_vo.config.PlanarVoConfig (SI units, rad).',
+           f'{node_name}:', '  ros__parameters:']
+    for section, values in config.to_dict().items():
+        out.append(f'    {section}:')
+        keys = list(values)
+        for i, key in enumerate(keys):
+            doc = docs[f'{section}.{key}'].replace('``', '')
+            if i == 0 or doc != docs[f'{section}.{keys[i - 1]}'].replace('``', ''):
+                # Fields documented together (fx, fy, cx, cy) share one comment.
+                group = [k for k in keys[i:] if docs[f'{section}.{k}'].replace('``', '') == doc]
+                names = ', '.join(group)
+                head = f'{names}: ' if len(group) > 1 else ''
+                for line in textwrap.wrap(head + doc, 86):
+                    out.append(f'      # {line}')
+            text = yaml.safe_dump(values[key], default_flow_style=True).strip()
+            out.append(f'      {key}: {text.removesuffix("...").strip()}')
+    return '\n'.join(out) + '\n'

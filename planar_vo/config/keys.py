@@ -1,0 +1,62 @@
+"""Dotted keys of the configuration (``voting.bins``): the names of ROS parameters, with their
+descriptions read from the sections' ``Attributes:`` docstrings."""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from typing import Any
+
+from planar_vo.config.sections import PlanarVoConfig
+from planar_vo.core.options import Options
+
+__all__ = ['describe', 'flatten']
+
+
+def describe(section: type[Options] = None, prefix: str = '') -> dict[str, str]:
+    """Dotted key -> one-line description, read from the sections' ``Attributes:`` docstrings."""
+    section = PlanarVoConfig if section is None else section
+    docs: dict[str, str] = {}
+    current: list[str] = []
+    lines = (section.__doc__ or '').splitlines()
+    in_attrs = False
+    for line in lines:
+        stripped = line.strip()
+        if stripped == 'Attributes:':
+            in_attrs = True
+            continue
+        if not in_attrs or not stripped:
+            continue
+        head, sep, text = stripped.partition(': ')
+        if sep and all(part.strip().isidentifier() for part in head.split(',')):
+            current = [part.strip() for part in head.split(',')]
+            for name in current:
+                docs[name] = text
+        elif current:
+            for name in current:
+                docs[name] += ' ' + stripped
+    out: dict[str, str] = {}
+    hints = typing.get_type_hints(section)
+    for f in dataclasses.fields(section):
+        key = f'{prefix}.{f.name}' if prefix else f.name
+        hint = hints[f.name]
+        if isinstance(hint, type) and issubclass(hint, Options):
+            out.update(describe(hint, key))
+        else:
+            out[key] = docs.get(f.name, '')
+    return out
+
+
+def flatten(config: Options) -> dict[str, Any]:
+    """Dotted-key view ``{'voting.bins': 720, ...}`` of a configuration (ROS parameter names)."""
+    out: dict[str, Any] = {}
+
+    def walk(prefix: str, value: Any) -> None:
+        if isinstance(value, dict):
+            for k, v in value.items():
+                walk(f'{prefix}.{k}' if prefix else k, v)
+        else:
+            out[prefix] = value
+
+    walk('', config.to_dict())
+    return out

@@ -1,0 +1,285 @@
+"""Camera model: pinhole intrinsics with ROS ``plumb_bob`` or ``equidistant`` distortion.
+
+Everything is expressed as point maps with analytic Jacobians, so that affine correspondences can
+be moved between pixel, distorted and ideal normalised coordinates by the chain rule
+(`planar_vo.core.correspondences.AffineCorrespondences.transformed`). For an undistorted pinhole
+camera `normalize_points` and `normalize_affines` do the same directly from ``K``.
+
+Models (ROS ``sensor_msgs/CameraInfo`` names and coefficient order):
+
+- ``plumb_bob`` ``D = [k1, k2, p1, p2, k3]`` (Brown-Conrady): with ``r2 = x^2 + y^2``,
+  ``x_d = x (1 + k1 r2 + k2 r2^2 + k3 r2^3) + 2 p1 x y + p2 (r2 + 2 x^2)`` and likewise for y.
+- ``equidistant`` ``D = [k1, k2, k3, k4]`` (Kannala-Brandt fisheye): ``theta = atan(r)``,
+  ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``,
+  ``x_d = (theta_d / r) x``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from planar_vo.core.checks import as_array
+from planar_vo.errors import CameraModelError
+
+__all__ = [
+    'DISTORTION_MODELS',
+    'CameraModel',
+    'intrinsic_matrix',
+    'normalize_affines',
+    'normalize_points',
+]
+
+DISTORTION_MODELS = {'none': 0, 'plumb_bob': 5, 'equidistant': 4}
+_UNDISTORT_ITERATIONS = 20
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """A calibrated camera.
+
+    Attributes:
+        width, height: image size in pixels.
+        K: intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (3x3).
+        distortion_model: ``'none'``, ``'plumb_bob'`` or ``'equidistant'``.
+        D: distortion coefficients in ROS order (empty for ``'none'``).
+    """
+
+    width: int
+    height: int
+    K: np.ndarray
+    distortion_model: str = 'none'
+    D: tuple[float, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        K = _check_K(self.K)
+        if not (int(self.width) == self.width and int(self.height) == self.height
+                and self.width > 0 and self.height > 0):
+            raise CameraModelError(f'image size: expected positive integers, got '
+                                   f'{self.width}x{self.height}')
+        if self.distortion_model not in DISTORTION_MODELS:
+            raise CameraModelError(f"distortion_model: expected one of {list(DISTORTION_MODELS)}, "
+                                   f"got '{self.distortion_model}'")
+        D = tuple(float(d) for d in self.D)
+        n = DISTORTION_MODELS[self.distortion_model]
+        if self.distortion_model == 'plumb_bob' and len(D) in (4, 5):
+            D = D + (0.0,) * (5 - len(D))
+        if len(D) != n and not (n == 0 and not any(D)):
+            raise CameraModelError(f"D: expected {n} coefficients for '{self.distortion_model}', "
+                                   f'got {len(D)}')
+        if not np.all(np.isfinite(D)):
+            raise CameraModelError(f'D: expected finite coefficients, got {list(D)}')
+        K = K.copy()
+        K.setflags(write=False)
+        object.__setattr__(self, 'K', K)
+        object.__setattr__(self, 'D', D if n else ())
+        object.__setattr__(self, 'width', int(self.width))
+        object.__setattr__(self, 'height', int(self.height))
+
+    # -- construction ------------------------------------------------------------------------
+
+    @classmethod
+    def pinhole(cls, width: int, height: int, fx: float, fy: float | None = None,
+                cx: float | None = None, cy: float | None = None) -> CameraModel:
+        """An undistorted camera; the principal point defaults to the image centre."""
+        fy = fx if fy is None else fy
+        cx = (width - 1) / 2.0 if cx is None else cx
+        cy = (height - 1) / 2.0 if cy is None else cy
+        return cls(width, height, np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]))
+
+    @classmethod
+    def from_camera_info(cls, msg: Any) -> CameraModel:
+        """From a ``sensor_msgs/CameraInfo`` (rclpy or rosbags message; duck-typed).
+
+        An empty distortion model with all-zero ``d`` is read as ``'none'``; ``rational_polynomial``
+        and other models are rejected with `CameraModelError`.
+        """
+        try:
+            k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+            d = tuple(float(v) for v in msg.d)
+            model = str(msg.distortion_model or '').strip()
+            width, height = int(msg.width), int(msg.height)
+        except (AttributeError, TypeError, ValueError) as err:
+            raise CameraModelError(f'camera_info: not a CameraInfo message ({err})') from err
+        if not np.any(k):
+            raise CameraModelError('camera_info: K is all zeros (uncalibrated camera); set the '
+                                   'camera.fx/fy/cx/cy parameters or enable camera.estimate_focal')
+        if model == '' or (model == 'plumb_bob' and not any(d)):
+            if any(d):
+                raise CameraModelError(f'camera_info: distortion coefficients {list(d)} given '
+                                       f'without a distortion model')
+            model, d = 'none', ()
+        return cls(width, height, k, model, d)
+
+    # -- properties --------------------------------------------------------------------------
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def is_distorted(self) -> bool:
+        return self.distortion_model != 'none' and any(self.D)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)``."""
+        return self.width, self.height
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, CameraModel):
+            return NotImplemented
+        return (self.size == other.size and np.array_equal(self.K, other.K)
+                and self.distortion_model == other.distortion_model and self.D == other.D)
+
+    def __hash__(self) -> int:
+        return hash((self.size, self.K.tobytes(), self.distortion_model, self.D))
+
+    # -- distortion of normalised coordinates ------------------------------------------------
+
+    def distort(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ideal normalised ``(N, 2)`` -> distorted normalised, with the Jacobian ``(N, 2, 2)``."""
+        x = np.asarray(x, dtype=np.float64)
+        n = x.shape[0]
+        if not self.is_distorted:
+            return x.copy(), np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
+        if self.distortion_model == 'plumb_bob':
+            return _distort_plumb_bob(x, self.D)
+        return _distort_equidistant(x, self.D)
+
+    def undistort(self, xd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distorted normalised ``(N, 2)`` -> ideal normalised, with the Jacobian ``(N, 2, 2)``.
+
+        Newton's method on `distort` (vectorised); the Jacobian is the inverse of the distortion
+        Jacobian at the solution. Points where the iteration does not converge (far outside the
+        calibrated field of view) are NaN.
+        """
+        xd = np.asarray(xd, dtype=np.float64)
+        if not self.is_distorted:
+            return xd.copy(), np.broadcast_to(np.eye(2), (xd.shape[0], 2, 2)).copy()
+        x = xd.copy()
+        for _ in range(_UNDISTORT_ITERATIONS):
+            f, J = self.distort(x)
+            step = np.linalg.solve(J, (f - xd)[..., None])[..., 0]
+            x = x - step
+        f, J = self.distort(x)
+        bad = np.linalg.norm(f - xd, axis=1) > 1e-9 * (1.0 + np.linalg.norm(xd, axis=1))
+        x[bad] = np.nan
+        return x, np.linalg.inv(J)
+
+    # -- pixels ------------------------------------------------------------------------------
+
+    def pixel_to_normalized(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels ``(N, 2)`` -> ideal normalised coordinates, with the Jacobian ``dq/dp``."""
+        p = as_array('p', p, (None, 2), min_items=0, finite=False)
+        L = self.K[:2, :2]
+        xd = (p - self.K[:2, 2]) @ np.linalg.inv(L).T
+        q, Ju = self.undistort(xd)
+        return q, Ju @ np.linalg.inv(L)
+
+    def normalized_to_pixel(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ideal normalised ``(N, 2)`` -> pixels, with the Jacobian ``dp/dq``."""
+        q = as_array('q', q, (None, 2), min_items=0, finite=False)
+        xd, Jd = self.distort(q)
+        L = self.K[:2, :2]
+        return xd @ L.T + self.K[:2, 2], L @ Jd
+
+
+# --------------------------------------------------------------------------------------------
+# Pinhole normalisation (no distortion)
+# --------------------------------------------------------------------------------------------
+
+def intrinsic_matrix(fx: float, fy: float | None = None, cx: float = 0.0, cy: float = 0.0
+                     ) -> np.ndarray:
+    """The 3x3 upper-triangular intrinsics ``C`` (no skew); ``fy`` defaults to ``fx``."""
+    fy = fx if fy is None else fy
+    if not (np.isfinite([fx, fy, cx, cy]).all() and fx > 0 and fy > 0):
+        raise CameraModelError(f'intrinsics: expected finite fx > 0 and fy > 0, got fx={fx}, '
+                               f'fy={fy}, cx={cx}, cy={cy}')
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def _check_K(K) -> np.ndarray:
+    """``K`` as a finite upper-triangular 3x3 intrinsic matrix, or `CameraModelError`."""
+    try:
+        arr = np.asarray(K, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
+        raise CameraModelError(f'K: expected a finite 3x3 matrix, got {K!r}')
+    if arr[0, 0] <= 0 or arr[1, 1] <= 0 or arr[1, 0] != 0 or np.any(arr[2] != (0.0, 0.0, 1.0)):
+        raise CameraModelError(f'K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy '
+                               f'> 0, got {arr.tolist()}')
+    return arr
+
+
+def normalize_points(K: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Normalised coordinates ``q = C^-1 p`` of pixels ``p`` ``(N, 2)``; returns ``(N, 2)``."""
+    K = _check_K(K)
+    p = as_array('p', p, (None, 2), min_items=0)
+    v = (p[:, 1] - K[1, 2]) / K[1, 1]
+    u = (p[:, 0] - K[0, 2] - K[0, 1] * v) / K[0, 0]
+    return np.stack([u, v], axis=-1)
+
+
+def normalize_affines(K1: np.ndarray, K2: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Affines in normalised coordinates, ``A_n = L2^-1 A L1`` with ``L`` the 2x2 block of ``C``.
+
+    For zero skew this is ``diag(1/fx2, 1/fy2) A diag(fx1, fy1)`` (DESIGN.md section 2).
+    """
+    K1, K2 = _check_K(K1), _check_K(K2)
+    A = as_array('A', A, (None, 2, 2), min_items=0)
+    return np.linalg.inv(K2[:2, :2]) @ A @ K1[:2, :2]
+
+
+def _distort_plumb_bob(x: np.ndarray, D: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    k1, k2, p1, p2, k3 = D
+    u, v = x[:, 0], x[:, 1]
+    r2 = u * u + v * v
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)          # d radial / d r2
+    xd = u * radial + 2.0 * p1 * u * v + p2 * (r2 + 2.0 * u * u)
+    yd = v * radial + p1 * (r2 + 2.0 * v * v) + 2.0 * p2 * u * v
+    J = np.empty((x.shape[0], 2, 2))
+    J[:, 0, 0] = radial + 2.0 * u * u * dradial + 2.0 * p1 * v + 6.0 * p2 * u
+    J[:, 0, 1] = 2.0 * u * v * dradial + 2.0 * p1 * u + 2.0 * p2 * v
+    J[:, 1, 0] = 2.0 * u * v * dradial + 2.0 * p1 * u + 2.0 * p2 * v
+    J[:, 1, 1] = radial + 2.0 * v * v * dradial + 6.0 * p1 * v + 2.0 * p2 * u
+    return np.stack([xd, yd], -1), J
+
+
+def _distort_equidistant(x: np.ndarray, D: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    k1, k2, k3, k4 = D
+    r = np.hypot(x[:, 0], x[:, 1])
+    th = np.arctan(r)
+    t2 = th * th
+    poly = 1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))
+    th_d = th * poly
+    dth_d = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
+    small = r < 1e-9
+    rs = np.where(small, 1.0, r)
+    scale = np.where(small, 1.0, th_d / rs)                  # x_d = scale(r) x
+    # d scale / d r = (dth_d * dth/dr * r - th_d) / r^2, with dth/dr = 1 / (1 + r^2).
+    dscale = np.where(small, 0.0, (dth_d / (1.0 + r * r) * rs - th_d) / (rs * rs))
+    ur = np.where(small, 0.0, x[:, 0] / rs)
+    vr = np.where(small, 0.0, x[:, 1] / rs)
+    J = np.empty((x.shape[0], 2, 2))
+    J[:, 0, 0] = scale + x[:, 0] * dscale * ur
+    J[:, 0, 1] = x[:, 0] * dscale * vr
+    J[:, 1, 0] = x[:, 1] * dscale * ur
+    J[:, 1, 1] = scale + x[:, 1] * dscale * vr
+    return x * scale[:, None], J

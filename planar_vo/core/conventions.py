@@ -1,0 +1,229 @@
+"""Conventions, written once and used everywhere: the frames of a vehicle-mounted camera
+(REP-103/105), rigid transforms, and the planar-motion parametrisation (DESIGN.md section 1).
+
+Frames:
+
+- ``odom``: fixed world frame, z up, the ground plane is ``z = 0``.
+- ``base_link``: the vehicle, x forward, y left, z up.
+- ``camera`` (optical): x right, y down, z forward; placed in ``base_link`` by the mount.
+
+Poses are 4x4 homogeneous matrices ``T_a_b`` mapping coordinates in frame ``b`` to frame ``a``
+(``p_a = T_a_b p_b``), so ``T_a_c = T_a_b @ T_b_c``.
+
+Planar motion between two views ``P1 = C1 [I | 0]`` and ``P2 = C2 [R | t]``, i.e.
+``X2 = R X1 + t``, of a level camera (its y axis vertical):
+
+    R = Ry(alpha) = [[cos a, 0, sin a], [0, 1, 0], [-sin a, 0, cos a]]
+    t = [cos b, 0, sin b]                       (unit; monocular scale is unobservable)
+
+The centre of camera 2 in frame 1 is ``-R^T t``. Forward driving gives ``t ~ [0, 0, -1]``
+(``beta ~ -pi/2``). A positive ``alpha`` turns the optical axis towards the camera's -x, i.e. a
+left turn: for a level camera ``alpha`` equals the vehicle's yaw change (REP-103, z up).
+
+The essential matrix is ``E = [t]x R = [[0, -sin b, 0], [sin(a+b), 0, -cos(a+b)], [0, cos b, 0]]``
+and the solvers' unknown vector is ``x = [cos(a+b), sin(a+b), cos b, sin b]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    'R_BASE_OPTICAL',
+    'angle_difference',
+    'camera_displacement',
+    'camera_motion_to_base',
+    'invert',
+    'mount_transform',
+    'planar_essential',
+    'planar_motion_from_pose',
+    'planar_pose',
+    'quaternion_from_rotation',
+    'rotation_from_quaternion',
+    'rotation_rpy',
+    'rotation_y',
+    'se3',
+    'translation_direction',
+    'wrap_angle',
+    'yaw_of',
+]
+
+
+# Optical axes expressed in base_link: optical z (forward) -> base x, optical x (right) -> base -y,
+# optical y (down) -> base -z.
+R_BASE_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def se3(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Homogeneous ``(..., 4, 4)`` transforms from rotations ``(..., 3, 3)`` and translations."""
+    R = np.asarray(R, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    T = np.zeros(np.broadcast_shapes(R.shape[:-2], t.shape[:-1]) + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def invert(T: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms ``(..., 4, 4)``."""
+    T = np.asarray(T, dtype=np.float64)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    return se3(Rt, -np.einsum('...ij,...j->...i', Rt, T[..., :3, 3]))
+
+
+def rotation_rpy(roll: float | np.ndarray, pitch: float | np.ndarray,
+                 yaw: float | np.ndarray) -> np.ndarray:
+    """``Rz(yaw) Ry(pitch) Rx(roll)`` (fixed-axis roll, pitch, yaw; REP-103), ``(..., 3, 3)``."""
+    r, p, y = (np.asarray(v, dtype=np.float64) for v in (roll, pitch, yaw))
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.stack([
+        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+        np.stack([-sp, cp * sr, cp * cr], -1),
+    ], -2)
+
+
+def yaw_of(R: np.ndarray) -> np.ndarray:
+    """Yaw (rotation about z) of rotations ``(..., 3, 3)`` in a z-up frame, radians."""
+    R = np.asarray(R, dtype=np.float64)
+    return np.arctan2(R[..., 1, 0], R[..., 0, 0])
+
+
+def planar_pose(x: float | np.ndarray, y: float | np.ndarray, yaw: float | np.ndarray,
+                z: float | np.ndarray = 0.0) -> np.ndarray:
+    """``T_odom_base`` of a vehicle at ``(x, y, z)`` heading ``yaw``; ``(..., 4, 4)``."""
+    yaw = np.asarray(yaw, dtype=np.float64)
+    zero = np.zeros_like(yaw)
+    t = np.stack(np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float),
+                                     np.asarray(z, float)), -1)
+    return se3(rotation_rpy(zero, zero, yaw), t)
+
+
+def mount_transform(x: float = 0.0, y: float = 0.0, height: float = 1.5, roll: float = 0.0,
+                    pitch: float = 0.0, yaw: float = 0.0) -> np.ndarray:
+    """``T_base_camera``: the optical frame placed in ``base_link`` (see `MountConfig`).
+
+    The optical frame is first rotated into the base axes (`R_BASE_OPTICAL`), then by
+    ``Rz(yaw) Ry(pitch) Rx(roll)`` about the base axes (positive pitch looks down, positive yaw
+    looks left), and placed at ``(x, y, height)``.
+    """
+    return se3(rotation_rpy(roll, pitch, yaw) @ R_BASE_OPTICAL, np.array([x, y, height]))
+
+
+def camera_motion_to_base(T_cam1_cam2: np.ndarray, T_base_camera: np.ndarray) -> np.ndarray:
+    """Vehicle motion ``T_base1_base2`` from the camera motion ``T_cam1_cam2`` and the mount.
+
+    The camera is rigidly mounted: ``T_base1_base2 = T_bc T_c1_c2 T_bc^-1``.
+    """
+    return T_base_camera @ T_cam1_cam2 @ invert(T_base_camera)
+
+
+def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``(..., 4)`` in ROS order ``(x, y, z, w)``, ``w >= 0``, from rotations."""
+    R = np.asarray(R, dtype=np.float64)
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    # Four candidate magnitudes; take the largest for numerical stability (Shepperd's method).
+    cand = np.stack([1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22,
+                     1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22], -1)
+    k = np.argmax(cand, axis=-1)
+    s = np.sqrt(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300)) * 2.0
+    q = np.empty(R.shape[:-2] + (4,))
+    d10, d01 = R[..., 1, 0], R[..., 0, 1]
+    d20, d02 = R[..., 2, 0], R[..., 0, 2]
+    d21, d12 = R[..., 2, 1], R[..., 1, 2]
+    options = [
+        np.stack([(d21 - d12) / s, (d02 - d20) / s, (d10 - d01) / s, s / 4.0], -1),
+        np.stack([s / 4.0, (d01 + d10) / s, (d02 + d20) / s, (d21 - d12) / s], -1),
+        np.stack([(d01 + d10) / s, s / 4.0, (d12 + d21) / s, (d02 - d20) / s], -1),
+        np.stack([(d02 + d20) / s, (d12 + d21) / s, s / 4.0, (d10 - d01) / s], -1),
+    ]
+    for i, opt in enumerate(options):
+        q = np.where((k == i)[..., None], opt, q)
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., 3:4] < 0.0, -q, q)
+
+
+def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
+    """Rotations ``(..., 3, 3)`` from quaternions ``(..., 4)`` in ROS order ``(x, y, z, w)``."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+# --------------------------------------------------------------------------------------------
+# Planar motion
+# --------------------------------------------------------------------------------------------
+
+
+def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
+    """Wrap angles (radians) to ``(-pi, pi]``."""
+    wrapped = np.remainder(np.asarray(angle, dtype=np.float64) + np.pi, 2.0 * np.pi) - np.pi
+    return np.where(wrapped == -np.pi, np.pi, wrapped)
+
+
+def angle_difference(a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
+    """Signed smallest difference ``a - b`` of angles (radians), in ``(-pi, pi]``."""
+    return wrap_angle(np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64))
+
+
+def rotation_y(alpha: np.ndarray | float) -> np.ndarray:
+    """``Ry(alpha)`` for angles of shape ``S``; returns shape ``S + (3, 3)``."""
+    a = np.asarray(alpha, dtype=np.float64)
+    c, s = np.cos(a), np.sin(a)
+    z, o = np.zeros_like(a), np.ones_like(a)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1),
+                     np.stack([-s, z, c], -1)], -2)
+
+
+def translation_direction(beta: np.ndarray | float) -> np.ndarray:
+    """Unit translation ``t = [cos b, 0, sin b]`` for angles of shape ``S``; shape ``S + (3,)``."""
+    b = np.asarray(beta, dtype=np.float64)
+    return np.stack([np.cos(b), np.zeros_like(b), np.sin(b)], -1)
+
+
+def planar_essential(alpha: np.ndarray | float, beta: np.ndarray | float) -> np.ndarray:
+    """Essential matrix ``[t]x Ry(alpha)`` of planar motion; shape ``S + (3, 3)``."""
+    a = np.asarray(alpha, dtype=np.float64)
+    b = np.asarray(beta, dtype=np.float64)
+    z = np.zeros(np.broadcast(a, b).shape)
+    sb, cb, sab, cab = np.sin(b) + z, np.cos(b) + z, np.sin(a + b) + z, np.cos(a + b) + z
+    return np.stack([np.stack([z, -sb, z], -1), np.stack([sab, z, -cab], -1),
+                     np.stack([z, cb, z], -1)], -2)
+
+
+def camera_displacement(alpha: np.ndarray | float, beta: np.ndarray | float) -> np.ndarray:
+    """Centre of camera 2 in camera-1 coordinates, ``-R^T t`` (unit length); shape ``S + (3,)``.
+
+    For forward driving (``beta = -pi/2``) this is ``[0, 0, 1]``: the camera moved along its
+    optical axis.
+    """
+    R = rotation_y(alpha)
+    t = translation_direction(beta)
+    return -np.einsum('...ji,...j->...i', R, t)
+
+
+def planar_motion_from_pose(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Project a general relative pose ``X2 = R X1 + t`` onto planar motion ``(alpha, beta)``.
+
+    ``alpha`` is the rotation about the camera y axis closest to ``R`` (least squares over the
+    x-z block) and ``beta`` the heading of ``t`` in the x-z plane. Used to compare general
+    estimators (five-point) and ground truth with the planar solvers.
+
+    Args:
+        R: rotations, shape ``(..., 3, 3)``.
+        t: translations, shape ``(..., 3)``; any scale.
+
+    Returns:
+        ``alpha, beta`` in radians, each of shape ``(...)``.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    alpha = np.arctan2(R[..., 0, 2] - R[..., 2, 0], R[..., 0, 0] + R[..., 2, 2])
+    beta = np.arctan2(t[..., 2], t[..., 0])
+    return alpha, beta

@@ -1,0 +1,99 @@
+"""`AffineCorrespondences`: the one AC container, returned by every AC source (front-end,
+renderer, synthetic data) and taken by every consumer.
+
+Any smooth map applied to the images (normalisation by ``K^-1``, undistortion, a levelling
+rotation) acts on ACs by the chain rule: ``p' = g(p)``, ``A' = J_g(p2) A J_g(p1)^-1``
+(DESIGN.md section 4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from planar_vo.core.checks import as_array, same_length
+from planar_vo.core.homography import apply_homography, homography_jacobian
+
+__all__ = ['AffineCorrespondences']
+
+
+@dataclass(frozen=True)
+class AffineCorrespondences:
+    """N affine correspondences between two images.
+
+    Attributes:
+        p1, p2: points in images 1 and 2, shape ``(N, 2)``, pixels unless stated otherwise.
+        A: local affines, shape ``(N, 2, 2)``: the Jacobian of the image-1 -> image-2 map at
+            ``p1``, in the same units as the points.
+        weights: per-AC quality in ``[0, inf)``, shape ``(N,)`` (1 when unknown); used by voting.
+    """
+
+    p1: np.ndarray
+    p2: np.ndarray
+    A: np.ndarray
+    weights: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        p1 = as_array('p1', self.p1, (None, 2), min_items=0)
+        p2 = as_array('p2', self.p2, (None, 2), min_items=0)
+        A = as_array('A', self.A, (None, 2, 2), min_items=0)
+        w = np.ones(len(p1)) if self.weights is None else as_array(
+            'weights', self.weights, (None,), min_items=0)
+        same_length(p1=p1, p2=p2, A=A, weights=w)
+        for name, value in (('p1', p1), ('p2', p2), ('A', A), ('weights', w)):
+            object.__setattr__(self, name, value)
+
+    def __len__(self) -> int:
+        return int(self.p1.shape[0])
+
+    def subset(self, index: np.ndarray | slice) -> AffineCorrespondences:
+        """The correspondences selected by a boolean mask, an index array or a slice."""
+        return AffineCorrespondences(self.p1[index], self.p2[index], self.A[index],
+                                     self.weights[index])
+
+    def transformed(self, map1, map2) -> AffineCorrespondences:
+        """Apply point maps ``p -> (g(p), J_g(p))`` to each image: ``A' = J2 A J1^-1``.
+
+        Items that a map sends to NaN (e.g. undistortion outside the calibrated field) are
+        dropped.
+        """
+        g1, J1 = map1(self.p1)
+        g2, J2 = map2(self.p2)
+        ok = np.isfinite(g1).all(1) & np.isfinite(g2).all(1)
+        ok &= np.isfinite(J1).all((1, 2)) & np.isfinite(J2).all((1, 2))
+        det = J1[:, 0, 0] * J1[:, 1, 1] - J1[:, 0, 1] * J1[:, 1, 0]
+        ok &= det != 0.0
+        det = np.where(ok, det, 1.0)
+        J1i = np.stack([np.stack([J1[:, 1, 1], -J1[:, 0, 1]], -1),
+                        np.stack([-J1[:, 1, 0], J1[:, 0, 0]], -1)], -2) / det[:, None, None]
+        A = J2 @ self.A @ J1i
+        if ok.all():
+            return AffineCorrespondences(g1, g2, A, self.weights)
+        return AffineCorrespondences(g1[ok], g2[ok], A[ok], self.weights[ok])
+
+    def mapped(self, H: np.ndarray) -> AffineCorrespondences:
+        """Both views mapped by the homography ``H`` (3x3), e.g. a rotation ``R`` of normalised
+        rays (levelling) or ``K R K^-1`` of pixels. Items sent to infinity are dropped."""
+        H = as_array('H', H, (3, 3))
+
+        def g(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            with np.errstate(divide='ignore', invalid='ignore'):
+                return apply_homography(H, p), homography_jacobian(H, p)
+
+        return self.transformed(g, g)
+
+    def normalized(self, camera1, camera2=None) -> AffineCorrespondences:
+        """Ideal normalised coordinates ``K^-1 undistort(p)`` of `CameraModel` s."""
+        camera2 = camera1 if camera2 is None else camera2
+        return self.transformed(camera1.pixel_to_normalized, camera2.pixel_to_normalized)
+
+    @staticmethod
+    def concatenate(items: list[AffineCorrespondences]) -> AffineCorrespondences:
+        """Join several sets into one."""
+        if not items:
+            return AffineCorrespondences(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2, 2)))
+        return AffineCorrespondences(np.concatenate([c.p1 for c in items]),
+                                     np.concatenate([c.p2 for c in items]),
+                                     np.concatenate([c.A for c in items]),
+                                     np.concatenate([c.weights for c in items]))

@@ -1,0 +1,120 @@
+"""`Options`: the base of every frozen options dataclass (typed construction from plain data,
+validation once, plain-data output).
+
+The estimators' options (`planar_vo.core.robust.VotingConfig`) and every section of the
+configuration (`planar_vo.config`) derive from it, so one mechanism checks names, types and
+ranges everywhere and reports the dotted path of a bad value as a `ConfigError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from typing import Any, ClassVar
+
+from planar_vo.errors import ConfigError
+
+__all__ = ['Options', 'finite']
+
+
+class Options:
+    """Base of frozen options dataclasses: typed construction from dicts and validation.
+
+    Subclasses are ``@dataclass(frozen=True)`` with defaults for every field and override
+    `validate` to check ranges; `from_dict` checks names and types and reports the dotted path
+    of any bad value.
+    """
+
+    _section: ClassVar[str] = ''
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Check value ranges; raise `ConfigError` naming the field."""
+
+    # -- construction ------------------------------------------------------------------------
+
+    @classmethod
+    def from_dict(cls, data: typing.Mapping[str, Any] | None, *, path: str = ''):
+        """Build from a (nested) mapping; unknown keys and wrong types raise `ConfigError`."""
+        data = {} if data is None else data
+        if not isinstance(data, typing.Mapping):
+            raise ConfigError(f'{path or "config"}: expected a mapping, got {type(data).__name__}')
+        hints = typing.get_type_hints(cls)
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            where = f'{path}.' if path else ''
+            keys = ', '.join(where + k for k in unknown)
+            raise ConfigError(f'unknown configuration key(s) {keys}'
+                              f'; known keys: {", ".join(sorted(names))}')
+        values = {}
+        for name, raw in data.items():
+            key = f'{path}.{name}' if path else name
+            values[name] = _coerce(key, raw, hints[name])
+        try:
+            return cls(**values)
+        except ConfigError as err:
+            raise ConfigError(f'{path + "." if path else ""}{err}') from None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Nested plain dict (tuples as lists), the shape of ``config/planar_vo.yaml``."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, Options):
+                value = value.to_dict()
+            elif isinstance(value, tuple):
+                value = list(value)
+            out[f.name] = value
+        return out
+
+    def replace(self, **changes: Any):
+        """A copy with some fields changed (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    # -- validation helpers ------------------------------------------------------------------
+
+    def _require(self, ok: bool, name: str, expected: str) -> None:
+        if not ok:
+            raise ConfigError(f'{name}: expected {expected}, got {getattr(self, name)!r}')
+
+
+def _coerce(key: str, raw: Any, hint: Any) -> Any:
+    """Check and convert one value to the annotated type."""
+    if isinstance(hint, type) and issubclass(hint, Options):
+        return hint.from_dict(raw, path=key)
+    origin = typing.get_origin(hint)
+    if hint is bool:
+        if isinstance(raw, bool):
+            return raw
+    elif hint is int:
+        if isinstance(raw, int) and not isinstance(raw, bool):
+            return raw
+    elif hint is float:
+        if isinstance(raw, (int, float)) and not isinstance(raw, bool):
+            return float(raw)
+    elif hint is str:
+        if isinstance(raw, str):
+            return raw
+    elif origin is tuple:
+        (item,) = {a for a in typing.get_args(hint) if a is not Ellipsis}
+        if isinstance(raw, (list, tuple)):
+            return tuple(_coerce(f'{key}[{i}]', v, item) for i, v in enumerate(raw))
+    elif origin is typing.Literal:
+        if raw in typing.get_args(hint):
+            return raw
+        raise ConfigError(f'{key}: expected one of {list(typing.get_args(hint))}, got {raw!r}')
+    elif origin in (typing.Union, types.UnionType):
+        raise ConfigError(f'{key}: optional values are not supported')  # pragma: no cover
+    else:  # pragma: no cover - a programming error in a section definition
+        raise TypeError(f'{key}: unsupported configuration type {hint!r}')
+    name = getattr(hint, '__name__', str(hint))
+    raise ConfigError(f'{key}: expected {name}, got {type(raw).__name__} {raw!r}')
+
+
+def finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)

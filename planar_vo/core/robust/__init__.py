@@ -1,0 +1,23 @@
+"""Robust planar motion from many affine correspondences (numpy only).
+
+- `vote_planar_motion`: every AC's 1AC candidate votes (`histogram`), inliers by all three AC
+  constraints, least-squares refinement and a cluster-robust covariance (`refine`); RANSAC
+  behind ``VotingConfig(method='ransac')`` for comparison (`ransac`).
+- `vote_planar_motion_focal`: the same with an unknown common focal length (1ACf; `focal`).
+- `VotingConfig`: every option of these estimators with its default (`options`).
+"""
+
+from __future__ import annotations
+
+from planar_vo.core.robust.focal import vote_planar_motion_focal
+from planar_vo.core.robust.options import VotingConfig
+from planar_vo.core.robust.types import PlanarMotion, VotingStats
+from planar_vo.core.robust.vote import vote_planar_motion
+
+__all__ = [
+    'PlanarMotion',
+    'VotingConfig',
+    'VotingStats',
+    'vote_planar_motion',
+    'vote_planar_motion_focal',
+]

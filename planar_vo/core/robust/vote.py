@@ -1,0 +1,162 @@
+"""Robust planar motion from many affine correspondences: weighted histogram voting (and RANSAC).
+
+One AC gives one motion candidate (`solve_1ac`), so robust estimation can be exhaustive and
+deterministic (Hajder and Barath, section 3.4; Bujnak et al. 2009 for weighted voting):
+
+1. every AC's candidate ``(alpha_i, beta_i)`` votes, with its weight, into a kernel-smoothed
+   histogram on the circle for ``alpha``; the peak is refined below bin resolution by mean shift;
+2. the ACs that agree on ``alpha`` vote for ``beta`` the same way;
+3. inliers are selected by the whitened residual of all three AC constraints (epipolar + two
+   affine) at the voted motion, with noise scales estimated robustly from the peak's members;
+4. ``(alpha, beta)`` are refined by weighted Gauss-Newton on all inliers' constraints, giving a
+   2x2 covariance from the normal equations.
+
+Cost is linear in the number of ACs and independent of the outlier ratio. Degenerate or
+ambiguous input gives a flagged result (``stats.reliable`` False, ``stats.flag`` says why), never
+an exception and never a silently confident wrong answer. A 1AC-RANSAC with local optimisation
+sits behind the same interface (``VotingConfig(method='ransac')``) for comparison.
+
+The pieces: `planar_vo.core.robust.histogram` (voting), `planar_vo.core.robust.refine`
+(whitening, refinement, covariance), `planar_vo.core.robust.ransac` (the comparison) and
+`planar_vo.core.robust.focal` (the unknown-focal variant).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planar_vo.core.conventions import wrap_angle
+from planar_vo.core.robust import histogram, refine
+from planar_vo.core.robust.options import VotingConfig
+from planar_vo.core.robust.ransac import ransac_planar_motion
+from planar_vo.core.robust.stats import MAD_TO_SIGMA, lower_quantile, thin
+from planar_vo.core.robust.types import PlanarMotion, VotingStats, check_inputs, failed_estimate
+from planar_vo.core.solvers import (
+    _ac_matrix,
+    _ac_null_vectors,
+    _cheirality_flip,
+    solve_1ac,
+)
+from planar_vo.errors import InputError
+
+__all__ = ['PlanarMotion', 'VotingStats', 'vote_planar_motion']
+
+
+def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
+                       weights: np.ndarray | None = None, config: VotingConfig | None = None,
+                       *, clusters: np.ndarray | None = None
+                       ) -> tuple[PlanarMotion, VotingStats]:
+    """Robust planar motion from N affine correspondences (1AC + weighted histogram voting).
+
+    Args:
+        q1, q2: normalised image coordinates, shape ``(N, 2)``.
+        A: local affines in normalised coordinates, shape ``(N, 2, 2)``.
+        weights: per-AC quality (non-negative), shape ``(N,)``; None for equal weights.
+        config: `VotingConfig` (``method='ransac'`` selects the RANSAC comparison).
+        clusters: optional integer group per AC, shape ``(N,)``: ACs whose errors may be
+            correlated (one surface, one segment). Default: cells of a
+            ``config.covariance_grid`` grid over image 1, since neighbouring ACs share errors.
+            Used only for the cluster-robust covariance.
+
+    Returns:
+        ``(motion, stats)``: a `PlanarMotion` and `VotingStats`. When ``stats.reliable`` is
+        False, ``stats.flag`` says why; the angles may still be the best guess (or NaN).
+
+    Raises:
+        InputError: wrong shapes or non-finite values; ConfigError: bad weights or config.
+    """
+    q1, q2, A, w, config = check_inputs(q1, q2, A, weights, config)
+    if clusters is None:
+        clusters = refine.spatial_clusters(q1, config)
+    else:
+        clusters = np.asarray(clusters)
+        if clusters.shape != (q1.shape[0],) or not np.issubdtype(clusters.dtype, np.integer) \
+                or (clusters.size and clusters.min() < 0):
+            raise InputError(f'clusters: expected non-negative integers of shape '
+                             f'({q1.shape[0]},), got {clusters.dtype} {clusters.shape}')
+    if config.method == 'ransac':
+        return ransac_planar_motion(q1, q2, A, w, config, clusters)
+    n = q1.shape[0]
+    if config.refine_candidates:
+        alpha_c, beta_c = solve_1ac(q1, q2, A, refine=True)
+        signed = True
+    else:
+        # Alpha does not depend on the null vector's sign (flipping it adds pi to both angles),
+        # so cheirality is resolved below only for the ACs that vote on beta.
+        nv = _ac_null_vectors(q1, q2, A)
+        theta_c = np.arctan2(nv[:, 1], nv[:, 0])
+        beta_c = np.arctan2(nv[:, 3], nv[:, 2])
+        alpha_c = histogram.wrap(theta_c - beta_c)
+        alpha_c[((nv[:, 0] == 0.0) & (nv[:, 1] == 0.0)) | ((nv[:, 2] == 0.0)
+                                                           & (nv[:, 3] == 0.0))] = np.nan
+        signed = False
+    valid = np.isfinite(alpha_c) & (w > 0)
+    num_candidates = int(np.count_nonzero(valid))
+    if num_candidates < config.min_inliers:
+        return failed_estimate(n, 'too_few_candidates', num_candidates)
+    valid_idx = np.flatnonzero(valid)
+    a_v, w_v = alpha_c[valid_idx], w[valid_idx]
+
+    exclusion = 6.0 * config.kernel_bins * histogram.TWO_PI / config.bins
+    alpha0, sharpness, ambiguity, bw = histogram.peak(a_v, w_v, config, exclusion)
+    near_alpha = np.abs(histogram.wrap(a_v - alpha0)) <= 3.0 * bw
+    near_idx = thin(valid_idx[near_alpha])
+    b_near = beta_c[near_idx]
+    if not signed:
+        flip = _cheirality_flip(q1[near_idx], q2[near_idx], alpha_c[near_idx], b_near)
+        b_near = histogram.wrap(b_near + np.pi * flip)
+    beta0, _, _, bw_b = histogram.peak(b_near, w[near_idx], config, exclusion)
+
+    # Residual terms at the voted motion: the peak's members (near both modes) calibrate the
+    # noise scales, and the resulting whitening is kept for a first refinement (the vote is
+    # within a degree, where the first-order standard deviations barely change).
+    B = _ac_matrix(q1, q2, A)
+    theta0 = alpha0 + beta0
+    r, g, h = refine.residual_terms(q1, q2, A, B, theta0, beta0)
+    beta_offsets = np.abs(histogram.wrap(b_near - beta0))
+    members = near_idx[beta_offsets <= 3.0 * bw_b]
+    sp_cap = config.max_noise_factor * config.point_noise
+    sa_cap = config.max_noise_factor * config.affine_noise
+    sp, sa = refine.robust_scales(r[members], g[members], h[members])
+    sp, sa = min(sp, sp_cap), min(sa, sa_cap)
+    Bw = B / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)[:, :, None]
+    theta, beta, inliers, cov, rms = refine.select_and_refine(
+        Bw, w, theta0, beta0, config, passes=1, covariance=not config.refine)
+    if config.refine and np.count_nonzero(inliers) >= max(config.min_inliers, 4):
+        # Second round: noise scales from the inliers at the refined motion (clean, so the
+        # median is the right statistic), then the same selection and refinement again.
+        r, g, h = refine.residual_terms(q1, q2, A, B, theta, beta)
+        sample = thin(np.flatnonzero(inliers))
+        sp, sa = refine.robust_scales(r[sample], g[sample], h[sample], quantile=0.5)
+        sp, sa = min(sp, sp_cap), min(sa, sa_cap)
+        Bw = B / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)[:, :, None]
+        theta, beta, inliers, cov, rms = refine.select_and_refine(
+            Bw, w, theta, beta, config, clusters, passes=3)
+    elif config.refine:
+        _, _, _, cov, rms = refine.select_and_refine(Bw, w, theta, beta, config, clusters, passes=1)
+    motion = PlanarMotion(float(wrap_angle(theta - beta)), float(wrap_angle(beta)))
+    num_inliers = int(np.count_nonzero(inliers))
+    # The refined motion must stay in the voted peak: leaving it means the inliers' constraints
+    # disagree with the votes they cast (a peak made of outliers, or a degenerate geometry).
+    # Alpha candidates are sharp; beta candidates can spread widely (forward motion), so beta is
+    # judged against the robust spread of the peak's own beta candidates.
+    beta_spread = bw_b
+    if beta_offsets.size:
+        beta_spread = max(bw_b, MAD_TO_SIGMA * lower_quantile(beta_offsets, 0.5))
+    drift = max(abs(float(wrap_angle(motion.alpha - alpha0))) / (3.0 * bw),
+                abs(float(wrap_angle(motion.beta - beta0))) / (3.0 * beta_spread))
+    flag = None
+    if num_inliers < config.min_inliers:
+        flag = 'too_few_inliers'
+    elif drift > 1.0:
+        flag = 'unstable'
+    elif ambiguity >= config.ambiguity_ratio:
+        flag = 'ambiguous'
+    elif sharpness < config.min_sharpness:
+        flag = 'weak_peak'
+    cov_ab = refine.to_alpha_beta_cov(cov)
+    if flag is not None:
+        cov_ab = np.full((2, 2), np.inf)
+    stats = VotingStats(inliers, num_inliers, num_candidates, sharpness, ambiguity, rms, cov_ab,
+                        flag is None, flag, sp, sa)
+    return motion, stats

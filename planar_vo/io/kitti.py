@@ -1,0 +1,282 @@
+"""Convert a KITTI odometry sequence folder into a ROS 2 bag with REP-103 ground truth.
+
+Input folder (KITTI odometry layout):
+
+- ``image_0/`` (or ``image_l/``): the left greyscale camera, ``000000.png``, ``000001.png``...
+- ``calib.txt``: first line ``P0`` as 12 numbers (row-major 3x4), with or without ``P0:``.
+- ``times.txt``: one time in seconds per image (not needed with ``rate_hz``).
+- ``poses.txt`` (optional): per image 12 numbers, the row-major 3x4 pose ``T_w_cam(i)`` of
+  camera 0 in the frame of camera 0 at frame 0 (x right, y down, z forward).
+
+Output topics: ``/camera/image_raw`` (``sensor_msgs/Image`` mono8), ``/camera/camera_info``
+(``K`` from ``P0``, no distortion) and, with poses, ``/ground_truth/odom`` (``nav_msgs/Odometry``).
+
+Frames (REP-103/105): ``base_link`` is the camera projected to the ground, `camera_height` below
+it, x forward, y left, z up; ``odom`` is ``base_link`` at frame 0. With the mount
+``T_bc = mount_transform(height=camera_height)``:
+
+    T_odom_base(i) = T_bc  T_w_cam(i)  T_bc^-1
+
+(``T_w_cam(0) = I`` gives ``T_odom_base(0) = I``; driving along the camera's z gives +x, a left
+turn positive yaw.) The ground-truth twist is the finite difference over the previous interval
+(the next one for frame 0), expressed in the current ``base_link``.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
+from pathlib import Path
+
+import numpy as np
+
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.conventions import invert, mount_transform, quaternion_from_rotation
+from planar_vo.errors import CameraModelError, ImageError, InputError
+from planar_vo.frontend.images import read_image
+from planar_vo.io.camera_bag import (
+    CAMERA_INFO_TOPIC,
+    DEFAULT_START,
+    GROUND_TRUTH_TOPIC,
+    IMAGE_TOPIC,
+    CameraBagWriter,
+)
+from planar_vo.ros.messages import seconds_to_ns
+
+__all__ = [
+    'KittiImportSummary',
+    'KittiSequence',
+    'import_kitti',
+    'kitti_ground_truth',
+    'read_kitti_sequence',
+]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class KittiSequence:
+    """The parsed text files of a KITTI sequence folder (images are read lazily).
+
+    Attributes:
+        images: PNG paths in frame order.
+        P0: ``(3, 4)`` projection matrix of camera 0.
+        times: per image, seconds as exact decimals (None when not given).
+        poses: ``(N, 4, 4)`` ``T_w_cam`` (None without ``poses.txt``).
+    """
+
+    images: tuple[Path, ...]
+    P0: np.ndarray
+    times: tuple[Decimal, ...] | None
+    poses: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class KittiImportSummary:
+    """What `import_kitti` wrote."""
+
+    path: Path
+    frames: int
+    camera: CameraModel
+    ground_truth: bool
+    first_stamp_ns: int
+    last_stamp_ns: int
+
+    def format(self) -> str:
+        gt = f', ground truth on {GROUND_TRUTH_TOPIC}' if self.ground_truth else ''
+        duration = (self.last_stamp_ns - self.first_stamp_ns) / 1e9
+        return (f'wrote {self.frames} frames ({self.camera.width}x{self.camera.height}, '
+                f'fx {self.camera.fx:.2f}, {duration:.2f} s) to {self.path}: {IMAGE_TOPIC}, '
+                f'{CAMERA_INFO_TOPIC}{gt}')
+
+
+def _numbers(path: Path, lineno: int, line: str, count: int, what: str) -> np.ndarray:
+    tokens = line.split()
+    try:
+        values = np.array([float(t) for t in tokens], dtype=np.float64)
+    except ValueError:
+        values = np.array([])
+    if values.size != count or not np.all(np.isfinite(values)):
+        raise InputError(f'{path.name} line {lineno}: expected {what} as {count} numbers, got '
+                         f'{line.strip()[:80]!r}')
+    return values
+
+
+def _lines(path: Path) -> list[tuple[int, str]]:
+    """Non-empty lines with their 1-based numbers."""
+    try:
+        text = path.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f'{path}: cannot read ({err})') from err
+    return [(i, line) for i, line in enumerate(text.splitlines(), 1) if line.strip()]
+
+
+def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> KittiSequence:
+    """Parse a KITTI odometry sequence folder (see the module docstring).
+
+    Raises:
+        InputError: missing folder/images/calibration, malformed lines (with line numbers), or
+            counts of times/poses that differ from the number of images.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"sequence: '{folder}' is not a directory")
+    image_dir = next((folder / d for d in ('image_0', 'image_l') if (folder / d).is_dir()), None)
+    if image_dir is None:
+        raise InputError(f"sequence: '{folder}' has no image_0/ or image_l/ folder")
+    images = tuple(sorted(image_dir.glob('*.png')))
+    if not images:
+        raise InputError(f"sequence: '{image_dir}' contains no .png images")
+    n = len(images)
+
+    calib = folder / 'calib.txt'
+    if not calib.is_file():
+        raise InputError(f"sequence: '{folder}' has no calib.txt")
+    calib_lines = _lines(calib)
+    if not calib_lines:
+        raise InputError(f'{calib}: expected P0 on the first line, got an empty file')
+    lineno, line = calib_lines[0]
+    tokens = line.split()
+    if tokens and tokens[0].endswith(':'):
+        if tokens[0] != 'P0:':
+            raise InputError(f"calib.txt line {lineno}: expected P0 first, got '{tokens[0]}'")
+        line = ' '.join(tokens[1:])
+    P0 = _numbers(calib, lineno, line, 12, 'P0').reshape(3, 4)
+
+    times = None
+    times_path = folder / 'times.txt'
+    if times_path.is_file():
+        parsed = []
+        for lineno, line in _lines(times_path):
+            try:
+                value = Decimal(line.strip())
+                if not value.is_finite():
+                    raise InvalidOperation
+            except InvalidOperation:
+                raise InputError(f'times.txt line {lineno}: expected seconds, got '
+                                 f'{line.strip()[:40]!r}') from None
+            if parsed and value <= parsed[-1]:
+                raise InputError(f'times.txt line {lineno}: expected increasing times, got '
+                                 f'{value} after {parsed[-1]}')
+            parsed.append(value)
+        if len(parsed) != n:
+            raise InputError(f'times.txt: expected one time per image ({n}), got {len(parsed)}')
+        times = tuple(parsed)
+    elif need_times:
+        raise InputError(f"sequence: '{folder}' has no times.txt (give a frame rate instead)")
+
+    poses = None
+    poses_path = folder / 'poses.txt'
+    if poses_path.is_file():
+        rows = [_numbers(poses_path, i, line, 12, 'a 3x4 pose') for i, line in _lines(poses_path)]
+        if len(rows) != n:
+            raise InputError(f'poses.txt: expected one pose per image ({n}), got {len(rows)}')
+        poses = np.tile(np.eye(4), (n, 1, 1))
+        poses[:, :3, :] = np.array(rows).reshape(n, 3, 4)
+    return KittiSequence(images, P0, times, poses)
+
+
+def _rotation_vector(R: np.ndarray) -> np.ndarray:
+    """Axis * angle ``(N, 3)`` of rotations ``(N, 3, 3)`` (via quaternions: stable near 0)."""
+    q = quaternion_from_rotation(R)
+    v, w = q[:, :3], q[:, 3]
+    s = np.linalg.norm(v, axis=1)
+    angle = 2.0 * np.arctan2(s, w)
+    scale = np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 2.0)
+    return v * scale[:, None]
+
+
+def kitti_ground_truth(poses_cam: np.ndarray, stamps_ns: np.ndarray, camera_height: float
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """REP-103 poses ``T_odom_base (N, 4, 4)`` and body twists ``(N, 6)`` from KITTI poses.
+
+    Args:
+        poses_cam: ``(N, 4, 4)`` ``T_w_cam`` (KITTI ``poses.txt``).
+        stamps_ns: ``(N,)`` increasing integer ns.
+        camera_height: metres of the camera above the ground (``base_link`` origin).
+    """
+    T_bc = mount_transform(height=camera_height)
+    poses = T_bc @ poses_cam @ invert(T_bc)
+    twists = np.zeros((len(poses), 6))
+    if len(poses) > 1:
+        rel = invert(poses[:-1]) @ poses[1:]                    # T_prev_cur
+        dt = np.diff(np.asarray(stamps_ns, dtype=np.float64)) / 1e9
+        # displacement in the current frame: R_cur^T (p_cur - p_prev) = R_rel^T t_rel
+        v = np.einsum('nji,nj->ni', rel[:, :3, :3], rel[:, :3, 3]) / dt[:, None]
+        w = _rotation_vector(rel[:, :3, :3]) / dt[:, None]   # same axis in both frames
+        twists[1:] = np.hstack([v, w])
+        twists[0] = twists[1]
+    return poses, twists
+
+
+def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mcap',
+                 camera_height: float = 1.65, rate_hz: float | None = None,
+                 start: float | str | Decimal | None = None, camera_frame: str = 'camera',
+                 odom_frame: str = 'odom', base_frame: str = 'base_link',
+                 progress: bool = False) -> KittiImportSummary:
+    """Write a KITTI odometry sequence folder as a ROS 2 bag.
+
+    Args:
+        folder: the sequence folder (see the module docstring).
+        out_path: bag directory to create (must not exist).
+        storage: ``'mcap'`` or ``'sqlite3'``.
+        camera_height: camera height above the ground in metres (KITTI: 1.65).
+        rate_hz: stamp frames at this rate instead of ``times.txt``.
+        start: seconds added to every time so the bag starts at a plausible epoch
+            (default 1.7e9 s).
+        camera_frame, odom_frame, base_frame: frame ids of the messages.
+        progress: show a progress bar on stderr.
+
+    Raises:
+        InputError: a malformed sequence folder or bad arguments.
+        BagError: `out_path` exists (nothing touched) or cannot be written.
+    """
+    from tqdm import tqdm
+
+    if not (np.isfinite(camera_height) and camera_height > 0):
+        raise InputError(f'camera_height: expected a positive height in metres, got '
+                         f'{camera_height}')
+    if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise InputError(f'rate_hz: expected a positive frame rate, got {rate_hz}')
+    try:
+        start_ns = seconds_to_ns(DEFAULT_START if start is None else start)
+    except InputError:
+        raise InputError(f'start: expected a number of seconds, got {start!r}') from None
+    seq = read_kitti_sequence(folder, need_times=rate_hz is None)
+    n = len(seq.images)
+    if rate_hz is not None:
+        stamps = np.array([start_ns + round(i * 1e9 / rate_hz) for i in range(n)], np.int64)
+    else:
+        stamps = np.array([start_ns + seconds_to_ns(t) for t in seq.times], dtype=np.int64)
+    first = _read_png(seq.images[0])
+    height, width = first.shape
+    try:
+        camera = CameraModel(width, height, seq.P0[:, :3])
+    except CameraModelError as err:
+        raise InputError(f'calib.txt: P0 does not hold valid intrinsics ({err})') from err
+    if seq.poses is not None:
+        gt_poses, gt_twists = kitti_ground_truth(seq.poses, stamps, camera_height)
+
+    with CameraBagWriter(out_path, storage=storage, ground_truth=seq.poses is not None,
+                         camera_frame=camera_frame, odom_frame=odom_frame,
+                         base_frame=base_frame) as writer:
+        for i, path in enumerate(tqdm(seq.images, desc='import', unit='frame', file=sys.stderr,
+                                      disable=not progress, leave=False)):
+            image = first if i == 0 else _read_png(path)
+            if image.shape != (height, width):
+                raise InputError(f"images: expected every image {width}x{height}, got "
+                                 f"{image.shape[1]}x{image.shape[0]} for '{path.name}'")
+            writer.write_frame(int(stamps[i]), image, camera, projection=seq.P0,
+                               pose=None if seq.poses is None else gt_poses[i],
+                               twist=None if seq.poses is None else gt_twists[i])
+    return KittiImportSummary(Path(out_path), n, camera, seq.poses is not None, int(stamps[0]),
+                              int(stamps[-1]))
+
+
+def _read_png(path: Path) -> np.ndarray:
+    try:
+        return read_image(path)
+    except ImageError as err:
+        raise InputError(f'images: {err}') from err

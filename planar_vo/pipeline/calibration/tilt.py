@@ -1,0 +1,262 @@
+"""Estimate the camera's pitch and roll relative to the plane of motion from many frame pairs.
+
+A vehicle moving on a plane moves its camera within that plane and turns it about the plane's
+normal. In the camera frame of a tilted camera (relative pose ``X2 = R X1 + t``):
+
+- the displacement ``c = -R^T t`` lies in the motion plane: ``n . c = 0``;
+- the rotation axis of ``R`` is the plane normal: ``n x axis(R) = 0``.
+
+`MountTiltEstimator` accumulates these constraints over frame pairs and fits the unit normal
+``n`` (pointing down, the camera's y axis when level) as the eigenvector of the smallest
+eigenvalue of
+
+    M = sum_i w_i c_i c_i^T + sum_j v_j (I - a_j a_j^T),
+
+by iteratively reweighted least squares with Cauchy weights (outlier frames: bumps, bad poses).
+With the level camera of `planar_vo.frontend.correction.leveling_rotation`
+(``R_lc = R_BO^T Ry(pitch) Rx(roll) R_BO``), the normal in camera coordinates is
+
+    n = R_lc^T [0, 1, 0] = [sin(roll) cos(pitch), cos(roll) cos(pitch), sin(pitch)],
+
+so ``pitch = asin(n_z)`` and ``roll = atan2(n_x, n_y)``. Driving straight constrains only the
+pitch (``n`` is then only known to be perpendicular to the forward direction); the roll comes
+from turns (rotation axes, sideways displacements). The reported standard deviations come from
+the Fisher information of the fit, scaled by its residuals, so an unobservable roll shows as a
+large ``roll_std``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from planar_vo.core.checks import as_array
+from planar_vo.core.robust.stats import MAD_TO_SIGMA
+from planar_vo.errors import InputError
+
+__all__ = ['MountTiltEstimator', 'TiltEstimate', 'five_point_pose']
+
+logger = logging.getLogger(__name__)
+
+_IRLS_ITERATIONS = 8
+_CAUCHY_SCALE = 2.5          # residuals (in units of their robust spread) at which weight = 1/2
+
+
+@dataclass(frozen=True)
+class TiltEstimate:
+    """The camera's tilt relative to the plane of motion.
+
+    Attributes:
+        pitch, roll: radians, in the convention of `MountConfig` (positive pitch looks down).
+        pitch_std, roll_std: standard deviations (radians); ``inf`` when not observable.
+        normal: unit normal of the motion plane in camera coordinates (pointing down), ``(3,)``.
+        frames: number of frame pairs used (with non-zero weight).
+    """
+
+    pitch: float
+    roll: float
+    pitch_std: float
+    roll_std: float
+    normal: np.ndarray
+    frames: int
+
+    def levelling_angles(self, max_std: float = np.deg2rad(0.5)) -> tuple[float, float]:
+        """``(pitch, roll)`` to level with: an angle known no better than ``max_std`` (radians)
+        is taken as 0, since levelling by a wrong angle does more harm than not levelling
+        (KITTI 06 drives nearly straight: its roll is unobservable, std about 3 deg)."""
+        return (self.pitch if self.pitch_std <= max_std else 0.0,
+                self.roll if self.roll_std <= max_std else 0.0)
+
+
+def _normal_from_angles(pitch: float, roll: float) -> tuple[np.ndarray, np.ndarray]:
+    """``n(pitch, roll)`` and its Jacobian ``(3, 2)`` with respect to ``(pitch, roll)``."""
+    sp, cp, sr, cr = np.sin(pitch), np.cos(pitch), np.sin(roll), np.cos(roll)
+    n = np.array([sr * cp, cr * cp, sp])
+    J = np.array([[-sr * sp, cr * cp], [-cr * sp, -sr * cp], [cp, 0.0]])
+    return n, J
+
+
+def _rotation_axis_angle(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit axes ``(N, 3)`` and angles ``(N,)`` of rotations ``(N, 3, 3)`` (axis 0 when angle 0)."""
+    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
+    s = 0.5 * np.linalg.norm(w, axis=1)
+    c = 0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0)
+    angle = np.arctan2(s, c)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        axis = np.where(s[:, None] > 0, w / (2.0 * s[:, None]), 0.0)
+    return axis, angle
+
+
+class MountTiltEstimator:
+    """Accumulates relative camera poses; reports pitch and roll of the camera w.r.t. the plane
+    of motion (`TiltEstimate`).
+
+    Args:
+        translation_sigma: expected angular error of a pair's translation direction (radians).
+        rotation_sigma: expected error of a pair's rotation (radians); the axis of a rotation by
+            ``theta`` is known to about ``rotation_sigma / theta``.
+        min_translation: pairs whose translation norm is below this (in the units passed to
+            `add_motion`) contribute only their rotation; 0 uses every direction.
+        prior_sigma: standard deviation (radians) of a prior that the camera is level; keeps
+            the roll defined (near 0, with about this uncertainty) while the vehicle only drives
+            straight. None: no prior (unobservable angles then report ``inf``).
+
+    Example:
+        >>> est = MountTiltEstimator()
+        >>> for R, t in poses:            # X2 = R X1 + t, camera frame
+        ...     est.add_motion(R, t)
+        >>> tilt = est.estimate()         # tilt.pitch, tilt.roll, tilt.pitch_std, tilt.frames
+    """
+
+    def __init__(self, translation_sigma: float = np.deg2rad(1.0),
+                 rotation_sigma: float = np.deg2rad(0.05), min_translation: float = 0.0,
+                 prior_sigma: float | None = np.deg2rad(5.0)) -> None:
+        if not (translation_sigma > 0 and rotation_sigma > 0):
+            raise InputError(f'translation_sigma, rotation_sigma: expected positive angles, got '
+                             f'{translation_sigma}, {rotation_sigma}')
+        self.translation_sigma = float(translation_sigma)
+        self.rotation_sigma = float(rotation_sigma)
+        self.min_translation = float(min_translation)
+        if prior_sigma is not None and not prior_sigma > 0:
+            raise InputError(f'prior_sigma: expected a positive angle or None, got {prior_sigma}')
+        self.prior_sigma = prior_sigma
+        self._directions: list[np.ndarray] = []
+        self._rotations: list[np.ndarray] = []
+        self._weights: list[float] = []
+
+    def __len__(self) -> int:
+        return len(self._rotations)
+
+    def add_motion(self, R: np.ndarray, t: np.ndarray, weight: float = 1.0) -> None:
+        """Add one relative camera pose ``X2 = R X1 + t`` (camera optical frame).
+
+        Args:
+            R: rotation (3x3). t: translation (3,), any scale (its norm only gates
+                ``min_translation``). weight: relative confidence of this pair.
+        """
+        R = as_array('R', R, (3, 3))
+        t = as_array('t', t, (3,))
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
+            raise InputError(f'R: expected a rotation matrix, got {R.tolist()}')
+        c = -R.T @ t
+        norm = float(np.linalg.norm(c))
+        direction = c / norm if norm > self.min_translation and norm > 0 else np.zeros(3)
+        self._directions.append(direction)
+        self._rotations.append(R)
+        self._weights.append(float(weight))
+
+    def add_acs(self, q1: np.ndarray, q2: np.ndarray, weight: float = 1.0,
+                threshold: float = 1e-3, max_points: int = 2000) -> bool:
+        """Add the pose of a frame pair from normalised point correspondences (a general
+        five-point pose, `five_point_pose`: the planar solvers assume the level camera that is
+        being calibrated).
+
+        Args:
+            q1, q2: normalised coordinates ``(N, 2)`` (e.g. ``acs.normalized(camera).p1``).
+            weight: relative confidence. threshold: RANSAC threshold (normalised units).
+            max_points: at most this many correspondences, evenly picked, go to the five-point
+                RANSAC (its cost grows with the number of points, its accuracy barely).
+
+        Returns:
+            Whether a pose was found and added.
+        """
+        q1 = as_array('q1', q1, (None, 2), min_items=0)
+        q2 = as_array('q2', q2, (None, 2), min_items=0)
+        if len(q1) < 5 or len(q2) != len(q1):
+            return False
+        if len(q1) > max_points:
+            pick = np.linspace(0, len(q1) - 1, max_points).astype(int)
+            q1, q2 = q1[pick], q2[pick]
+        pose = five_point_pose(q1, q2, threshold)
+        if pose is None:
+            return False
+        self.add_motion(*pose, weight)
+        return True
+
+    def estimate(self) -> TiltEstimate:
+        """Fit the motion-plane normal to all pairs so far (IRLS, Cauchy weights).
+
+        Raises:
+            InputError: fewer than two pairs with a usable translation or rotation.
+        """
+        if len(self) < 2:
+            raise InputError(f'MountTiltEstimator: expected at least 2 frame pairs, got '
+                             f'{len(self)}')
+        C = np.array(self._directions)
+        axis, angle = _rotation_axis_angle(np.array(self._rotations))
+        base = np.array(self._weights)
+        wt0 = base * np.any(C != 0, axis=1) / self.translation_sigma ** 2
+        # The axis error is ~rotation_sigma / angle: the information grows with angle^2.
+        wr0 = base * angle ** 2 / self.rotation_sigma ** 2
+        wt, wr = wt0.copy(), wr0.copy()
+        eye = np.eye(3)
+        down = np.array([0.0, 1.0, 0.0])
+        # The level prior acts like one rotation about the camera's y axis.
+        prior = 0.0 if self.prior_sigma is None else 1.0 / self.prior_sigma ** 2
+        prior_M = prior * (eye - np.outer(down, down))
+        n = down
+        for _ in range(_IRLS_ITERATIONS):
+            M = np.einsum('i,ij,ik->jk', wt, C, C) + np.einsum(
+                'i,jk->jk', wr, eye) - np.einsum('i,ij,ik->jk', wr, axis, axis)
+            M = M + prior_M
+            vals, vecs = np.linalg.eigh(M)
+            n = vecs[:, 0] * (1.0 if vecs[1, 0] >= 0 else -1.0)
+            # Normalised residuals: translation-direction elevation and axis deviation.
+            rt = (C @ n) * np.sqrt(wt0)
+            rr = np.linalg.norm(np.cross(axis, n), axis=1) * np.sqrt(wr0)
+            res = np.concatenate([rt[wt0 > 0], rr[wr0 > 0]])
+            # Robust spread of the residuals (in units of the declared sigmas), at least 1:
+            # residuals within the declared accuracy are never down-weighted.
+            spread = max(MAD_TO_SIGMA * float(np.median(np.abs(res))) if res.size else 1.0, 1.0)
+            wt = wt0 / (1.0 + (rt / (_CAUCHY_SCALE * spread)) ** 2)
+            wr = wr0 / (1.0 + (rr / (_CAUCHY_SCALE * spread)) ** 2)
+        pitch = float(np.arcsin(np.clip(n[2], -1.0, 1.0)))
+        roll = float(np.arctan2(n[0], n[1]))
+        _, Jn = _normal_from_angles(pitch, roll)
+        # Fisher information of the data in (pitch, roll).
+        jt = C @ Jn                                             # (N, 2)
+        proj = eye[None] - axis[:, :, None] * axis[:, None, :]  # (N, 3, 3)
+        info = np.einsum('i,ia,ib->ab', wt, jt, jt) + np.einsum(
+            'i,ja,ijk,kb->ab', wr, Jn, proj, Jn)
+        chi2 = float(np.sum(wt * (C @ n) ** 2) + np.sum(wr * np.linalg.norm(
+            np.cross(axis, n), axis=1) ** 2))
+        used = int(np.count_nonzero((wt > 0) | (wr > 0)))
+        dof = max(np.count_nonzero(wt) + 2 * np.count_nonzero(wr) - 2, 1)
+        scale = max(chi2 / dof, 1e-30)
+        # The data's variance factor (chi2 / dof) rescales the sigmas given at construction;
+        # the prior keeps its own scale.
+        info = info / scale + Jn.T @ prior_M @ Jn
+        # Directions of (pitch, roll) with no information (e.g. the roll when only driving
+        # straight) get an infinite standard deviation rather than a huge finite one.
+        evals, evecs = np.linalg.eigh(info)
+        observable = evals > 1e-9 * max(evals[-1], 1e-300)
+        var = np.einsum('ak,k->a', evecs ** 2, np.where(observable, 1.0 / np.where(
+            observable, evals, 1.0), 0.0))
+        blind = np.any((np.abs(evecs) > 1e-6) & ~observable[None, :], axis=1)
+        stds = np.where(blind, np.inf, np.sqrt(var))
+        return TiltEstimate(pitch, roll, float(stds[0]), float(stds[1]), n, used)
+
+
+def five_point_pose(q1: np.ndarray, q2: np.ndarray, threshold: float = 1e-3
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+    """General relative pose ``X2 = R X1 + t`` (unit ``t``) of normalised correspondences
+    ``(N, 2)``: OpenCV's five-point RANSAC (``findEssentialMat``) and ``recoverPose`` (the
+    cheirality test that picks one of the four decompositions), or None when none is found."""
+    import cv2  # the five-point solver only; images stay in planar_vo.frontend
+
+    q1 = np.ascontiguousarray(q1, dtype=np.float64)
+    q2 = np.ascontiguousarray(q2, dtype=np.float64)
+    E, mask = cv2.findEssentialMat(q1, q2, np.eye(3), method=cv2.RANSAC, prob=0.999,
+                                   threshold=threshold, maxIters=1000)
+    if E is None or E.shape[0] < 3:
+        return None
+    # With few points OpenCV may stack several candidate matrices; the first is used.
+    mask = np.ones((len(q1), 1), np.uint8) if mask is None else mask.copy()
+    _, R, t, _ = cv2.recoverPose(E[:3], q1, q2, np.eye(3), mask=mask)
+    t = np.asarray(t, dtype=np.float64).ravel()
+    norm = float(np.linalg.norm(t))
+    if not (norm > 0.0 and np.all(np.isfinite(R))):
+        return None
+    return np.asarray(R, dtype=np.float64), t / norm

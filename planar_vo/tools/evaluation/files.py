@@ -1,0 +1,184 @@
+"""Trajectory files: TUM files, pose topics of bags, and timestamp association.
+
+A TUM line is ``timestamp tx ty tz qx qy qz qw`` (seconds, metres, unit quaternion in ROS order).
+Stamps are kept as integer nanoseconds so that a stamp written and read back is unchanged.
+"""
+
+from __future__ import annotations
+
+import logging
+from decimal import Decimal, InvalidOperation
+from pathlib import Path
+
+import numpy as np
+
+from planar_vo.core.trajectory import Trajectory
+from planar_vo.errors import InputError
+
+__all__ = [
+    'POSE_TYPES',
+    'associate',
+    'is_bag_path',
+    'load_trajectory',
+    'read_bag_trajectory',
+    'read_tum',
+    'write_tum',
+]
+
+log = logging.getLogger(__name__)
+
+POSE_TYPES = (
+    'nav_msgs/msg/Odometry',
+    'geometry_msgs/msg/PoseStamped',
+    'geometry_msgs/msg/PoseWithCovarianceStamped',
+)
+
+
+# -- TUM files ----------------------------------------------------------------------------------
+
+def _parse_stamp(text: str) -> int:
+    value = Decimal(text)
+    if not value.is_finite():
+        raise InvalidOperation
+    return int((value * 1_000_000_000).to_integral_value())
+
+
+def read_tum(path: str | Path) -> Trajectory:
+    """Read a TUM trajectory file (``#`` comments and blank lines are skipped).
+
+    Raises:
+        InputError: unreadable file, a malformed line (named by its number), non-finite values,
+            a zero quaternion, stamps not strictly increasing, or no poses.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"tum: cannot read '{path}' ({err})") from err
+    stamps, rows = [], []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        tokens = line.split()
+        if not tokens or tokens[0].startswith('#'):
+            continue
+        where = f'{path} line {lineno}'
+        if len(tokens) != 8:
+            raise InputError(f"{where}: expected 8 values 'timestamp tx ty tz qx qy qz qw', "
+                             f'got {len(tokens)}')
+        try:
+            stamp = _parse_stamp(tokens[0])
+            values = [float(v) for v in tokens[1:]]
+        except (InvalidOperation, ValueError):
+            raise InputError(f'{where}: expected 8 numbers, got {line.strip()[:80]!r}') from None
+        if not all(np.isfinite(values)):
+            raise InputError(f'{where}: expected finite values, got {line.strip()[:80]!r}')
+        if not any(values[3:]):
+            raise InputError(f'{where}: expected a non-zero quaternion, got 0 0 0 0')
+        if stamps and stamp <= stamps[-1]:
+            raise InputError(f'{where}: expected increasing timestamps, got {tokens[0]} after '
+                             f'{_format_ns(stamps[-1])}')
+        stamps.append(stamp)
+        rows.append(values)
+    if not rows:
+        raise InputError(f"tum: '{path}' contains no poses")
+    data = np.array(rows)
+    return Trajectory.from_quaternions(np.array(stamps, dtype=np.int64), data[:, :3], data[:, 3:])
+
+
+def _format_ns(ns: int) -> str:
+    sign = '-' if ns < 0 else ''
+    sec, nsec = divmod(abs(int(ns)), 1_000_000_000)
+    return f'{sign}{sec}.{nsec:09d}'
+
+
+def write_tum(path: str | Path, trajectory: Trajectory) -> None:
+    """Write a TUM file: stamps with all nine decimals, floats in shortest round-trip form."""
+    lines = ['# timestamp tx ty tz qx qy qz qw']
+    for ns, p, q in zip(trajectory.stamps_ns, trajectory.positions, trajectory.quaternions):
+        lines.append(' '.join([_format_ns(int(ns)), *(repr(float(v)) for v in (*p, *q))]))
+    try:
+        Path(path).write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    except OSError as err:
+        raise InputError(f"tum: cannot write '{path}' ({err.strerror})") from err
+
+
+# -- bags ---------------------------------------------------------------------------------------
+
+def is_bag_path(path: str | Path) -> bool:
+    """A bag directory or a ``.mcap``/``.db3`` file (anything else is read as TUM)."""
+    path = Path(path)
+    return path.is_dir() or path.suffix in ('.mcap', '.db3')
+
+
+def read_bag_trajectory(path: str | Path, topic: str, *, role: str = 'topic') -> Trajectory:
+    """Poses of an Odometry/PoseStamped/PoseWithCovarianceStamped topic, by header stamp.
+
+    Messages are sorted by stamp; a repeated stamp keeps its first message (logged). `role`
+    names the topic argument in error messages.
+
+    Raises:
+        BagError: unreadable bag, unknown topic (listing the available ones), wrong type.
+        InputError: no messages on the topic.
+    """
+    from planar_vo.io import iter_messages, open_bag
+    from planar_vo.ros.messages import pose_from_message
+
+    stamps, poses = [], []
+    with open_bag(path) as bag:
+        for item in iter_messages(bag, topic, POSE_TYPES, role=role):
+            stamps.append(item.stamp_ns)
+            poses.append(pose_from_message(item.msg))
+    if not poses:
+        raise InputError(f"{role}: '{topic}' in '{path}' has no messages")
+    stamps_arr = np.array(stamps, dtype=np.int64)
+    order = np.argsort(stamps_arr, kind='stable')
+    keep = np.ones(len(order), dtype=bool)
+    keep[1:] = np.diff(stamps_arr[order]) > 0
+    if not np.all(keep):
+        log.warning("topic '%s': dropped %d messages with repeated stamps", topic,
+                    int(np.count_nonzero(~keep)))
+    order = order[keep]
+    return Trajectory.from_poses(stamps_arr[order], np.array(poses)[order])
+
+
+def load_trajectory(path: str | Path, topic: str | None = None, *, role: str = 'topic'
+                    ) -> Trajectory:
+    """A TUM file, or `topic` of a bag (see `is_bag_path`); `role` names the argument."""
+    if is_bag_path(path):
+        if topic is None:
+            raise InputError(f"{role}: '{path}' is a bag; expected a topic name, got none")
+        return read_bag_trajectory(path, topic, role=role)
+    if not Path(path).exists():
+        raise InputError(f"trajectory: '{path}' does not exist")
+    return read_tum(path)
+
+
+# -- association --------------------------------------------------------------------------------
+
+def associate(stamps_a: np.ndarray, stamps_b: np.ndarray, max_diff: float = 0.02
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one nearest-stamp matching.
+
+    Each stamp of `a` is paired with the nearest stamp of `b` if they differ by at most
+    `max_diff` seconds; when several stamps of `a` pick the same `b`, the closest pair wins.
+
+    Args:
+        stamps_a, stamps_b: sorted integer nanosecond stamps ``(N,)`` and ``(M,)``.
+        max_diff: seconds.
+
+    Returns:
+        ``(ia, ib)``: matched indices into `a` and `b`, increasing.
+    """
+    a = np.asarray(stamps_a, dtype=np.int64)
+    b = np.asarray(stamps_b, dtype=np.int64)
+    if a.size == 0 or b.size == 0:
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+    hi = np.clip(np.searchsorted(b, a), 0, b.size - 1)
+    lo = np.clip(hi - 1, 0, b.size - 1)
+    ib = np.where(np.abs(b[lo] - a) <= np.abs(b[hi] - a), lo, hi)
+    diff = np.abs(b[ib] - a)
+    ia = np.flatnonzero(diff <= round(max_diff * 1e9))
+    ib, diff = ib[ia], diff[ia]
+    order = np.lexsort((ia, diff))                    # closest first, then earliest
+    _, first = np.unique(ib[order], return_index=True)
+    chosen = np.sort(order[first])
+    return ia[chosen], ib[chosen]

@@ -1,0 +1,255 @@
+"""Trajectory error metrics: ATE, RPE per frame and per distance, yaw and heading errors.
+
+Definitions (poses ``T = [R | p]`` in the reference world frame, after association):
+
+- ATE (absolute trajectory error): ``|p_ref(i) - p_est(i)|`` after aligning the estimate
+  (`planar_vo.tools.evaluation.align`), summarised by RMSE, mean, median, std, min, max.
+- RPE per frame (Sturm et al., IROS 2012): ``E_i = (Q_i^-1 Q_{i+d})^-1 (P_i^-1 P_{i+d})`` with
+  reference ``Q`` and estimate ``P``; translational error ``|t(E_i)|`` (m), rotational error the
+  angle of ``R(E_i)`` (degrees).
+- RPE per distance (Geiger et al., CVPR 2012, the KITTI odometry metric): for every start frame
+  ``i`` and segment length ``L``, ``j`` is the first frame whose reference path length from ``i``
+  reaches ``L`` (KITTI's devkit takes the first that exceeds it; no difference on real data);
+  ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` (KITTI's devkit writes the inverse, which has the same
+  translation norm and angle); errors ``|t(E)| / L`` (reported in %) and
+  ``angle(E) / L`` (deg/m), averaged over all segments.
+- Yaw-change error per frame: ``yaw(R_est(i-1)^T R_est(i)) - yaw(R_ref(i-1)^T R_ref(i))``,
+  wrapped to (-180, 180] degrees.
+- Heading error per frame: the direction of travel in the previous body frame,
+  ``atan2(d_y, d_x)`` with ``d = R(i-1)^T (p(i) - p(i-1))``, estimate minus reference (degrees);
+  NaN where either planar displacement is below ``min_step`` (standing still: no direction).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planar_vo.core.conventions import invert, yaw_of
+from planar_vo.core.trajectory import Trajectory
+from planar_vo.errors import InputError
+from planar_vo.tools.evaluation.align import Alignment, align_trajectory
+from planar_vo.tools.evaluation.files import associate
+
+__all__ = [
+    'Evaluation',
+    'ate_errors',
+    'evaluate',
+    'rotation_angle',
+    'rpe_by_distance',
+    'rpe_per_frame',
+    'statistics',
+    'yaw_heading_errors',
+]
+
+DEFAULT_SEGMENTS = (5.0, 10.0, 20.0)
+
+
+def rotation_angle(R: np.ndarray) -> np.ndarray:
+    """Rotation angles (radians, ``[0, pi]``) of ``(..., 3, 3)`` rotations.
+
+    ``atan2(sin, cos)`` with ``sin`` from the skew part and ``cos`` from the trace: accurate near
+    zero, where ``arccos`` of the trace loses half the digits.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    skew = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
+                     R[..., 1, 0] - R[..., 0, 1]], -1)
+    return np.arctan2(0.5 * np.linalg.norm(skew, axis=-1),
+                      0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0))
+
+
+def _wrap_deg(angle_rad: np.ndarray) -> np.ndarray:
+    return np.degrees(np.angle(np.exp(1j * np.asarray(angle_rad))))
+
+
+def statistics(values: np.ndarray) -> dict[str, float]:
+    """RMSE, mean, median, std, min, max and count of the finite `values`."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        nan = float('nan')
+        return {'rmse': nan, 'mean': nan, 'median': nan, 'std': nan, 'min': nan, 'max': nan,
+                'count': 0}
+    return {'rmse': float(np.sqrt(np.mean(v * v))), 'mean': float(np.mean(v)),
+            'median': float(np.median(v)), 'std': float(np.std(v)), 'min': float(np.min(v)),
+            'max': float(np.max(v)), 'count': int(v.size)}
+
+
+def ate_errors(ref: Trajectory, est: Trajectory) -> np.ndarray:
+    """``(N,)`` position errors (m) of associated, aligned trajectories."""
+    return np.linalg.norm(ref.positions - est.positions, axis=1)
+
+
+def rpe_per_frame(ref: Trajectory, est: Trajectory, delta: int = 1
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Relative pose errors over `delta` frames: translation (m) and rotation (deg), ``(N-d,)``."""
+    if delta < 1:
+        raise InputError(f'delta: expected at least 1 frame, got {delta}')
+    Q, P = ref.poses, est.poses
+    dQ = invert(Q[:-delta]) @ Q[delta:]
+    dP = invert(P[:-delta]) @ P[delta:]
+    E = invert(dQ) @ dP
+    return np.linalg.norm(E[:, :3, 3], axis=1), np.degrees(rotation_angle(E[:, :3, :3]))
+
+
+def rpe_by_distance(ref: Trajectory, est: Trajectory,
+                    lengths: tuple[float, ...] = DEFAULT_SEGMENTS, step: int = 1
+                    ) -> dict[str, dict[str, float]]:
+    """KITTI-style segment errors per segment length.
+
+    Args:
+        lengths: segment lengths in metres (KITTI uses 100..800 m; short drives need 5..20 m).
+        step: frames between segment starts.
+
+    Returns:
+        ``{'5m': {'segments': n, 'translation_percent': ..., 'rotation_deg_per_m': ...}, ...,
+        'all': {...}}`` (NaN where the drive is shorter than the segment).
+    """
+    Q, P = ref.poses, est.poses
+    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref.positions, axis=0),
+                                                           axis=1))])
+    out: dict[str, dict[str, float]] = {}
+    all_t, all_r = [], []
+    for length in lengths:
+        first = np.arange(0, len(ref), max(1, int(step)))
+        last = np.searchsorted(dist, dist[first] + length, side='left')
+        ok = last < len(ref)
+        first, last = first[ok], last[ok]
+        E = invert(invert(Q[first]) @ Q[last]) @ (invert(P[first]) @ P[last])
+        t_err = np.linalg.norm(E[:, :3, 3], axis=1) / length
+        r_err = rotation_angle(E[:, :3, :3]) / length
+        all_t.append(t_err)
+        all_r.append(r_err)
+        out[f'{length:g}m'] = _segment_summary(t_err, r_err)
+    out['all'] = _segment_summary(np.concatenate(all_t) if all_t else np.zeros(0),
+                                  np.concatenate(all_r) if all_r else np.zeros(0))
+    return out
+
+
+def _segment_summary(t_err: np.ndarray, r_err: np.ndarray) -> dict[str, float]:
+    if t_err.size == 0:
+        return {'segments': 0, 'translation_percent': float('nan'),
+                'rotation_deg_per_m': float('nan')}
+    return {'segments': int(t_err.size), 'translation_percent': float(100.0 * np.mean(t_err)),
+            'rotation_deg_per_m': float(np.degrees(np.mean(r_err)))}
+
+
+def yaw_heading_errors(ref: Trajectory, est: Trajectory, min_step: float = 1e-3
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Per consecutive frame pair: yaw-change error and heading error, degrees, ``(N-1,)``.
+
+    See the module docstring; frames are z-up (REP-103 ``odom``/``base_link``).
+    """
+    def yaw_change_and_heading(traj: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        R, p = traj.rotations, traj.positions
+        dyaw = yaw_of(np.swapaxes(R[:-1], 1, 2) @ R[1:])
+        d = np.einsum('nji,nj->ni', R[:-1], np.diff(p, axis=0))       # R_prev^T (p - p_prev)
+        return dyaw, np.arctan2(d[:, 1], d[:, 0]), np.hypot(d[:, 0], d[:, 1])
+
+    yaw_r, head_r, step_r = yaw_change_and_heading(ref)
+    yaw_e, head_e, step_e = yaw_change_and_heading(est)
+    heading = _wrap_deg(head_e - head_r)
+    heading[(step_r < min_step) | (step_e < min_step)] = np.nan
+    return _wrap_deg(yaw_e - yaw_r), heading
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Everything `evaluate` computed (per-frame arrays and summaries)."""
+
+    ref: Trajectory
+    est: Trajectory
+    aligned: Trajectory
+    alignment: Alignment
+    ate: np.ndarray
+    rpe_translation: np.ndarray
+    rpe_rotation_deg: np.ndarray
+    yaw_change_error_deg: np.ndarray
+    heading_error_deg: np.ndarray
+    segments: dict[str, dict[str, float]]
+    unmatched: dict[str, int] = field(default_factory=dict)
+
+    def metrics(self) -> dict:
+        """JSON-ready summary."""
+        def abs_stats(values: np.ndarray) -> dict[str, float]:
+            stats = statistics(np.abs(values))
+            finite = values[np.isfinite(values)]
+            stats['bias'] = float(np.mean(finite)) if finite.size else float('nan')
+            return stats
+
+        return {
+            'poses': {'matched': len(self.ref), **self.unmatched},
+            'path_length_m': self.ref.path_length,
+            'alignment': self.alignment.to_dict(),
+            'ate_m': statistics(self.ate),
+            'rpe_frame': {'translation_m': statistics(self.rpe_translation),
+                          'rotation_deg': statistics(self.rpe_rotation_deg)},
+            'rpe_distance': self.segments,
+            'yaw_change_error_deg': abs_stats(self.yaw_change_error_deg),
+            'heading_error_deg': abs_stats(self.heading_error_deg),
+        }
+
+    def format_table(self) -> str:
+        """Markdown table of the main numbers."""
+        m = self.metrics()
+        rows = [('matched poses', f"{m['poses']['matched']}"),
+                ('path length (m)', f"{m['path_length_m']:.3f}"),
+                ('alignment', f"{self.alignment.method} (scale {self.alignment.scale:.6f})")]
+        for key, label in (('ate_m', 'ATE (m)'),):
+            s = m[key]
+            rows.append((f'{label} rmse / mean / median / max',
+                         f"{s['rmse']:.6f} / {s['mean']:.6f} / {s['median']:.6f} / "
+                         f"{s['max']:.6f}"))
+        t, r = m['rpe_frame']['translation_m'], m['rpe_frame']['rotation_deg']
+        rows.append(('RPE/frame trans (m) rmse / max', f"{t['rmse']:.6f} / {t['max']:.6f}"))
+        rows.append(('RPE/frame rot (deg) rmse / max', f"{r['rmse']:.6f} / {r['max']:.6f}"))
+        for name, seg in m['rpe_distance'].items():
+            rows.append((f'RPE {name} segments: trans (%) / rot (deg/m)',
+                         f"{seg['translation_percent']:.4f} / {seg['rotation_deg_per_m']:.6f} "
+                         f"(n={seg['segments']})"))
+        for key, label in (('yaw_change_error_deg', 'yaw-change error (deg)'),
+                           ('heading_error_deg', 'heading error (deg)')):
+            s = m[key]
+            rows.append((f'{label} mean |e| / rmse / max / bias',
+                         f"{s['mean']:.4f} / {s['rmse']:.4f} / {s['max']:.4f} / "
+                         f"{s['bias']:+.4f} (n={s['count']})"))
+        width = max(len(k) for k, _ in rows)
+        lines = [f"| {'metric'.ljust(width)} | value |", f"|{'-' * (width + 2)}|-------|"]
+        lines += [f'| {k.ljust(width)} | {v} |' for k, v in rows]
+        return '\n'.join(lines)
+
+
+def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: float = 0.02,
+             segment_lengths: tuple[float, ...] = DEFAULT_SEGMENTS,
+             min_step: float = 1e-3) -> Evaluation:
+    """Associate `est` with `ref` by stamp, align it, and compute every metric.
+
+    Args:
+        ref, est: reference (ground truth) and estimate.
+        align: ``'se3'``, ``'sim3'``, ``'origin'`` or ``'none'`` (see `align_trajectory`).
+        max_diff: association tolerance in seconds.
+        segment_lengths: RPE-by-distance segment lengths in metres.
+        min_step: planar displacement (m) below which a frame has no heading.
+
+    Raises:
+        InputError: fewer than 2 poses matched (the message gives both stamp ranges).
+    """
+    if not (math.isfinite(max_diff) and max_diff >= 0):
+        raise InputError(f'max_diff: expected a non-negative number of seconds, got {max_diff}')
+    ie, ir = associate(est.stamps_ns, ref.stamps_ns, max_diff)
+    if len(ie) < 2:
+        def span(t: Trajectory) -> str:
+            return f'{t.stamps[0]:.3f}..{t.stamps[-1]:.3f} s' if len(t) else 'empty'
+        raise InputError(f'association: expected at least 2 poses matched within {max_diff} s, '
+                         f'got {len(ie)} (estimate {len(est)} poses {span(est)}, reference '
+                         f'{len(ref)} poses {span(ref)})')
+    est_m, ref_m = est.subset(ie), ref.subset(ir)
+    aligned, alignment = align_trajectory(est_m, ref_m, align)
+    rpe_t, rpe_r = rpe_per_frame(ref_m, aligned)
+    yaw, heading = yaw_heading_errors(ref_m, aligned, min_step)
+    return Evaluation(ref_m, est_m, aligned, alignment, ate_errors(ref_m, aligned), rpe_t, rpe_r,
+                      yaw, heading, rpe_by_distance(ref_m, aligned, segment_lengths),
+                      {'estimate_unmatched': len(est) - len(ie),
+                       'reference_unmatched': len(ref) - len(ir)})

@@ -1,0 +1,253 @@
+"""Offline replay: images of a bag through a frame processor, odometry into a new bag.
+
+The processor is anything with the `FrameProcessor` interface (the pipeline's
+``VisualOdometry``): ``process(image, stamp, camera) -> FrameResult`` and
+``add_speed(stamp, speed)``. For every image message, in log-time order:
+
+1. speed messages stamped at or before the image's header stamp are fed first;
+2. an undecodable image is counted as ``bad_image`` (the processor does not see it);
+3. otherwise ``process`` runs; an ``ok`` result becomes a ``nav_msgs/Odometry`` stamped with the
+   image's exact header stamp, any other result is counted under its `DropReason`.
+
+Ground-truth-like topics (Odometry, Path, TF, poses) are copied through unchanged, so the output
+bag holds estimate and reference for ``planar_vo eval``.
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import sys
+import time
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from planar_vo.core.camera import CameraModel
+from planar_vo.errors import BagError, InputError
+from planar_vo.io.images import CameraFrameDecoder, resolve_camera_topics
+from planar_vo.io.reader import BagReader, iter_messages, open_bag
+from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
+from planar_vo.pipeline.types import DropReason, FrameResult
+from planar_vo.ros.messages import speed_from_message
+
+__all__ = ['COPY_TYPES', 'SPEED_TYPES', 'FrameProcessor', 'ReplaySummary', 'replay_bag']
+
+log = logging.getLogger(__name__)
+
+# Topics of these types are copied to the output by default (ground truth and references).
+COPY_TYPES = (
+    ODOMETRY_TYPE,
+    'nav_msgs/msg/Path',
+    'tf2_msgs/msg/TFMessage',
+    'geometry_msgs/msg/PoseStamped',
+    'geometry_msgs/msg/PoseWithCovarianceStamped',
+    'geometry_msgs/msg/TransformStamped',
+)
+SPEED_TYPES = (
+    'geometry_msgs/msg/TwistStamped',
+    'geometry_msgs/msg/TwistWithCovarianceStamped',
+    ODOMETRY_TYPE,
+)
+BAD_IMAGE = DropReason.BAD_IMAGE.value
+
+
+class FrameProcessor(Protocol):
+    """What replay drives (``planar_vo.pipeline.VisualOdometry``)."""
+
+    def process(self, image: np.ndarray, stamp: float,
+                camera: CameraModel | None) -> FrameResult: ...
+
+    def add_speed(self, stamp: float, speed: float) -> None: ...
+
+
+@dataclass
+class ReplaySummary:
+    """Counts and timing of one replay.
+
+    Attributes:
+        input, output, tum: the paths involved (``tum`` None if not written).
+        image_topic, camera_info_topic, speed_topic: topics used (None: none).
+        frames_in: image messages read.
+        odometry_out: odometry messages written.
+        dropped: frames without odometry, by `DropReason` value (``bad_image`` includes
+            undecodable messages).
+        copied: messages copied per topic.
+        speed_messages: speed messages fed to the processor.
+        camera_info_errors: CameraInfo messages that could not be parsed.
+        wall_time: seconds from opening the input to closing the output.
+    """
+
+    input: str
+    output: str
+    tum: str | None = None
+    image_topic: str = ''
+    camera_info_topic: str | None = None
+    speed_topic: str | None = None
+    frames_in: int = 0
+    odometry_out: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    copied: dict[str, int] = field(default_factory=dict)
+    speed_messages: int = 0
+    camera_info_errors: int = 0
+    wall_time: float = 0.0
+
+    @property
+    def throughput(self) -> float:
+        """Frames per second of wall time."""
+        return self.frames_in / self.wall_time if self.wall_time > 0 else float('nan')
+
+    def format(self) -> str:
+        """A human-readable multi-line report."""
+        dropped = ', '.join(f'{k} {v}' for k, v in sorted(self.dropped.items())) or 'none'
+        copied = ', '.join(f'{k} {v}' for k, v in sorted(self.copied.items())) or 'none'
+        lines = [
+            f'replay {self.input} -> {self.output}',
+            f'  image topic        {self.image_topic} (camera info: '
+            f'{self.camera_info_topic or "none"}, speed: {self.speed_topic or "none"})',
+            f'  frames in          {self.frames_in}',
+            f'  odometry out       {self.odometry_out}',
+            f'  dropped            {sum(self.dropped.values())} ({dropped})',
+            f'  copied             {copied}',
+            f'  speed messages     {self.speed_messages}',
+            f'  camera info errors {self.camera_info_errors}',
+            f'  wall time          {self.wall_time:.2f} s',
+            f'  throughput         {self.throughput:.1f} frames/s',
+        ]
+        if self.tum:
+            lines.append(f'  TUM trajectory     {self.tum}')
+        return '\n'.join(lines)
+
+
+def _read_speeds(bag: BagReader, topic: str) -> tuple[list[int], list[float]]:
+    """Speed samples (stamp ns, m/s) of a speed topic, sorted by stamp."""
+    samples = []
+    for item in iter_messages(bag, topic, SPEED_TYPES, role='speed_topic'):
+        try:
+            samples.append((item.stamp_ns, speed_from_message(item.msg)))
+        except InputError as err:
+            raise BagError(f"speed_topic: '{topic}' at {item.stamp_ns} ns: {err}") from err
+    samples.sort(key=lambda s: s[0])
+    return [s[0] for s in samples], [s[1] for s in samples]
+
+
+def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProcessor, *,
+               image_topic: str | None = None, camera_info_topic: str | None = None,
+               speed_topic: str | None = None, copy_topics: Iterable[str] | None = None,
+               tum_path: str | Path | None = None, storage: str = 'mcap',
+               odom_topic: str = '/odom', odom_frame: str = 'odom',
+               base_frame: str = 'base_link', progress: bool = True) -> ReplaySummary:
+    """Replay a bag's images through `processor` and write its odometry to a new bag.
+
+    Args:
+        in_path: input bag (directory, ``.mcap`` or ``.db3``).
+        out_path: output bag directory; must not exist.
+        processor: see `FrameProcessor`.
+        image_topic, camera_info_topic: see `planar_vo.io.iter_camera_frames` (auto-detected
+            when None).
+        speed_topic: ``TwistStamped``/``Odometry`` topic whose speed (norm of the linear
+            velocity) is fed with ``add_speed``; None feeds none.
+        copy_topics: topics copied unchanged; None copies every topic of a `COPY_TYPES` type
+            (except one named like `odom_topic`).
+        tum_path: also write the odometry as a TUM file (``timestamp tx ty tz qx qy qz qw``,
+            header stamps with full ns precision); must not exist.
+        storage: output storage, ``'mcap'`` or ``'sqlite3'``.
+        odom_topic, odom_frame, base_frame: the output odometry topic and frame ids.
+        progress: show a progress bar on stderr.
+
+    Returns:
+        A `ReplaySummary`.
+
+    Raises:
+        BagError: input missing/corrupt/ambiguous, output or TUM path exists, or the input is
+            found corrupt mid-way: then the output bag (and TUM file) is closed properly with
+            everything written so far, and the error says how much was kept.
+    """
+    from tqdm import tqdm
+
+    from planar_vo.core.trajectory import Trajectory
+    from planar_vo.tools.evaluation.files import write_tum
+
+    start = time.perf_counter()
+    out_path = Path(out_path)
+    if tum_path is not None and Path(tum_path).exists():
+        raise BagError(f"tum: '{tum_path}' already exists; refusing to overwrite it")
+    summary = ReplaySummary(str(in_path), str(out_path), None if tum_path is None else
+                            str(tum_path))
+    writer = OdometryBagWriter(out_path, storage=storage, topic=odom_topic,
+                               odom_frame=odom_frame, base_frame=base_frame)
+    with open_bag(in_path) as bag:
+        image_topic, info_topic = resolve_camera_topics(bag, image_topic, camera_info_topic)
+        summary.image_topic, summary.camera_info_topic = image_topic, info_topic
+        if copy_topics is None:
+            copy = [t for t in bag.topics_of_type(*COPY_TYPES) if t != odom_topic]
+        else:
+            copy = [bag.require_topic('copy_topics', t) for t in copy_topics]
+        if odom_topic in copy:
+            raise BagError(f"copy_topics: '{odom_topic}' is the output odometry topic; it "
+                           f'cannot also be copied')
+        stamps_ns, speeds = [], []
+        if speed_topic is not None:
+            summary.speed_topic = speed_topic
+            stamps_ns, speeds = _read_speeds(bag, speed_topic)
+        next_speed = 0
+        dropped: Counter[str] = Counter()
+        tum_stamps: list[int] = []
+        tum_poses: list[np.ndarray] = []
+        decoder = CameraFrameDecoder(bag, image_topic, info_topic)
+        decoder.prime()
+        bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
+                   disable=not progress, leave=False)
+        try:
+            with writer:
+                for topic in copy:
+                    writer.copy_topic(bag, topic)
+                copy_set = set(copy)
+                for message in bag.messages([image_topic, *([info_topic] if info_topic else []),
+                                             *copy]):
+                    if message.topic in copy_set:
+                        writer.write_raw(message.topic, message.log_time_ns, message.rawdata)
+                    frame = decoder.feed(message)
+                    if frame is None:
+                        continue
+                    summary.frames_in += 1
+                    bar.update(1)
+                    if frame.image is None:
+                        log.warning('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
+                                    frame.error)
+                        dropped[BAD_IMAGE] += 1
+                        continue
+                    end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
+                    for k in range(next_speed, end):
+                        processor.add_speed(stamps_ns[k] / 1_000_000_000, speeds[k])
+                    summary.speed_messages += max(0, end - next_speed)
+                    next_speed = max(next_speed, end)
+                    result = processor.process(frame.image, frame.stamp, frame.camera)
+                    if result.ok:
+                        writer.write(frame.stamp_ns, result.pose, result.pose_covariance,
+                                     result.twist, result.twist_covariance,
+                                     log_time_ns=frame.log_time_ns)
+                        tum_stamps.append(frame.stamp_ns)
+                        tum_poses.append(np.asarray(result.pose, dtype=np.float64))
+                    else:
+                        reason = result.reason
+                        dropped[getattr(reason, 'value', str(reason))] += 1
+        except BagError as err:
+            kept = f'{writer.count} odometry messages written to {out_path} were kept'
+            raise BagError(f'{err}; {kept}') from err
+        finally:
+            bar.close()
+            summary.odometry_out = writer.count
+            summary.dropped = dict(dropped)
+            summary.copied = {t: writer.counts.get(t, 0) for t in copy}
+            summary.camera_info_errors = decoder.camera_errors
+            if tum_path is not None:
+                write_tum(tum_path, Trajectory.from_poses(
+                    np.array(tum_stamps, dtype=np.int64),
+                    np.array(tum_poses).reshape(-1, 4, 4)))
+    summary.wall_time = time.perf_counter() - start
+    return summary
