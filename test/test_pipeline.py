@@ -11,7 +11,7 @@ import pytest
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import invert, mount_transform, yaw_of
-from planar_vo.pipeline import DropReason, VisualOdometry
+from planar_vo.pipeline import DropReason, TrackingState, VisualOdometry
 from planar_vo.sim import StreetWorld, reverse, stop_and_go, straight, turn
 from planar_vo.sim.drive import body_twists, render_drive
 
@@ -292,3 +292,57 @@ def test_mount_tilt_is_estimated_and_used():
     assert abs(estimate.pitch - pitch) < np.deg2rad(0.2)
     assert abs(estimate.roll - roll) < np.deg2rad(0.5)
     assert all(r.ok for r in results[1:])
+
+
+# ---------------------------------------------------------------------------------------------
+# Clock hiccups: nothing wedges
+# ---------------------------------------------------------------------------------------------
+
+def test_a_single_future_stamp_is_that_frames_problem_only():
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    stamps = [float(s) for s in trajectory.stamps]
+    for i in range(4):
+        vo.process(images[i], stamps[i])
+    glitch = vo.process(images[4], stamps[4] + 365 * 86400.0)
+    assert glitch.reason is DropReason.TIME_JUMP_AHEAD
+    results = [vo.process(images[i], stamps[i]) for i in range(5, 9)]
+    assert all(r.ok for r in results)
+    assert vo.tracking is TrackingState.TRACKING
+
+
+def test_a_confirmed_forward_gap_restarts_tracking():
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    stamps = [float(s) for s in trajectory.stamps]
+    for i in range(4):
+        last = vo.process(images[i], stamps[i])
+    assert last.ok
+    later = 600.0                       # the driver restarted ten minutes later
+    first = vo.process(images[4], stamps[4] + later)
+    second = vo.process(images[5], stamps[5] + later)
+    third = vo.process(images[6], stamps[6] + later)
+    assert first.reason is DropReason.TIME_JUMP_AHEAD
+    assert second.reason is DropReason.REINITIALISED
+    assert second.tracking is TrackingState.REINITIALISED
+    assert third.ok and third.tracking is TrackingState.TRACKING
+
+
+def test_time_jumping_back_resets_tracking_and_keeps_counters():
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    stamps = [float(s) for s in trajectory.stamps]
+    for i in range(6):
+        vo.process(images[i], stamps[i] + 100.0)
+    assert vo.counters['ok'] == 5
+    assert np.linalg.norm(vo.pose[:3, 3]) > 1.0
+    # The bag loops: stamps start again 100 s earlier. Small steps back stay out of order.
+    assert vo.process(images[6], stamps[5] + 100.0 - 0.05).reason is DropReason.OUT_OF_ORDER
+    reset = vo.process(images[0], stamps[0])
+    assert reset.reason is DropReason.TIME_JUMP_BACK
+    assert reset.tracking is TrackingState.REINITIALISED
+    np.testing.assert_allclose(reset.pose, np.eye(4))
+    again = vo.process(images[1], stamps[1])
+    assert again.ok and vo.counters['ok'] == 6 and vo.counters['time_jump_back'] == 1
+    step = np.linalg.norm(trajectory.xy[1] - trajectory.xy[0])
+    assert abs(np.linalg.norm(again.pose[:2, 3]) - step) < 0.1 * step

@@ -254,7 +254,13 @@ class OdometryConfig(Options):
         min_correspondences: fewer ACs than this drop the frame (too_few_correspondences).
         min_contrast: grey-level standard deviation below which a frame is blank.
         max_lost_frames: after this many frames in a row without an update, tracking is
-            re-anchored at the current frame (the pose is extrapolated and its covariance grows).
+            restarted at the next usable frame (the pose is extrapolated and its covariance
+            grows).
+        max_frame_gap: the longest plausible interval between consecutive frames (s): a frame
+            stamped further ahead is refused as a clock glitch unless the next frame confirms
+            the new time, which then restarts tracking.
+        max_time_jump_back: a stamp further back than this (s) resets tracking (a looped bag, a
+            restarted clock); a smaller step back is a frame out of order.
         planar_z_std: standard deviation of height changes (m) the planar model ignores.
         planar_tilt_std: standard deviation of roll and pitch (rad) the planar model ignores.
     """
@@ -262,6 +268,8 @@ class OdometryConfig(Options):
     min_correspondences: int = 30
     min_contrast: float = 2.0
     max_lost_frames: int = 5
+    max_frame_gap: float = 10.0
+    max_time_jump_back: float = 1.0
     planar_z_std: float = 0.05
     planar_tilt_std: float = 0.02
 
@@ -269,6 +277,10 @@ class OdometryConfig(Options):
         self._require(self.min_correspondences >= 1, 'min_correspondences', 'at least 1')
         self._require(self.min_contrast >= 0.0, 'min_contrast', 'a non-negative grey level')
         self._require(self.max_lost_frames >= 1, 'max_lost_frames', 'at least 1')
+        self._require(0.0 < self.max_frame_gap < 1e9, 'max_frame_gap',
+                      'a positive duration in seconds')
+        self._require(0.0 <= self.max_time_jump_back < 1e9, 'max_time_jump_back',
+                      'a non-negative duration in seconds')
         self._require(self.planar_z_std > 0.0, 'planar_z_std', 'a positive length')
         self._require(self.planar_tilt_std > 0.0, 'planar_tilt_std', 'a positive angle')
 

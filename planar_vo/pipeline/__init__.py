@@ -3,6 +3,6 @@
 from __future__ import annotations
 
 from planar_vo.pipeline.odometry import VisualOdometry
-from planar_vo.pipeline.types import DropReason, FrameResult
+from planar_vo.pipeline.types import DropReason, FrameResult, TrackingState
 
-__all__ = ['DropReason', 'FrameResult', 'VisualOdometry']
+__all__ = ['DropReason', 'FrameResult', 'TrackingState', 'VisualOdometry']

@@ -43,7 +43,8 @@ from planar_vo.pipeline.motion import (
     step_covariance,
 )
 from planar_vo.pipeline.scale import SpeedIntegrator, ground_plane_scale
-from planar_vo.pipeline.types import DropReason, FrameResult
+from planar_vo.pipeline.clock import FrameClock, StampCheck
+from planar_vo.pipeline.types import DropReason, FrameResult, TrackingState
 
 __all__ = ['VisualOdometry']
 
@@ -81,6 +82,8 @@ class VisualOdometry:
             self._tilt = MountTiltEstimator()
         self.tilt_estimate = None
         self.counters: dict[str, int] = {}
+        odometry = self.config.odometry
+        self._clock = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
         self.reset()
 
     # -- state ---------------------------------------------------------------------------------
@@ -117,7 +120,8 @@ class VisualOdometry:
                      'used' if roll == estimate.roll else 'not precise yet: configured roll kept')
 
     def reset(self) -> None:
-        """Forget the keyframe and the trajectory (pose back to the identity)."""
+        """Pose back to the identity and a new keyframe chain from the next frame; the counters
+        and the calibrations (tilt, focal length) are kept."""
         self.pose = np.eye(4)
         self._cov = np.zeros((3, 3))
         self._keyframe: np.ndarray | None = None
@@ -127,12 +131,19 @@ class VisualOdometry:
         self._kf_age = 0
         self._lost = 0
         self._restart = False
-        self._last_stamp: float | None = None
+        self._time_reset = False
+        self._state = TrackingState.INITIALISING
+        self._clock.reset()
         self._last_out_stamp: float | None = None
         self._last_out_pose = np.eye(4)
         self._twist = np.zeros(6)
         self._twist_cov = np.eye(6) * 1e6
         self._held_speed = (float('nan'), float('inf'), float('-inf'))   # m/s, std, stamp
+
+    @property
+    def tracking(self) -> TrackingState:
+        """The tracking state after the last frame."""
+        return self._state
 
     @property
     def camera(self) -> CameraModel | None:
@@ -179,20 +190,34 @@ class VisualOdometry:
                  timings: dict[str, float]) -> FrameResult:
         if not math.isfinite(stamp):
             return self._drop(stamp, DropReason.BAD_IMAGE, f'timestamp {stamp} is not finite')
-        if self._last_stamp is not None:
-            if stamp == self._last_stamp:
-                return self._drop(stamp, DropReason.DUPLICATE_STAMP,
-                                  f'timestamp {stamp:.9f} repeats the previous frame')
-            if stamp < self._last_stamp:
-                return self._drop(stamp, DropReason.OUT_OF_ORDER,
-                                  f'timestamp {stamp:.9f} is older than the previous '
-                                  f'{self._last_stamp:.9f}')
+        last = self._clock.last
+        check = self._clock.check(stamp)
+        if check is StampCheck.DUPLICATE:
+            return self._drop(stamp, DropReason.DUPLICATE_STAMP,
+                              f'timestamp {stamp:.9f} repeats the previous frame')
+        if check is StampCheck.OUT_OF_ORDER:
+            return self._drop(stamp, DropReason.OUT_OF_ORDER,
+                              f'timestamp {stamp:.9f} is older than the previous {last:.9f}')
+        if check is StampCheck.JUMP_AHEAD:
+            return self._drop(stamp, DropReason.TIME_JUMP_AHEAD,
+                              f'timestamp {stamp:.9f} is {stamp - last:.3g} s after the previous '
+                              f'frame (more than odometry.max_frame_gap); refused unless the '
+                              f'next frame confirms the new time')
+        if check is StampCheck.JUMP_BACK:
+            log.warning('time jumped back %.3f s (looped bag or restarted clock): tracking '
+                        'reset', last - stamp)
+            self.reset()
+            self._clock.check(stamp)
+            self._time_reset = True
+        elif check is StampCheck.NEW_TIME_BASE:
+            log.warning('time moved on by %.3f s: tracking restarts', stamp - last)
+            self._keyframe = None
+            self._restart = True
         t = time.perf_counter()
         try:
             gray = _gray(image)
         except ImageError as err:
             return self._drop(stamp, DropReason.BAD_IMAGE, str(err))
-        self._last_stamp = stamp
         camera = self._resolve_camera(camera, gray.shape)
         if camera is None:
             return self._drop(stamp, DropReason.NO_CAMERA_INFO,
@@ -212,6 +237,13 @@ class VisualOdometry:
         if self._keyframe is None:
             self._new_keyframe(gray, stamp)
             self._last_out_stamp, self._last_out_pose = stamp, self.pose.copy()
+            if self._time_reset:
+                self._time_reset = False
+                self._state = TrackingState.REINITIALISED
+                return self._drop(stamp, DropReason.TIME_JUMP_BACK,
+                                  f'time jumped back to {stamp:.9f}: tracking reset, pose at '
+                                  f'the origin, new keyframe chain')
+            self._state = TrackingState.TRACKING
             return self._drop(stamp, DropReason.FIRST_FRAME, 'reference keyframe set')
 
         t = time.perf_counter()
@@ -360,6 +392,7 @@ class VisualOdometry:
         garbled image would leave the next real frame without correspondences)."""
         self._lost += 1
         self._kf_age += 1
+        self._state = TrackingState.LOST
         if self._lost >= self.config.odometry.max_lost_frames:
             self._keyframe = None
             self._restart = True
@@ -377,6 +410,7 @@ class VisualOdometry:
         self._cov = self._cov + np.diag(_LOST_VARIANCE)
         self._new_keyframe(gray, stamp)
         self._restart = False
+        self._state = TrackingState.REINITIALISED
         return self._drop(stamp, DropReason.REINITIALISED,
                           'new keyframe chain after lost tracking (pose extrapolated)')
 
@@ -406,7 +440,9 @@ class VisualOdometry:
     # -- results -------------------------------------------------------------------------------
 
     def _result(self, stamp: float, ok: bool, **fields) -> FrameResult:
-        return FrameResult(stamp=stamp, ok=ok, pose=self.pose.copy(),
+        if ok:
+            self._state = TrackingState.TRACKING
+        return FrameResult(stamp=stamp, ok=ok, pose=self.pose.copy(), tracking=self._state,
                            pose_covariance=ros_covariance(self._cov, self._planar_variance()),
                            twist=self._twist.copy(), twist_covariance=self._twist_cov.copy(),
                            **fields)

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['DropReason', 'FrameResult']
+__all__ = ['DropReason', 'FrameResult', 'TrackingState']
 
 
 class DropReason(str, enum.Enum):
@@ -19,6 +19,8 @@ class DropReason(str, enum.Enum):
 
     FIRST_FRAME = 'first_frame'            # initialises the pipeline; nothing to compare with yet
     REINITIALISED = 'reinitialised'        # starts a new keyframe chain after lost tracking
+    TIME_JUMP_AHEAD = 'time_jump_ahead'    # stamped implausibly far ahead (a clock glitch)
+    TIME_JUMP_BACK = 'time_jump_back'      # stamped far back (looped bag, clock restart): reset
     NO_CAMERA_INFO = 'no_camera_info'      # no intrinsics yet (and no focal self-calibration)
     BAD_IMAGE = 'bad_image'                # undecodable, unsupported encoding, wrong size
     BLANK_IMAGE = 'blank_image'            # black, saturated or textureless
@@ -28,6 +30,15 @@ class DropReason(str, enum.Enum):
     TOO_FEW_CORRESPONDENCES = 'too_few_correspondences'
     UNRELIABLE = 'unreliable'              # estimator flagged the motion (ambiguous, few inliers)
     PIPELINE_ERROR = 'pipeline_error'      # an unexpected exception inside the pipeline
+
+
+class TrackingState(str, enum.Enum):
+    """The pipeline's tracking state after a frame (stable keys for status and logs)."""
+
+    INITIALISING = 'initialising'          # no keyframe yet (first frame, no camera model)
+    TRACKING = 'tracking'                  # frames are tracked against the keyframe chain
+    LOST = 'lost'                          # the last frame(s) could not be tracked
+    REINITIALISED = 'reinitialised'        # a new keyframe chain started at this frame
 
 
 @dataclass(frozen=True)
@@ -49,6 +60,7 @@ class FrameResult:
         num_correspondences, num_inliers: ACs extracted and accepted.
         alpha, beta: the camera motion since the reference keyframe (radians; NaN if none).
         timings: seconds spent per stage (``'decode'``, ``'correspondences'``, ``'solve'``, ...).
+        tracking: the tracking state after this frame.
     """
 
     stamp: float
@@ -66,3 +78,4 @@ class FrameResult:
     alpha: float = float('nan')
     beta: float = float('nan')
     timings: dict[str, float] = field(default_factory=dict)
+    tracking: TrackingState = TrackingState.INITIALISING

@@ -1,0 +1,75 @@
+"""`FrameClock`: judges each frame's stamp against the stream's time base.
+
+Real streams have clock hiccups: a single frame stamped far in the future (one bad clock
+sample), a bag played in a loop or a restarted clock (stamps jump back), a driver restart (a
+long real gap). None of them may stop the odometry for good:
+
+- a frame whose stamp lies more than ``max_gap`` seconds ahead is that frame's problem only: it
+  is refused (`StampCheck.JUMP_AHEAD`) and the time base is kept, unless the next frame confirms
+  the new time (it follows it within ``max_gap``): then the stream really moved on
+  (`StampCheck.NEW_TIME_BASE`) and tracking restarts there;
+- a stamp more than ``max_jump_back`` seconds behind the last one is a new time base
+  (`StampCheck.JUMP_BACK`): tracking is reset; a smaller step back is a frame out of order.
+"""
+
+from __future__ import annotations
+
+import enum
+
+__all__ = ['FrameClock', 'StampCheck']
+
+
+class StampCheck(str, enum.Enum):
+    """The verdict on one frame's stamp."""
+
+    OK = 'ok'
+    DUPLICATE = 'duplicate'              # the same stamp as the last accepted frame
+    OUT_OF_ORDER = 'out_of_order'        # slightly older than the last accepted frame
+    JUMP_AHEAD = 'jump_ahead'            # far in the future: refused, time base kept
+    NEW_TIME_BASE = 'new_time_base'      # the second frame after a forward jump: accepted
+    JUMP_BACK = 'jump_back'              # far in the past: a new time base (reset)
+
+
+class FrameClock:
+    """The last accepted stamp and the rules above.
+
+    Args:
+        max_gap: the longest plausible interval between consecutive frames (seconds).
+        max_jump_back: a step back longer than this (seconds) is a new time base, not a frame
+            out of order.
+    """
+
+    def __init__(self, max_gap: float, max_jump_back: float) -> None:
+        self.max_gap = float(max_gap)
+        self.max_jump_back = float(max_jump_back)
+        self.last: float | None = None
+        self._ahead: float | None = None
+
+    def reset(self) -> None:
+        """Forget the time base (the next stamp is accepted as is)."""
+        self.last = None
+        self._ahead = None
+
+    def check(self, stamp: float) -> StampCheck:
+        """Judge ``stamp`` (seconds) and, when it is accepted, make it the last stamp."""
+        last = self.last
+        if last is None:
+            self.last, self._ahead = stamp, None
+            return StampCheck.OK
+        step = stamp - last
+        if step == 0.0:
+            return StampCheck.DUPLICATE
+        if step < 0.0:
+            if -step <= self.max_jump_back:
+                return StampCheck.OUT_OF_ORDER
+            self.last, self._ahead = stamp, None
+            return StampCheck.JUMP_BACK
+        if step > self.max_gap:
+            ahead = self._ahead
+            if ahead is not None and 0.0 < stamp - ahead <= self.max_gap:
+                self.last, self._ahead = stamp, None
+                return StampCheck.NEW_TIME_BASE
+            self._ahead = stamp
+            return StampCheck.JUMP_AHEAD
+        self.last, self._ahead = stamp, None
+        return StampCheck.OK
