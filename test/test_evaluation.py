@@ -20,6 +20,7 @@ from planar_vo.io import OdometryBagWriter
 from planar_vo.tools.evaluation import (
     associate,
     evaluate,
+    kitti_drift,
     read_bag_trajectory,
     read_tum,
     umeyama,
@@ -337,3 +338,53 @@ def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
         err = capsys.readouterr().err.strip()
         assert err.startswith('planar_vo eval: error: ') and '\n' not in err, err
         assert expected in err, err
+
+
+# -- KITTI protocol ---------------------------------------------------------------------------
+
+def _straight(n: int, step: float = 1.0, yaw_rate: float = 0.0) -> Trajectory:
+    """A drive of ``n`` poses, ``step`` metres apart along the heading, turning ``yaw_rate`` rad
+    per pose (a straight line for 0)."""
+    yaw = yaw_rate * np.arange(n)
+    xy = np.concatenate([[[0.0, 0.0]], np.cumsum(
+        step * np.column_stack([np.cos(yaw[:-1]), np.sin(yaw[:-1])]), axis=0)])
+    return Trajectory.from_poses(T0 + np.arange(n, dtype=np.int64) * 100_000_000,
+                                 planar_pose(xy[:, 0], xy[:, 1], yaw))
+
+
+def test_kitti_drift_is_zero_for_the_truth_and_ten_percent_for_a_scale_of_1_1():
+    ref = _straight(351)                                   # 350 m: segments of 100..300 m
+    zero = kitti_drift(ref, ref)
+    assert zero['t_rel_pct'] == 0.0 and zero['r_rel_deg_per_100m'] == 0.0
+    assert zero['lengths_m'] == [100.0, 200.0, 300.0]
+    # Starts every 10 poses with a full segment: 26 + 16 + 6 of them.
+    assert zero['segments'] == 26 + 16 + 6
+    long = ref.transformed(np.eye(3), np.zeros(3), scale=1.1)
+    assert kitti_drift(ref, long)['t_rel_pct'] == pytest.approx(10.0, abs=1e-9)
+    assert kitti_drift(ref, long, planar=True)['t_rel_pct'] == pytest.approx(10.0, abs=1e-9)
+    assert math.isnan(kitti_drift(ref.subset(slice(0, 50)), ref.subset(slice(0, 50)))['t_rel_pct'])
+
+
+def test_kitti_rotation_drift_of_a_yaw_rate_bias():
+    ref = _straight(301)
+    bias = np.deg2rad(0.01)                               # per metre: 1 deg per 100 m
+    est = _straight(301, yaw_rate=bias)
+    drift = kitti_drift(ref, est)
+    assert drift['r_rel_deg_per_100m'] == pytest.approx(1.0, rel=1e-6)
+    assert kitti_drift(ref, est, planar=True)['r_rel_deg_per_100m'] == pytest.approx(1.0, rel=1e-6)
+
+
+def test_se2_drift_ignores_height_roll_and_pitch():
+    ref = _straight(301)
+    rng = np.random.default_rng(3)
+    bumpy = ref.poses.copy()
+    bumpy[:, :3, :3] = rotation_rpy(rng.normal(0, 0.01, 301), rng.normal(0, 0.01, 301),
+                                    ref.yaw)
+    bumpy[:, 2, 3] = rng.normal(0, 0.2, 301)
+    est = Trajectory(ref.stamps_ns, bumpy)
+    assert kitti_drift(ref, est)['r_rel_deg_per_100m'] > 0.1
+    flat = kitti_drift(ref, est, planar=True)
+    assert flat['t_rel_pct'] < 1e-9 and flat['r_rel_deg_per_100m'] < 1e-9
+    metrics = evaluate(ref, est).metrics()
+    assert metrics['kitti_se2']['r_rel_deg_per_100m'] < 1e-9
+    assert metrics['kitti']['segments'] == 21 + 11 + 1

@@ -18,6 +18,8 @@ from planar_vo.tools.evaluation.files import (
 from planar_vo.tools.evaluation.metrics import (
     Evaluation,
     evaluate,
+    flatten_se2,
+    kitti_drift,
     rpe_by_distance,
     rpe_per_frame,
     statistics,
@@ -32,6 +34,8 @@ __all__ = [
     'align_trajectory',
     'associate',
     'evaluate',
+    'flatten_se2',
+    'kitti_drift',
     'load_trajectory',
     'read_bag_trajectory',
     'read_tum',

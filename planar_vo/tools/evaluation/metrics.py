@@ -13,6 +13,11 @@ Definitions (poses ``T = [R | p]`` in the reference world frame, after associati
   ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` (KITTI's devkit writes the inverse, which has the same
   translation norm and angle); errors ``|t(E)| / L`` (reported in %) and
   ``angle(E) / L`` (deg/m), averaged over all segments.
+- KITTI odometry protocol (`kitti_drift`, DESIGN.md section 7): the same segment errors with
+  a start every 10 frames and lengths 100, 200, ..., 800 m (those the drive is long enough
+  for), on the estimate as it is (no scale alignment: a scale error counts), reported as
+  ``t_rel`` (%) and ``r_rel`` (deg/100 m), in 3D and on SE(2) (z, roll and pitch dropped from
+  both trajectories).
 - Yaw-change error per frame: ``yaw(R_est(i-1)^T R_est(i)) - yaw(R_ref(i-1)^T R_ref(i))``,
   wrapped to (-180, 180] degrees.
 - Heading error per frame: the direction of travel in the previous body frame,
@@ -27,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planar_vo.core.conventions import invert, yaw_of
+from planar_vo.core.conventions import invert, planar_pose, yaw_of
 from planar_vo.core.trajectory import Trajectory
 from planar_vo.errors import InputError
 from planar_vo.tools.evaluation.align import Alignment, align_trajectory
@@ -37,6 +42,8 @@ __all__ = [
     'Evaluation',
     'ate_errors',
     'evaluate',
+    'flatten_se2',
+    'kitti_drift',
     'rotation_angle',
     'rpe_by_distance',
     'rpe_per_frame',
@@ -45,6 +52,8 @@ __all__ = [
 ]
 
 DEFAULT_SEGMENTS = (5.0, 10.0, 20.0)
+KITTI_LENGTHS = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+KITTI_STEP = 10
 
 
 def rotation_angle(R: np.ndarray) -> np.ndarray:
@@ -128,6 +137,39 @@ def rpe_by_distance(ref: Trajectory, est: Trajectory,
     return out
 
 
+def flatten_se2(trajectory: Trajectory) -> Trajectory:
+    """The trajectory on SE(2): x, y and yaw kept, z, roll and pitch dropped (z-up frames)."""
+    p = trajectory.positions
+    return Trajectory(trajectory.stamps_ns, planar_pose(p[:, 0], p[:, 1], trajectory.yaw))
+
+
+def kitti_drift(ref: Trajectory, est: Trajectory, *, planar: bool = False,
+                lengths: tuple[float, ...] = KITTI_LENGTHS, step: int = KITTI_STEP
+                ) -> dict[str, float]:
+    """Drift by the KITTI odometry protocol (Geiger et al., CVPR 2012; DESIGN.md section 7).
+
+    Args:
+        ref, est: associated trajectories (same length, pose by pose); the estimate is used as
+            it is: alignment cannot change relative poses, and no scale is fitted.
+        planar: on SE(2) (`flatten_se2` of both) instead of in 3D.
+        lengths: segment lengths (m); those without a segment in the drive are left out.
+        step: frames between segment starts.
+
+    Returns:
+        ``{'t_rel_pct': mean |t(E)| / L in %, 'r_rel_deg_per_100m': mean angle(E) / L in degrees
+        per 100 m, 'segments': count, 'lengths_m': the lengths used}``; NaN and 0 segments when
+        the drive is shorter than the shortest length.
+    """
+    if planar:
+        ref, est = flatten_se2(ref), flatten_se2(est)
+    per_length = rpe_by_distance(ref, est, lengths, step)
+    used = [length for length in lengths if per_length[f'{length:g}m']['segments'] > 0]
+    total = per_length['all']
+    return {'t_rel_pct': total['translation_percent'],
+            'r_rel_deg_per_100m': 100.0 * total['rotation_deg_per_m'],
+            'segments': total['segments'], 'lengths_m': used}
+
+
 def _segment_summary(t_err: np.ndarray, r_err: np.ndarray) -> dict[str, float]:
     if t_err.size == 0:
         return {'segments': 0, 'translation_percent': float('nan'),
@@ -170,6 +212,8 @@ class Evaluation:
     heading_error_deg: np.ndarray
     segments: dict[str, dict[str, float]]
     unmatched: dict[str, int] = field(default_factory=dict)
+    kitti: dict[str, float] = field(default_factory=dict)
+    kitti_se2: dict[str, float] = field(default_factory=dict)
 
     def metrics(self) -> dict:
         """JSON-ready summary."""
@@ -187,6 +231,8 @@ class Evaluation:
             'rpe_frame': {'translation_m': statistics(self.rpe_translation),
                           'rotation_deg': statistics(self.rpe_rotation_deg)},
             'rpe_distance': self.segments,
+            'kitti': self.kitti,
+            'kitti_se2': self.kitti_se2,
             'yaw_change_error_deg': abs_stats(self.yaw_change_error_deg),
             'heading_error_deg': abs_stats(self.heading_error_deg),
         }
@@ -209,6 +255,13 @@ class Evaluation:
             rows.append((f'RPE {name} segments: trans (%) / rot (deg/m)',
                          f"{seg['translation_percent']:.4f} / {seg['rotation_deg_per_m']:.6f} "
                          f"(n={seg['segments']})"))
+        for key, label in (('kitti', 'KITTI protocol, 3D'),
+                           ('kitti_se2', 'KITTI protocol, SE(2)')):
+            k = m[key]
+            used = ', '.join(f'{v:g}' for v in k['lengths_m']) or 'none'
+            rows.append((f'{label}: t_rel (%) / r_rel (deg/100 m)',
+                         f"{k['t_rel_pct']:.3f} / {k['r_rel_deg_per_100m']:.3f} "
+                         f"(n={k['segments']}, lengths {used} m)"))
         for key, label in (('yaw_change_error_deg', 'yaw-change error (deg)'),
                            ('heading_error_deg', 'heading error (deg)')):
             s = m[key]
@@ -252,4 +305,5 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
     return Evaluation(ref_m, est_m, aligned, alignment, ate_errors(ref_m, aligned), rpe_t, rpe_r,
                       yaw, heading, rpe_by_distance(ref_m, aligned, segment_lengths),
                       {'estimate_unmatched': len(est) - len(ie),
-                       'reference_unmatched': len(ref) - len(ir)})
+                       'reference_unmatched': len(ref) - len(ir)},
+                      kitti_drift(ref_m, est_m), kitti_drift(ref_m, est_m, planar=True))
