@@ -192,9 +192,12 @@ def test_compressed_rclpy_message():
 @pytest.mark.parametrize('fmt, data, match', [
     ('bmp', b'BM...', r"compressed_image\.format: expected 'jpeg' or 'png', got 'bmp'"),
     ('16UC1; compressedDepth png', b'x', r"got '16UC1; compressedDepth png'"),
-    ('jpeg', b'\xff\xd8 not really a jpeg', r'compressed_image\.data: expected decodable jpeg '
-     r'data, got 20 bytes OpenCV cannot decode'),
-    ('png', b'', r'got 0 bytes'),
+    ('jpeg', b'\xff\xd8 not really a jpeg', r'compressed_image\.data: a JPEG without a readable '
+     r'frame header \(20 bytes\)'),
+    ('png', b'\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x28\x00\x00\x00\x1e broken',
+     r'compressed_image\.data: expected decodable png data, got 31 bytes OpenCV cannot decode'),
+    ('png', b'GIF89a', r'expected PNG or JPEG data, got 6 bytes starting with 47 49 46 38 39 61'),
+    ('png', b'', r'expected PNG or JPEG data, got 0 bytes$'),
 ])
 def test_compressed_errors(fmt, data, match):
     with pytest.raises(ImageError, match=match):
