@@ -18,6 +18,7 @@ from bagdata import (
     odometry_msg,
     storage_file,
     twist_msg,
+    zero_png,
     write_bag,
 )
 
@@ -415,6 +416,22 @@ def test_replay_of_a_bag_corrupt_mid_way_keeps_what_was_written(tmp_path, rng, s
     assert [m.stamp_ns for m in odom] == [T0 + i * 100_000_000 for i in range(1, kept + 1)]
     assert len(read_tum(tmp_path / 'vo.tum')) == kept
     assert len(_read_odometry(tmp_path / 'out', '/ground_truth/odom')) >= kept
+
+
+def test_replay_counts_a_decompression_bomb_as_a_bad_image(tmp_path, rng):
+    """A 389 KB PNG declaring 20000x20000 pixels is refused from its header: a counted
+    bad_image, and the frames around it go on."""
+    ok, png = cv2.imencode('.png', rng.integers(0, 256, (24, 32), dtype=np.uint8))
+    frames = [png.tobytes(), png.tobytes(), zero_png(20000, 20000), png.tobytes()]
+    stamps = [T0 + i * 100_000_000 for i in range(len(frames))]
+    in_bag = write_bag(tmp_path / 'in', 'mcap', [
+        ('/cam/image_raw/compressed', 'sensor_msgs/msg/CompressedImage', stamp,
+         compressed_msg(data, 'png', stamp)) for stamp, data in zip(stamps, frames)])
+    double = ConstantVelocityDouble()
+    summary = replay_bag(in_bag, tmp_path / 'out', double, progress=False)
+    assert summary.frames_in == 4 and summary.odometry_out == 2
+    assert summary.dropped == {'first_frame': 1, 'bad_image': 1}
+    assert [c[0] for c in double.calls] == [stamps[i] / 1_000_000_000 for i in (0, 1, 3)]
 
 
 def test_frames_without_camera_info_topic_have_no_camera(tmp_path, rng):

@@ -99,17 +99,18 @@ def reexec_single_threaded(args: argparse.Namespace, *, pin_core: bool) -> int |
     cmd = [sys.executable, '-m', 'planar_vo'] + list(args.command[1:])
     with subprocess.Popen(cmd, env=env) as child:
         try:
-            return child.wait()
+            code = child.wait()
         except KeyboardInterrupt as err:
             # Ctrl-C reaches the whole process group, a supervisor's SIGTERM (or a kill) this
             # process only: pass it on unless the child is stopping already. The child finishes
             # its outputs and reports the interruption; its exit code is this one's.
             signum = interrupt_signal(err)
             try:
-                return child.wait(timeout=1.0 if signum == signal.SIGINT else 0.0)
+                code = child.wait(timeout=1.0 if signum == signal.SIGINT else 0.0)
             except subprocess.TimeoutExpired:
                 child.send_signal(signum)
-                return child.wait()
+                code = child.wait()
+    return 128 - code if code < 0 else code       # killed by signal N: the shell's 128 + N
 
 
 def _version(dist: str) -> str:

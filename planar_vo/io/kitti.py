@@ -295,8 +295,10 @@ def _positive(name: str, value: float, what: str) -> float:
 
 
 def _seconds(ns: int) -> str:
-    """Integer ns as seconds for messages (``1.7e+9``, ``-5``, ``1e+391``; no float overflow)."""
-    return f'{Decimal(ns).scaleb(-9).normalize():g}'
+    """Integer ns as seconds for messages: exact up to 1e15 s (``1700000000.1``, ``-5``), then
+    ``1e+30`` (no float overflow for any size)."""
+    seconds = Decimal(ns).scaleb(-9).normalize()
+    return f'{seconds:f}' if abs(seconds) < 10**15 else f'{seconds:g}'
 
 
 def _stamps(seq: KittiSequence, rate_hz: float | None, start_ns: int) -> np.ndarray:

@@ -164,7 +164,7 @@ class BagWriter:
                 raise BagError(f"out: {self.outcome}") from err
             finally:
                 self._remove_tmp()
-        self.kept = True
+            self.kept = True
 
     def _remove_tmp(self) -> None:
         tmp, self._tmp = self._tmp, None

@@ -248,7 +248,10 @@ class _Poses:
                                               np.array(self.poses).reshape(-1, 4, 4)))
 
     def save(self, path: str | Path) -> str:
-        """`write`, after a failure or an interruption: a note saying what became of the file."""
+        """`write`, after a failure or an interruption: a note saying what became of the file
+        (not written without poses: an empty file would only block the next run)."""
+        if not self.poses:
+            return f"no poses were computed; '{path}' was not written"
         try:
             self.write(path)
         except OutputError as err:
