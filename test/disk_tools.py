@@ -106,6 +106,23 @@ def wait_for(condition: Callable[[], bool], timeout: float, what: str,
         time.sleep(0.02)
 
 
+def stop_after_odometry(args: Sequence[str], log: Path, frames: int, signum: int,
+                        timeout: float = 180.0) -> int:
+    """Run ``python -m planar_vo -vv ARGS`` (stderr into `log`), send `signum` once `frames`
+    frames have odometry (replay logs each frame at debug level), return its exit code."""
+    command = [sys.executable, '-m', 'planar_vo', '-vv', *map(str, args)]
+    with open(log, 'w') as stderr, subprocess.Popen(command, stdout=subprocess.DEVNULL,
+                                                    stderr=stderr) as proc:
+        try:
+            wait_for(lambda: log.read_text().count('): odometry') >= frames, timeout,
+                     f'{frames} odometry frames', proc)
+            proc.send_signal(signum)
+            return proc.wait(timeout=timeout)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+
+
 def catches_signal(pid: int, signum: int) -> bool:
     """Whether process `pid` has a handler installed for `signum` (Linux: SigCgt)."""
     try:

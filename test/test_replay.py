@@ -6,12 +6,10 @@ from __future__ import annotations
 import json
 import re
 import signal
-import subprocess
-import sys
 
 import numpy as np
 import pytest
-from disk_tools import partial_leftovers, run_planar_vo, wait_for
+from disk_tools import partial_leftovers, run_planar_vo, stop_after_odometry
 from evo_tools import evo_ape_stats, run_evo
 
 from planar_vo.cli import main
@@ -102,18 +100,8 @@ def test_replay_stopped_by_a_signal_keeps_a_complete_bag_and_tum(tmp_path, drive
     bag, the TUM file holds the same poses, and one line says so."""
     trajectory, bags = drive_bags
     out, tum, log = tmp_path / 'vo', tmp_path / 'vo.tum', tmp_path / 'stderr.txt'
-    with open(log, 'w') as stderr, subprocess.Popen(
-            [sys.executable, '-m', 'planar_vo', '-vv', 'replay', str(bags['mcap']), '--out',
-             str(out), '--tum', str(tum)], stdout=subprocess.DEVNULL, stderr=stderr) as proc:
-        try:
-            # -vv logs every frame: signal once five have odometry.
-            wait_for(lambda: log.read_text().count('): odometry') >= 5, 120,
-                     'five odometry frames', proc)
-            proc.send_signal(signum)
-            assert proc.wait(timeout=120) == 128 + signum
-        finally:
-            if proc.poll() is None:
-                proc.kill()
+    assert stop_after_odometry(['replay', bags['mcap'], '--out', out, '--tum', tum], log, 5,
+                               signum) == 128 + signum
     last = log.read_text().splitlines()[-1]
     match = re.fullmatch(rf"planar_vo replay: interrupted by {signum.name}; kept '{out}', a "
                          rf"complete bag with messages /odom: (\d+), /ground_truth/odom: (\d+); "
@@ -158,17 +146,8 @@ def test_replay_on_a_full_disk_removes_the_bag_and_says_what_was_kept(
 
 def test_demo_stopped_by_sigterm_lists_what_its_folder_holds(tmp_path):
     out, log = tmp_path / 'demo', tmp_path / 'stderr.txt'
-    with open(log, 'w') as stderr, subprocess.Popen(
-            [sys.executable, '-m', 'planar_vo', '-vv', 'demo', '--out', str(out), '--frames',
-             '30', '--no-progress'], stdout=subprocess.DEVNULL, stderr=stderr) as proc:
-        try:
-            wait_for(lambda: log.read_text().count('): odometry') >= 3, 180,
-                     'three odometry frames of the demo replay', proc)
-            proc.send_signal(signal.SIGTERM)
-            assert proc.wait(timeout=120) == 143
-        finally:
-            if proc.poll() is None:
-                proc.kill()
+    assert stop_after_odometry(['demo', '--out', out, '--frames', 30, '--no-progress'], log, 3,
+                               signal.SIGTERM) == 143
     last = log.read_text().splitlines()[-1]
     match = re.fullmatch(rf"planar_vo demo: interrupted by SIGTERM; kept '{out}/odometry', a "
                          rf"complete bag with messages /odom: (\d+), /ground_truth/odom: \d+; "
