@@ -192,22 +192,53 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         if odom_topic in copy:
             raise BagError(f"copy_topics: '{odom_topic}' is the output odometry topic; it "
                            f'cannot also be copied')
-        speeds: tuple[list[int], list[float]] = ([], [])
+        stamps_ns, speeds = [], []
         if speed_topic is not None:
             summary.speed_topic = speed_topic
-            speeds = _read_speeds(bag, speed_topic)
-        decoder = CameraFrameDecoder(bag, image_topic, info_topic)
-        decoder.prime()
+            stamps_ns, speeds = _read_speeds(bag, speed_topic)
+        next_speed = 0
         dropped: Counter[str] = Counter()
         poses = _Poses()
+        decoder = CameraFrameDecoder(bag, image_topic, info_topic)
+        decoder.prime()
         bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
                    disable=not progress, leave=False)
         try:
             with writer:
                 for topic in copy:
                     writer.copy_topic(bag, topic)
-                _replay_frames(bag, decoder, processor, writer, copy, speeds, summary, dropped,
-                               poses, bar)
+                copy_set = set(copy)
+                for message in bag.messages([image_topic, *([info_topic] if info_topic else []),
+                                             *copy]):
+                    if message.topic in copy_set:
+                        writer.write_raw(message.topic, message.log_time_ns, message.rawdata)
+                    frame = decoder.feed(message)
+                    if frame is None:
+                        continue
+                    summary.frames_in += 1
+                    bar.update(1)
+                    if frame.image is None:
+                        log.warning('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
+                                    frame.error)
+                        dropped[BAD_IMAGE] += 1
+                        continue
+                    end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
+                    for k in range(next_speed, end):
+                        processor.add_speed(stamps_ns[k] / 1_000_000_000, speeds[k])
+                    summary.speed_messages += max(0, end - next_speed)
+                    next_speed = max(next_speed, end)
+                    result = processor.process(frame.image, frame.stamp, frame.camera)
+                    reason = None if result.ok else getattr(result.reason, 'value',
+                                                            str(result.reason))
+                    if result.ok:
+                        writer.write(frame.stamp_ns, result.pose, result.pose_covariance,
+                                     result.twist, result.twist_covariance,
+                                     log_time_ns=frame.log_time_ns)
+                        poses.add(frame.stamp_ns, result.pose)
+                    else:
+                        dropped[reason] += 1
+                    log.debug('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
+                              reason or 'odometry')
         except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
             if tum_path is not None:
                 err.add_note(poses.save(tum_path))
@@ -257,41 +288,3 @@ class _Poses:
         except OutputError as err:
             return str(err)
         return f"wrote '{path}' with the {len(self.poses)} poses computed"
-
-
-def _replay_frames(bag: BagReader, decoder: CameraFrameDecoder, processor: FrameProcessor,
-                   writer: OdometryBagWriter, copy: list[str],
-                   speeds: tuple[list[int], list[float]], summary: ReplaySummary,
-                   dropped: Counter[str], poses: _Poses, bar) -> None:
-    """The replay loop of `replay_bag`: frames through `processor`, odometry into `writer`."""
-    stamps_ns, values = speeds
-    next_speed = 0
-    copy_set = set(copy)
-    info = [decoder.camera_info_topic] if decoder.camera_info_topic else []
-    for message in bag.messages([decoder.image_topic, *info, *copy]):
-        if message.topic in copy_set:
-            writer.write_raw(message.topic, message.log_time_ns, message.rawdata)
-        frame = decoder.feed(message)
-        if frame is None:
-            continue
-        summary.frames_in += 1
-        bar.update(1)
-        if frame.image is None:
-            log.warning('frame %d (%d ns): %s', frame.index, frame.stamp_ns, frame.error)
-            dropped[BAD_IMAGE] += 1
-            continue
-        end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
-        for k in range(next_speed, end):
-            processor.add_speed(stamps_ns[k] / 1_000_000_000, values[k])
-        summary.speed_messages += max(0, end - next_speed)
-        next_speed = max(next_speed, end)
-        result = processor.process(frame.image, frame.stamp, frame.camera)
-        if result.ok:
-            writer.write(frame.stamp_ns, result.pose, result.pose_covariance, result.twist,
-                         result.twist_covariance, log_time_ns=frame.log_time_ns)
-            poses.add(frame.stamp_ns, result.pose)
-        else:
-            reason = result.reason
-            dropped[getattr(reason, 'value', str(reason))] += 1
-        log.debug('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
-                  'odometry' if result.ok else getattr(result.reason, 'value', result.reason))
