@@ -13,6 +13,7 @@ __all__ = [
     'ConfigError',
     'ImageError',
     'InputError',
+    'OutputError',
     'PlanarVoError',
 ]
 
@@ -39,3 +40,8 @@ class ImageError(PlanarVoError, ValueError):
 
 class BagError(PlanarVoError):
     """A bag cannot be read or written: missing, corrupt, truncated, or would be overwritten."""
+
+
+class OutputError(PlanarVoError):
+    """An output file or folder cannot be written (no permission, read-only or full disk, or it
+    exists and must not be overwritten); the message names it and says what was kept."""

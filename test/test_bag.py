@@ -3,6 +3,7 @@ driven by a test double (the real pipeline is tested end to end elsewhere)."""
 
 from __future__ import annotations
 
+import re
 import shutil
 
 import cv2
@@ -17,6 +18,7 @@ from bagdata import (
     odometry_msg,
     storage_file,
     twist_msg,
+    zero_png,
     write_bag,
 )
 
@@ -401,17 +403,35 @@ def test_replay_of_a_bag_corrupt_mid_way_keeps_what_was_written(tmp_path, rng, s
     corrupt_mid_way(in_bag, images[25][120].tobytes())
     double = ConstantVelocityDouble()
     with pytest.raises(BagError, match=r"bag '.*in': corrupt or truncated, reading failed after "
-                                       r'\d+ messages .*; (\d+) odometry messages written to '
-                                       r'.*out were kept') as exc:
+                                       r"\d+ messages .*\nkept '.*out', a complete bag with "
+                                       r"messages /odom: \d+, /ground_truth/odom: \d+\nwrote "
+                                       r"'.*vo\.tum' with the \d+ poses computed$") as exc:
         replay_bag(in_bag, tmp_path / 'out', double, tum_path=tmp_path / 'vo.tum',
                    progress=False)
-    kept = int(_one_line_error(exc).split('; ')[-1].split()[0])
+    _one_line_error(exc)
+    kept = int(re.search(r'/odom: (\d+),', exc.value.__notes__[0]).group(1))
     assert kept == len(double.poses) >= 5
     odom = _read_odometry(tmp_path / 'out')                  # the output is a complete bag
     assert len(odom) == kept
     assert [m.stamp_ns for m in odom] == [T0 + i * 100_000_000 for i in range(1, kept + 1)]
     assert len(read_tum(tmp_path / 'vo.tum')) == kept
     assert len(_read_odometry(tmp_path / 'out', '/ground_truth/odom')) >= kept
+
+
+def test_replay_counts_a_decompression_bomb_as_a_bad_image(tmp_path, rng):
+    """A 389 KB PNG declaring 20000x20000 pixels is refused from its header: a counted
+    bad_image, and the frames around it go on."""
+    ok, png = cv2.imencode('.png', rng.integers(0, 256, (24, 32), dtype=np.uint8))
+    frames = [png.tobytes(), png.tobytes(), zero_png(20000, 20000), png.tobytes()]
+    stamps = [T0 + i * 100_000_000 for i in range(len(frames))]
+    in_bag = write_bag(tmp_path / 'in', 'mcap', [
+        ('/cam/image_raw/compressed', 'sensor_msgs/msg/CompressedImage', stamp,
+         compressed_msg(data, 'png', stamp)) for stamp, data in zip(stamps, frames)])
+    double = ConstantVelocityDouble()
+    summary = replay_bag(in_bag, tmp_path / 'out', double, progress=False)
+    assert summary.frames_in == 4 and summary.odometry_out == 2
+    assert summary.dropped == {'first_frame': 1, 'bad_image': 1}
+    assert [c[0] for c in double.calls] == [stamps[i] / 1_000_000_000 for i in (0, 1, 3)]
 
 
 def test_frames_without_camera_info_topic_have_no_camera(tmp_path, rng):

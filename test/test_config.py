@@ -72,6 +72,12 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
     ({'ros': {'odom_frame': 'x', 'base_frame': 'x'}}, r'ros.base_frame: expected a frame id '
      r'other than odom_frame'),
     ({'voting': 3}, r'voting: expected a mapping, got int'),
+    # a YAML integer of 400 digits is a Python int: a ConfigError, not OverflowError
+    ({'mount': {'height': 10**400}}, r'mount.height: expected float, got an int of 1329 bits '
+                                     r'\(beyond float64\)'),
+    ({'voting': {'bins': 2**64}}, r'voting.bins: expected int, got one of 65 bits \(at most 64\)'),
+    ({'camera': {'distortion': [0.1, -10**400]}},
+     r'camera.distortion\[1\]: expected float, got an int of 1329 bits'),
 ])
 def test_invalid_values_are_reported_with_their_key(data, match):
     with pytest.raises(ConfigError, match=match):

@@ -4,16 +4,19 @@
 from __future__ import annotations
 
 import math
+import signal
 
 import cv2
 import numpy as np
 import pytest
+from disk_tools import partial_leftovers, run_planar_vo
 
 from planar_vo.cli import main
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import yaw_of
 from planar_vo.errors import BagError, InputError
 from planar_vo.io import import_kitti, iter_camera_frames, iter_messages, open_bag
+from planar_vo.outputs import stop_signals_interrupt
 from planar_vo.ros.messages import pose_from_message
 
 P0 = np.array([[50.0, 0.0, 19.5, 0.0], [0.0, 50.0, 14.5, 0.0], [0.0, 0.0, 1.0, 0.0]])
@@ -178,3 +181,76 @@ def test_cli_import_kitti(tmp_path, rng, capsys):
     assert err.startswith('planar_vo import-kitti: error: out: ') and '\n' not in err
     assert err.endswith('already exists; refusing to overwrite it (remove it or choose another '
                         'path)')
+
+
+RANGE = r'outside the range of a ROS time stamp \(0 to 2147483647\.999999999 s: 1970 to 2038\)'
+
+
+@pytest.mark.parametrize('times, kwargs, match', [
+    (('1e12', '1000000000000.1', '1000000000000.2', '1000000000000.3'), {},
+     rf'stamps: times\.txt plus start gives 1001700000000 to 1001700000000\.3 s, {RANGE}'),
+    (None, {'start': '1e30'}, rf'stamps: times\.txt plus start gives 1e\+30 to 1e\+30 s, {RANGE}'),
+    (None, {'start': 10**400}, r'stamps: times\.txt plus start gives 1e\+400 to 1e\+400 s'),
+    (('-0.3', '-0.2', '-0.1', '0'), {'start': 0},
+     rf'stamps: times\.txt plus start gives -0\.3 to 0 s, {RANGE}'),
+    (None, {'rate_hz': 1e-300},
+     rf'stamps: rate_hz 1e-300 plus start gives 1700000000 to 3e\+300 s, {RANGE}'),
+    (None, {'rate_hz': 1e12}, r'stamps: rate_hz 1000000000000\.0 gives frames 0 and 1 the same '
+                              r'stamp 1700000000000000000 ns; frames must be at least 1 ns apart'),
+    (None, {'rate_hz': 10**400}, r'rate_hz: expected a positive frame rate, got 1000'),
+    (None, {'camera_height': 10**400}, r'camera_height: expected a positive height in metres'),
+], ids=['times_1e12', 'start_1e30', 'start_10**400', 'negative_times', 'rate_1e-300',
+        'rate_1e12', 'rate_10**400', 'height_10**400'])
+def test_absurd_times_are_refused_before_anything_is_written(tmp_path, rng, times, kwargs,
+                                                             match):
+    _write_sequence(tmp_path / 'seq', rng, **({} if times is None else {'times': times}))
+    with pytest.raises(InputError, match=match):
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag', **kwargs)
+    assert not (tmp_path / 'bag').exists() and partial_leftovers(tmp_path) == []
+
+
+def test_cli_absurd_times_are_one_line(tmp_path, rng, capsys):
+    _write_sequence(tmp_path / 'seq', rng)
+    for flags in (['--start', '1e30'], ['--rate-hz', '1e12'], ['--rate-hz', '1e-300'],
+                  ['--start', '-5']):
+        assert main(['import-kitti', str(tmp_path / 'seq'), '--out', str(tmp_path / 'bag'),
+                     *flags]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith('planar_vo import-kitti: error: stamps: ') and err.count('\n') == 1
+    assert not (tmp_path / 'bag').exists()
+
+
+def test_import_stopped_by_sigterm_keeps_the_frames_written(tmp_path, rng, monkeypatch):
+    """SIGTERM while reading the third image: the two frames written are a complete bag and the
+    interruption says so."""
+    import planar_vo.io.kitti as kitti
+
+    _write_sequence(tmp_path / 'seq', rng)
+    read_png = kitti._read_png
+
+    def read_and_stop(path):
+        if path.name == '000002.png':
+            signal.raise_signal(signal.SIGTERM)
+        return read_png(path)
+
+    monkeypatch.setattr(kitti, '_read_png', read_and_stop)
+    with pytest.raises(KeyboardInterrupt, match=r"SIGTERM\nkept '.*bag', a complete bag with "
+                                                r'messages /camera/camera_info: 2, '
+                                                r'/camera/image_raw: 2, /ground_truth/odom: 2$'):
+        with stop_signals_interrupt():
+            import_kitti(tmp_path / 'seq', tmp_path / 'bag')
+    with open_bag(tmp_path / 'bag') as bag:
+        assert [f.stamp_ns for f in iter_camera_frames(bag)] == [START_NS, START_NS + 10**8]
+
+
+def test_import_on_a_full_disk_keeps_nothing_and_says_so(tmp_path, rng):
+    _write_sequence(tmp_path / 'seq', rng)
+    disk = tmp_path / 'disk'
+    run = run_planar_vo(['import-kitti', tmp_path / 'seq', '--out', disk / 'bag', '--storage',
+                         'mcap'], disk=disk, keep=tmp_path / 'kept', size_kib=4)
+    reason = 'No space left on device' if run.method == 'tmpfs' else 'File too large'
+    assert run.returncode == 1
+    assert run.stderr.startswith('planar_vo import-kitti: error: out: ')
+    assert run.stderr.endswith(f"nothing was kept at '{disk / 'bag'}' (cannot finish the bag: "
+                               f'{reason})\n') and run.stderr.count('\n') == 1
+    assert list((tmp_path / 'kept').iterdir()) == []

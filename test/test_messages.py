@@ -18,10 +18,12 @@ from bagdata import (
     image_msg,
     odometry_msg,
     twist_msg,
+    zero_png,
 )
 
 from planar_vo.core.conventions import planar_pose, rotation_rpy, se3
 from planar_vo.errors import ImageError, InputError
+from planar_vo.frontend.images import declared_size
 from planar_vo.ros.messages import (
     compressed_to_array,
     covariance_to_list,
@@ -192,13 +194,44 @@ def test_compressed_rclpy_message():
 @pytest.mark.parametrize('fmt, data, match', [
     ('bmp', b'BM...', r"compressed_image\.format: expected 'jpeg' or 'png', got 'bmp'"),
     ('16UC1; compressedDepth png', b'x', r"got '16UC1; compressedDepth png'"),
-    ('jpeg', b'\xff\xd8 not really a jpeg', r'compressed_image\.data: expected decodable jpeg '
-     r'data, got 20 bytes OpenCV cannot decode'),
-    ('png', b'', r'got 0 bytes'),
+    ('jpeg', b'\xff\xd8 not really a jpeg', r'compressed_image\.data: a JPEG without a readable '
+     r'frame header \(20 bytes\)'),
+    ('png', b'\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x28\x00\x00\x00\x1e broken',
+     r'compressed_image\.data: expected decodable png data, got 31 bytes OpenCV cannot decode'),
+    ('png', b'GIF89a', r'expected PNG or JPEG data, got 6 bytes starting with 47 49 46 38 39 61'),
+    ('png', b'', r'expected PNG or JPEG data, got 0 bytes$'),
 ])
 def test_compressed_errors(fmt, data, match):
     with pytest.raises(ImageError, match=match):
         compressed_to_array(compressed_msg(data, fmt))
+
+
+@pytest.mark.parametrize('ext, params', [
+    ('.png', []), ('.jpg', []), ('.jpg', [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])])
+@pytest.mark.parametrize('size', [(40, 30), (1241, 376)])
+def test_declared_size_is_the_decoded_size(ext, params, size):
+    pixels = np.random.default_rng(1).integers(0, 256, size[::-1], dtype=np.uint8)
+    ok, data = cv2.imencode(ext, pixels, params)
+    assert declared_size(data.reshape(-1)) == ('png' if ext == '.png' else 'jpeg', *size)
+    assert compressed_to_array(compressed_msg(data.tobytes(), ext[1:])).shape == size[::-1]
+
+
+def test_decompression_bombs_are_refused_from_the_header(monkeypatch):
+    """A 389 KB PNG (or a JPEG) declaring 20000x20000 pixels is refused before anything is
+    inflated: decoding it would take 400 MB and seconds."""
+    bomb = zero_png(20000, 20000)
+    assert len(bomb) < 400_000
+    assert cv2.imdecode(np.frombuffer(zero_png(64, 48), np.uint8), 0).shape == (48, 64)
+    ok, jpeg = cv2.imencode('.jpg', np.zeros((30, 40), np.uint8))
+    jpeg = bytearray(jpeg.tobytes())
+    sof = jpeg.index(b'\xff\xc0')
+    jpeg[sof + 5:sof + 9] = (20000).to_bytes(2, 'big') * 2          # height, width
+    monkeypatch.setattr(cv2, 'imdecode', lambda *a: pytest.fail('decoded a refused image'))
+    for data, kind in ((bomb, 'png'), (bytes(jpeg), 'jpeg')):
+        with pytest.raises(ImageError, match=rf'compressed_image\.data: the {kind} header '
+                                             r'declares 20000x20000 pixels, more than the '
+                                             r'33554432 accepted; not decoded'):
+            compressed_to_array(compressed_msg(data, kind))
 
 
 # -- stamps -------------------------------------------------------------------------------------

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from decimal import Decimal
+
 import numpy as np
 import pytest
 
@@ -260,6 +262,16 @@ GOOD_A = np.tile(np.eye(2), (3, 1, 1))
      r'got 6 NaN or infinite'),
     ((GOOD_Q, GOOD_Q, GOOD_A + np.inf), r'A: expected finite values'),
     (('abc', GOOD_Q, GOOD_A), r'q1: expected a numeric array'),
+    # a cast would drop the imaginary part (numpy only warns): refused
+    ((GOOD_Q + 1e-3j, GOOD_Q, GOOD_A), r'q1: expected a numeric array of shape \(N, 2\) of real '
+     r'numbers, got complex128 values'),
+    # Python ints and Decimals beyond float64: typed errors, not OverflowError
+    ((np.array([[10**400, 0]] * 3, dtype=object), GOOD_Q, GOOD_A),
+     r'q1: expected finite values, got a number too large for float64'),
+    ((GOOD_Q, GOOD_Q, [[[1, Decimal('1e400')], [0, 1]]] * 3),
+     r'A: expected finite values, got 3 NaN or infinite'),
+    (([[0.1, 0.1], [0.1, 0.1], [0.1]], GOOD_Q, GOOD_A), r'q1: expected a numeric array of shape '
+     r'\(N, 2\), got list'),
 ])
 def test_1ac_input_errors(args, match):
     with pytest.raises(InputError, match=match):

@@ -4,9 +4,12 @@ by evo."""
 from __future__ import annotations
 
 import json
+import re
+import signal
 
 import numpy as np
 import pytest
+from disk_tools import partial_leftovers, run_planar_vo, stop_after_odometry
 from evo_tools import evo_ape_stats, run_evo
 
 from planar_vo.cli import main
@@ -89,3 +92,68 @@ def test_demo_writes_everything(tmp_path):
     other.mkdir()
     with pytest.raises(Exception, match=r"'.*mine' exists and is not a demo folder"):
         run_demo(other, frames=5, progress=False, log=lambda *_: None)
+
+
+@pytest.mark.parametrize('signum', [signal.SIGTERM, signal.SIGINT])
+def test_replay_stopped_by_a_signal_keeps_a_complete_bag_and_tum(tmp_path, drive_bags, signum):
+    """A supervisor's SIGTERM is handled like Ctrl-C: the odometry written so far is a complete
+    bag, the TUM file holds the same poses, and one line says so."""
+    trajectory, bags = drive_bags
+    out, tum, log = tmp_path / 'vo', tmp_path / 'vo.tum', tmp_path / 'stderr.txt'
+    assert stop_after_odometry(['replay', bags['mcap'], '--out', out, '--tum', tum], log, 5,
+                               signum) == 128 + signum
+    last = log.read_text().splitlines()[-1]
+    match = re.fullmatch(rf"planar_vo replay: interrupted by {signum.name}; kept '{out}', a "
+                         rf"complete bag with messages /odom: (\d+), /ground_truth/odom: (\d+); "
+                         rf"wrote '{tum}' with the (\d+) poses computed", last)
+    assert match, last
+    kept, gt, poses = map(int, match.groups())
+    assert 5 <= kept == poses < len(trajectory) - 1 and gt >= kept
+    assert 'Traceback' not in log.read_text()
+    est = load_trajectory(out, '/odom')
+    assert len(est) == kept and len(load_trajectory(out, '/ground_truth/odom')) == gt
+    np.testing.assert_array_equal(read_tum(tum).stamps_ns, est.stamps_ns)
+    assert partial_leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_replay_on_a_full_disk_removes_the_bag_and_says_what_was_kept(
+        tmp_path, drive_bags, storage):
+    """A disk of a few KiB: the odometry bag cannot be finished (MCAP, written at close) or
+    written (sqlite3, which needs 28 KiB for its schema). It is removed rather than left broken
+    or reported as kept; the TUM file, written after the bag freed its space, holds the poses
+    computed."""
+    _, bags = drive_bags
+    disk = tmp_path / 'disk'
+    run = run_planar_vo(['replay', bags['mcap'], '--out', disk / 'vo', '--tum', disk / 'vo.tum',
+                         '--storage', storage, '--no-progress'], disk=disk,
+                        keep=tmp_path / 'kept', size_kib={'mcap': 16, 'sqlite3': 48}[storage])
+    assert run.returncode == 1 and run.stdout == ''
+    line = run.stderr.rstrip('\n')
+    assert '\n' not in line and line.startswith('planar_vo replay: error: out: '), run.stderr
+    assert f"nothing was kept at '{disk / 'vo'}'" in line
+    assert not (tmp_path / 'kept' / 'vo').exists()
+    assert partial_leftovers(tmp_path / 'kept') == []
+    # The line says what became of the TUM file, and it is so.
+    poses = re.search(rf"; wrote '{disk / 'vo.tum'}' with the (\d+) poses computed$", line)
+    if poses:
+        assert len(read_tum(tmp_path / 'kept' / 'vo.tum')) == int(poses.group(1)) > 0
+    else:
+        assert line.endswith(f"no poses were computed; '{disk / 'vo.tum'}' was not written") \
+            or f"tum: cannot write '{disk / 'vo.tum'}'" in line
+        assert not (tmp_path / 'kept' / 'vo.tum').exists()
+
+
+def test_demo_stopped_by_sigterm_lists_what_its_folder_holds(tmp_path):
+    out, log = tmp_path / 'demo', tmp_path / 'stderr.txt'
+    assert stop_after_odometry(['demo', '--out', out, '--frames', 30, '--no-progress'], log, 3,
+                               signal.SIGTERM) == 143
+    last = log.read_text().splitlines()[-1]
+    match = re.fullmatch(rf"planar_vo demo: interrupted by SIGTERM; kept '{out}/odometry', a "
+                         rf"complete bag with messages /odom: (\d+), /ground_truth/odom: \d+; "
+                         rf"wrote '{out}/odometry\.tum' with the (\d+) poses computed; '{out}' "
+                         rf"holds: drive, odometry, odometry\.tum", last)
+    assert match and match.group(1) == match.group(2), last
+    assert len(load_trajectory(out / 'drive', '/ground_truth/odom')) == 30     # complete
+    assert len(read_tum(out / 'odometry.tum')) == int(match.group(1))
+    assert partial_leftovers(tmp_path) == []

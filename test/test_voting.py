@@ -216,6 +216,50 @@ def test_input_errors(rng):
         vote_planar_motion(q1, q2, A, clusters=np.zeros(100))
     with pytest.raises(InputError, match=r'q1: expected shape \(N, 2\)'):
         vote_planar_motion(q1[:, :1], q2, A)
+    with pytest.raises(InputError, match=r'q2: expected a numeric array of shape \(N, 2\) of '
+                                         r'real numbers, got complex128 values'):
+        vote_planar_motion(q1, q2 + 1e-3j, A)
+    huge = np.ones(100, dtype=object)
+    huge[7] = 10**400
+    with pytest.raises(InputError, match=r'weights: expected finite values, got a number too '
+                                         r'large for float64'):
+        vote_planar_motion(q1, q2, A, weights=huge)
+
+
+@pytest.mark.parametrize('clusters, match', [
+    (-np.ones(100, dtype=int), r'clusters: expected non-negative integers of shape \(100,\), '
+                               r'got int64 \(100,\)'),
+    (np.array([10**400] * 100), r'got object \(100,\)'),
+    (np.zeros(100, dtype=bool), r'got bool \(100,\)'),
+    (np.zeros(99, dtype=int), r'got int64 \(99,\)'),
+    ([[0]] * 99 + [[0, 1]], r'got object \(\)'),
+], ids=['negative', 'beyond_int64', 'bool', 'short', 'ragged'])
+def test_bad_cluster_labels_are_input_errors(rng, clusters, match):
+    acs = shared_motion_acs(rng, 100, 0.5)
+    with pytest.raises(InputError, match=match):
+        _vote(acs, clusters=clusters)
+
+
+@pytest.mark.parametrize('dtype, scale', [(np.int64, 2**58), (np.uint64, 2**60)])
+def test_huge_cluster_labels_group_like_small_ones(rng, dtype, scale):
+    """Labels only group ACs: ids near 2**63 (or 2**64 unsigned) give the same estimate and
+    covariance as 0..K-1, instead of a bincount of 2**63 bins (MemoryError)."""
+    acs = shared_motion_acs(rng, 600, 0.5, outlier_ratio=0.3)
+    planes = np.asarray(acs.planes)
+    assert 8 <= planes.max() < 15
+    reference = _vote(acs, clusters=planes)
+    singletons = _vote(acs, clusters=np.arange(600))           # the labels do matter
+    assert not np.allclose(singletons[1].covariance, reference[1].covariance, rtol=1e-3)
+    huge = (planes.astype(dtype) + dtype(1)) * dtype(scale) + dtype(scale - 1)
+    assert huge.max() > 2**61
+    for variant, args in (('calibrated', {}), ('focal', None)):
+        if args is None:
+            ref = vote_planar_motion_focal(*acs.centered, acs.acs.A, clusters=planes)
+            got = vote_planar_motion_focal(*acs.centered, acs.acs.A, clusters=huge)
+        else:
+            ref, got = reference, _vote(acs, clusters=huge)
+        assert got[0] == ref[0], variant
+        np.testing.assert_allclose(got[1].covariance, ref[1].covariance, rtol=1e-12)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -15,10 +15,13 @@ import importlib.metadata
 import os
 import platform
 import shlex
+import signal
 import subprocess
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+
+from planar_vo.outputs import interrupt_signal, write_file
 
 __all__ = [
     'BENCH_EXTRA',
@@ -79,7 +82,8 @@ def reexec_single_threaded(args: argparse.Namespace, *, pin_core: bool) -> int |
 
     Thread counts are read when numpy (OpenBLAS) loads, so a process that has imported numpy
     cannot change them: the benchmark re-executes ``args.command`` with `SINGLE_THREAD_ENV` and
-    returns its exit code. In the single-threaded process it returns None after
+    returns its exit code (SIGINT and SIGTERM are passed on to it, so that it stops as it would
+    alone). In the single-threaded process it returns None after
     ``cv2.setNumThreads(1)`` and, with ``pin_core``, pinning the process to one core. (Small
     solver calls are otherwise slowed down many times by idle BLAS threads competing for the
     cores.)
@@ -93,7 +97,20 @@ def reexec_single_threaded(args: argparse.Namespace, *, pin_core: bool) -> int |
         return None
     env = dict(os.environ, **SINGLE_THREAD_ENV)
     cmd = [sys.executable, '-m', 'planar_vo'] + list(args.command[1:])
-    return subprocess.run(cmd, env=env, check=False).returncode
+    with subprocess.Popen(cmd, env=env) as child:
+        try:
+            code = child.wait()
+        except KeyboardInterrupt as err:
+            # Ctrl-C reaches the whole process group, a supervisor's SIGTERM (or a kill) this
+            # process only: pass it on unless the child is stopping already. The child finishes
+            # its outputs and reports the interruption; its exit code is this one's.
+            signum = interrupt_signal(err)
+            try:
+                code = child.wait(timeout=1.0 if signum == signal.SIGINT else 0.0)
+            except subprocess.TimeoutExpired:
+                child.send_signal(signum)
+                code = child.wait()
+    return 128 - code if code < 0 else code       # killed by signal N: the shell's 128 + N
 
 
 def _version(dist: str) -> str:
@@ -145,15 +162,17 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]],
 
 def write_markdown(path: Path, title: str, command: Sequence[str], sections: Iterable[str]
                    ) -> str:
-    """Write a report that starts with the exact command that produced it; returns the text."""
+    """Write a report that starts with the exact command that produced it; returns the text.
+
+    The file is complete or absent (`planar_vo.outputs.write_file`); `OutputError` if it cannot
+    be written."""
     text = '\n\n'.join([
         f'# {title}',
         'Produced by:\n\n```sh\n' + shlex.join(command) + '\n```',
         '\n'.join(environment_lines()),
         *sections,
     ]) + '\n'
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text, encoding='utf-8')
+    write_file(path, text)
     return text
 
 
@@ -176,11 +195,12 @@ def save_figure(fig, path: Path, *, margins: dict | None = None) -> Path:
     """
     import matplotlib.pyplot as plt
 
-    path.parent.mkdir(parents=True, exist_ok=True)
     if margins:
         fig.subplots_adjust(**margins)
     else:
         fig.tight_layout()
-    fig.savefig(path, dpi=72)
-    plt.close(fig)
+    try:
+        write_file(path, lambda tmp: fig.savefig(tmp, dpi=72))
+    finally:
+        plt.close(fig)
     return path

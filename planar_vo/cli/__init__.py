@@ -2,7 +2,8 @@
 
 Each subcommand module defines ``register(subparsers)`` (its parser, with examples) and
 ``run(args) -> int``. Known errors (`PlanarVoError`) become one line on stderr and exit code 1;
-anything else is a bug and keeps its traceback.
+anything else is a bug and keeps its traceback. SIGTERM is handled like SIGINT (Ctrl-C): the
+command stops, its outputs are finished or removed, and one line says what was kept.
 """
 
 from __future__ import annotations
@@ -51,17 +52,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _with_notes(text: str, err: BaseException) -> str:
+    """`text` and the error's notes (what was kept, added on the way out) on one line."""
+    parts = [text, *getattr(err, '__notes__', ())]
+    return '; '.join(' '.join(p.split()) for p in parts if p.strip())
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``planar_vo`` command; returns the process exit code."""
+    """Run the ``planar_vo`` command; returns the process exit code.
+
+    Exit codes: 0 done, 1 a known error (one line on stderr, saying what was kept), 2 a usage
+    error, 128 + the signal number when stopped by SIGINT (130) or SIGTERM (143): both are
+    handled alike, outputs are finished or removed and one line says what was kept.
+    """
+    from planar_vo.outputs import interrupt_signal, stop_signals_interrupt
+
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=(logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)],
                         format='%(levelname)s %(name)s: %(message)s')
-    try:
-        return int(args.run(args) or 0)
-    except PlanarVoError as err:
-        print(f'planar_vo {args.command}: error: {err}', file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f'planar_vo {args.command}: interrupted', file=sys.stderr)
-        return 130
+    command = f'planar_vo {args.command}'        # before run(): bench replaces args.command
+    with stop_signals_interrupt():
+        try:
+            return int(args.run(args) or 0)
+        except PlanarVoError as err:
+            print(_with_notes(f'{command}: error: {err}', err), file=sys.stderr)
+            return 1
+        except KeyboardInterrupt as err:
+            signum = interrupt_signal(err)
+            print(_with_notes(f'{command}: interrupted by {signum.name}', err), file=sys.stderr)
+            return 128 + signum.value

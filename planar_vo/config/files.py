@@ -28,6 +28,9 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
         data = yaml.safe_load(path.read_text(encoding='utf-8'))
     except OSError as err:
         raise ConfigError(f'{path}: cannot read configuration ({err.strerror})') from err
+    except UnicodeDecodeError as err:
+        raise ConfigError(f'{path}: not a YAML text file (byte {err.start} is not UTF-8: '
+                          f'{err.object[err.start:err.start + 1]!r})') from err
     except yaml.YAMLError as err:
         raise ConfigError(f'{path}: not valid YAML ({err})') from err
     if data is None:

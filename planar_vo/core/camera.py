@@ -62,7 +62,11 @@ class CameraModel:
         if self.distortion_model not in DISTORTION_MODELS:
             raise CameraModelError(f"distortion_model: expected one of {list(DISTORTION_MODELS)}, "
                                    f"got '{self.distortion_model}'")
-        D = tuple(float(d) for d in self.D)
+        try:
+            D = tuple(float(d) for d in self.D)
+        except (TypeError, ValueError, OverflowError) as err:
+            raise CameraModelError(f'D: expected real coefficients, got {type(self.D).__name__} '
+                                   f'({err})') from err
         n = DISTORTION_MODELS[self.distortion_model]
         if self.distortion_model == 'plumb_bob' and len(D) in (4, 5):
             D = D + (0.0,) * (5 - len(D))
@@ -85,9 +89,15 @@ class CameraModel:
                 cx: float | None = None, cy: float | None = None) -> CameraModel:
         """An undistorted camera; the principal point defaults to the image centre."""
         fy = fx if fy is None else fy
-        cx = (width - 1) / 2.0 if cx is None else cx
-        cy = (height - 1) / 2.0 if cy is None else cy
-        return cls(width, height, np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]))
+        try:
+            cx = (width - 1) / 2.0 if cx is None else cx
+            cy = (height - 1) / 2.0 if cy is None else cy
+            K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=np.float64)
+        except (TypeError, ValueError, OverflowError) as err:
+            raise CameraModelError(f'pinhole: expected real numbers for the size and '
+                                   f'intrinsics, got one that is not or is too large for float64 '
+                                   f'({err})') from err
+        return cls(width, height, K)
 
     @classmethod
     def from_camera_info(cls, msg: Any) -> CameraModel:
@@ -217,7 +227,7 @@ def _check_K(K) -> np.ndarray:
     """``K`` as a finite upper-triangular 3x3 intrinsic matrix, or `CameraModelError`."""
     try:
         arr = np.asarray(K, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):     # OverflowError: a Python 10**400
         arr = np.zeros(0)
     if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
         raise CameraModelError(f'K: expected a finite 3x3 matrix, got {K!r}')

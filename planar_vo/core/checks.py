@@ -14,6 +14,10 @@ from planar_vo.errors import InputError
 
 __all__ = ['as_array', 'same_length', 'shape_str']
 
+# Array kinds accepted as real numbers: bool, integers, floats, and objects (Python ints,
+# Decimals) converted one by one. Complex, strings, dates are refused, not silently cast.
+_REAL_KINDS = frozenset('biufO')
+
 
 def shape_str(shape: tuple[int | str | None, ...]) -> str:
     """Render a shape like ``(N, 2, 2)``; ``None`` and strings stand for free dimensions."""
@@ -31,6 +35,10 @@ def as_array(
 ) -> np.ndarray:
     """Return `value` as a float64 array of `shape`, or raise `InputError` naming `name`.
 
+    Complex values (whose imaginary part a cast would drop), strings and numbers beyond float64
+    (a Python ``10**400``) are refused; so are NaN and infinity (a ``Decimal('1e400')``
+    becomes infinity) unless ``finite=False``.
+
     Args:
         name: argument name used in the error message.
         value: array-like input.
@@ -39,11 +47,20 @@ def as_array(
         min_items: minimum size of the first dimension when it is free.
         finite: reject NaN and infinity.
     """
+    expected = f'{name}: expected a numeric array of shape {shape_str(shape)}'
     try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as err:
-        raise InputError(f'{name}: expected a numeric array of shape {shape_str(shape)}, '
-                         f'got {type(value).__name__}') from err
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as err:        # ragged nesting
+        raise InputError(f'{expected}, got {type(value).__name__}') from err
+    if arr.dtype.kind not in _REAL_KINDS:
+        raise InputError(f'{expected} of real numbers, got {arr.dtype} values')
+    try:
+        arr = arr.astype(np.float64, copy=False)
+    except (TypeError, ValueError) as err:        # objects that are not real numbers
+        raise InputError(f'{expected}, got {type(value).__name__}') from err
+    except OverflowError as err:                  # Python ints beyond float64 (10**400)
+        raise InputError(f'{name}: expected finite values, got a number too large for float64 '
+                         f'({err})') from err
     if arr.ndim != len(shape) or any(
         isinstance(d, int) and d != s for d, s in zip(shape, arr.shape)
     ):

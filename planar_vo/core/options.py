@@ -93,10 +93,17 @@ def _coerce(key: str, raw: Any, hint: Any) -> Any:
             return raw
     elif hint is int:
         if isinstance(raw, int) and not isinstance(raw, bool):
+            if not -2**63 <= raw < 2**63:
+                raise ConfigError(f'{key}: expected int, got one of {raw.bit_length()} bits '
+                                  f'(at most 64)')
             return raw
     elif hint is float:
         if isinstance(raw, (int, float)) and not isinstance(raw, bool):
-            return float(raw)
+            try:
+                return float(raw)
+            except OverflowError:
+                raise ConfigError(f'{key}: expected float, got an int of {raw.bit_length()} '
+                                  f'bits (beyond float64)') from None
     elif hint is str:
         if isinstance(raw, str):
             return raw

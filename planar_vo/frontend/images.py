@@ -26,10 +26,12 @@ from planar_vo.errors import ImageError, InputError
 
 __all__ = [
     'IMAGE_ENCODINGS',
+    'MAX_IMAGE_PIXELS',
     'MIN_IMAGE_SIZE',
     'as_gray',
     'buffer',
     'check_pair',
+    'declared_size',
     'decode_compressed',
     'decode_raw',
     'read_image',
@@ -37,6 +39,15 @@ __all__ = [
 
 # DIS optical flow and the patch refinement need a few patches' worth of pixels.
 MIN_IMAGE_SIZE = 32
+# Compressed images declaring more pixels are refused before decoding: 2^25 = 33.5 million,
+# room for 8K UHD (7680x4320), while a few hundred KB of PNG can declare 20000x20000 and cost
+# 400 MB and seconds to inflate.
+MAX_IMAGE_PIXELS = 1 << 25
+_PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
+# JPEG start-of-frame markers (SOF0..SOF15 without DHT 0xC4, JPG 0xC8, DAC 0xCC): they carry
+# the frame size. Markers without a length field: TEM, RST0..7, SOI, EOI.
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+_JPEG_NO_LENGTH = frozenset([0x01, *range(0xD0, 0xDA)])
 
 # encoding -> (channels, bytes per channel, cv2 code to grey or None for single channel)
 IMAGE_ENCODINGS: dict[str, tuple[int, int, int | None]] = {
@@ -163,9 +174,53 @@ def decode_raw(data: Any, encoding: str, height: int, width: int, step: int,
     return cv2.cvtColor(img, code) if code is not None else img
 
 
+def declared_size(data: np.ndarray) -> tuple[str, int, int]:
+    """``(format, width, height)`` that PNG or JPEG bytes declare in their header.
+
+    PNG: the IHDR chunk, which must come first; JPEG: the first start-of-frame segment. Only
+    the header is read (a few hundred bytes), nothing is decoded.
+
+    Raises:
+        ImageError: neither a PNG nor a JPEG signature, or a header too short to hold the size.
+    """
+    head = bytes(data[:24])
+    if head.startswith(_PNG_SIGNATURE):
+        if len(head) < 24 or head[12:16] != b'IHDR':
+            raise ImageError(f'compressed_image.data: a PNG signature without an IHDR header '
+                             f'({data.size} bytes)')
+        return 'png', int.from_bytes(head[16:20], 'big'), int.from_bytes(head[20:24], 'big')
+    if head.startswith(b'\xff\xd8'):
+        raw = data.tobytes()
+        pos = 2
+        while 0 <= pos and pos + 4 <= len(raw):      # one step per header segment (a handful)
+            if raw[pos] != 0xFF:                      # stray bytes before a marker (tolerated)
+                pos = raw.find(b'\xff', pos)
+                continue
+            marker = raw[pos + 1]
+            if marker == 0xFF:                        # fill byte
+                pos += 1
+            elif marker in _JPEG_NO_LENGTH:
+                pos += 2
+            elif marker in _JPEG_SOF and pos + 9 <= len(raw):
+                return ('jpeg', int.from_bytes(raw[pos + 7:pos + 9], 'big'),
+                        int.from_bytes(raw[pos + 5:pos + 7], 'big'))
+            elif marker == 0xDA:                      # start of scan without a frame header
+                break
+            else:
+                pos += 2 + int.from_bytes(raw[pos + 2:pos + 4], 'big')
+        raise ImageError(f'compressed_image.data: a JPEG without a readable frame header '
+                         f'({data.size} bytes)')
+    start = f' starting with {head[:8].hex(" ")}' if head else ''
+    raise ImageError(f'compressed_image.data: expected PNG or JPEG data, got {data.size} '
+                     f'bytes{start}')
+
+
 def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
                       mono16_shift: int = 8) -> np.ndarray:
     """Pixels of JPEG or PNG bytes (a ``sensor_msgs/CompressedImage`` or an image file).
+
+    The size the header declares (`declared_size`) is checked before decoding: more than
+    `MAX_IMAGE_PIXELS` pixels is refused without inflating anything.
 
     Args:
         data: the encoded bytes.
@@ -176,13 +231,18 @@ def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
         mono16_shift: right shift from 16-bit to 8-bit grey for 16-bit PNGs.
 
     Raises:
-        ImageError: unknown format or data OpenCV cannot decode.
+        ImageError: unknown format, data that is not PNG or JPEG, a declared size above
+            `MAX_IMAGE_PIXELS`, or data OpenCV cannot decode.
     """
     lower = str(fmt).lower()
     if not any(name in lower for name in ('jpeg', 'jpg', 'png')) or 'compresseddepth' in lower:
         raise ImageError(f"compressed_image.format: expected 'jpeg' or 'png', got '{fmt}'")
     buf = buffer(data)
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
+    kind, width, height = declared_size(buf)
+    if width * height > MAX_IMAGE_PIXELS:
+        raise ImageError(f'compressed_image.data: the {kind} header declares {width}x{height} '
+                         f'pixels, more than the {MAX_IMAGE_PIXELS} accepted; not decoded')
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise ImageError(f"compressed_image.data: expected decodable {fmt} data, got "
                          f'{buf.size} bytes OpenCV cannot decode')

@@ -17,7 +17,7 @@ import numpy as np
 from planar_vo.core.camera import CameraModel
 from planar_vo.io.images import CAMERA_INFO_TYPE, IMAGE_TYPE
 from planar_vo.io.reader import TYPESTORE
-from planar_vo.io.writer import ODOMETRY_TYPE, BagWriter
+from planar_vo.io.writer import ODOMETRY_TYPE, BagWriter, check_stamp_ns
 from planar_vo.ros.messages import ns_to_stamp_fields
 
 __all__ = [
@@ -75,7 +75,7 @@ class CameraBagWriter(BagWriter):
         and the ground truth and speed when given.
 
         Args:
-            stamp_ns: header stamp and log time in integer ns.
+            stamp_ns: header stamp and log time in integer ns (`check_stamp_ns`: 1970 to 2038).
             image: 8-bit grey image ``(H, W)`` of the camera's size.
             camera: its camera model (intrinsics and distortion).
             projection: the 3x4 ``P`` of CameraInfo (default ``[K | 0]``).
@@ -85,7 +85,8 @@ class CameraBagWriter(BagWriter):
         """
         t = TYPESTORE.types
         height, width = image.shape
-        sec, nanosec = ns_to_stamp_fields(int(stamp_ns))
+        stamp_ns = check_stamp_ns('stamp', stamp_ns)
+        sec, nanosec = ns_to_stamp_fields(stamp_ns)
         stamp = t['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
         header = t['std_msgs/msg/Header'](stamp=stamp, frame_id=self.camera_frame)
         P = np.column_stack([camera.K, np.zeros(3)]) if projection is None else projection

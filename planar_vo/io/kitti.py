@@ -25,6 +25,7 @@ turn positive yaw.) The ground-truth twist is the finite difference over the pre
 from __future__ import annotations
 
 import logging
+import math
 import sys
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -43,6 +44,7 @@ from planar_vo.io.camera_bag import (
     IMAGE_TOPIC,
     CameraBagWriter,
 )
+from planar_vo.io.writer import MAX_STAMP_NS
 from planar_vo.ros.messages import seconds_to_ns
 
 __all__ = [
@@ -235,21 +237,16 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
     """
     from tqdm import tqdm
 
-    if not (np.isfinite(camera_height) and camera_height > 0):
-        raise InputError(f'camera_height: expected a positive height in metres, got '
-                         f'{camera_height}')
-    if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
-        raise InputError(f'rate_hz: expected a positive frame rate, got {rate_hz}')
+    camera_height = _positive('camera_height', camera_height, 'a positive height in metres')
+    if rate_hz is not None:
+        rate_hz = _positive('rate_hz', rate_hz, 'a positive frame rate')
     try:
         start_ns = seconds_to_ns(DEFAULT_START if start is None else start)
     except InputError:
         raise InputError(f'start: expected a number of seconds, got {start!r}') from None
     seq = read_kitti_sequence(folder, need_times=rate_hz is None)
     n = len(seq.images)
-    if rate_hz is not None:
-        stamps = np.array([start_ns + round(i * 1e9 / rate_hz) for i in range(n)], np.int64)
-    else:
-        stamps = np.array([start_ns + seconds_to_ns(t) for t in seq.times], dtype=np.int64)
+    stamps = _stamps(seq, rate_hz, start_ns)
     first = _read_png(seq.images[0])
     height, width = first.shape
     try:
@@ -258,6 +255,10 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
         raise InputError(f'calib.txt: P0 does not hold valid intrinsics ({err})') from err
     if seq.poses is not None:
         gt_poses, gt_twists = kitti_ground_truth(seq.poses, stamps, camera_height)
+        if not np.all(np.isfinite(gt_twists)):
+            i = int(np.flatnonzero(~np.all(np.isfinite(gt_twists), axis=1))[0])
+            raise InputError(f'poses.txt: the ground-truth velocity at frame {i} is not finite '
+                             f'(poses too far apart for their stamps)')
 
     with CameraBagWriter(out_path, storage=storage, ground_truth=seq.poses is not None,
                          camera_frame=camera_frame, odom_frame=odom_frame,
@@ -280,3 +281,48 @@ def _read_png(path: Path) -> np.ndarray:
         return read_image(path)
     except ImageError as err:
         raise InputError(f'images: {err}') from err
+
+
+def _positive(name: str, value: float, what: str) -> float:
+    """`value` as a finite positive float, or `InputError` naming `name` and `what`."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError, OverflowError):
+        number = float('nan')
+    if not (math.isfinite(number) and number > 0):
+        raise InputError(f'{name}: expected {what}, got {value!r}')
+    return number
+
+
+def _seconds(ns: int) -> str:
+    """Integer ns as seconds for messages: exact up to 1e15 s (``1700000000.1``, ``-5``), then
+    ``1e+30`` (no float overflow for any size)."""
+    seconds = Decimal(ns).scaleb(-9).normalize()
+    return f'{seconds:f}' if abs(seconds) < 10**15 else f'{seconds:g}'
+
+
+def _stamps(seq: KittiSequence, rate_hz: float | None, start_ns: int) -> np.ndarray:
+    """Integer ns stamps of the frames: ``times.txt`` (or ``i / rate_hz``) plus `start_ns`.
+
+    Raises:
+        InputError: a stamp outside what a ROS time stamp holds (1970 to 2038), or two frames
+            less than 1 ns apart (e.g. an absurd frame rate); nothing has been written then.
+    """
+    if rate_hz is not None:
+        source = f'rate_hz {rate_hz!r}'
+        period_ns = Decimal(1_000_000_000) / Decimal(repr(rate_hz))
+        offsets = [int((i * period_ns).to_integral_value()) for i in range(len(seq.images))]
+    else:
+        source = 'times.txt'
+        offsets = [seconds_to_ns(t) for t in seq.times]
+    stamps = [start_ns + t for t in offsets]
+    if min(stamps) < 0 or max(stamps) > MAX_STAMP_NS:
+        raise InputError(f'stamps: {source} plus start gives {_seconds(min(stamps))} to '
+                         f'{_seconds(max(stamps))} s, outside the range of a ROS time stamp '
+                         f'(0 to {_seconds(MAX_STAMP_NS)} s: 1970 to 2038); check times.txt, '
+                         f'--rate-hz and --start')
+    for i in range(1, len(stamps)):
+        if stamps[i] <= stamps[i - 1]:
+            raise InputError(f'stamps: {source} gives frames {i - 1} and {i} the same stamp '
+                             f'{stamps[i]} ns; frames must be at least 1 ns apart')
+    return np.array(stamps, dtype=np.int64)

@@ -1,13 +1,25 @@
 """Writing ROS 2 bags (MCAP or sqlite3) with rosbags: odometry, any Jazzy message, raw copies.
 
-Writers never overwrite: an existing output path is refused before anything is touched. On an
-exception inside the ``with`` block the bag is still closed properly (index and
-``metadata.yaml`` written), so everything written up to the error stays readable.
+Writers never overwrite: an existing output path is refused before anything is touched. A bag is
+written into a hidden folder next to its path and renamed onto the path only once it is
+complete, so the path either holds a complete, readable bag or does not exist:
+
+- an exception inside the ``with`` block (bad input found mid-way, an interruption) still
+  finishes the bag (index and ``metadata.yaml``): everything written up to it is kept;
+- a bag that cannot be finished, or whose storage failed to write a message (a full disk), is
+  removed: a half-written bag is never left behind nor reported as kept.
+
+Either way the exception leaving the ``with`` block carries a note saying what was kept
+(`BagWriter.outcome`). Writing a message and finishing the bag are never cut by SIGINT/SIGTERM
+(`planar_vo.outputs.deferred_interrupts`).
 """
 
 from __future__ import annotations
 
 import logging
+import shutil
+import sqlite3
+import tempfile
 from contextlib import suppress
 from pathlib import Path
 from types import TracebackType
@@ -19,15 +31,35 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 from planar_vo.errors import BagError
 from planar_vo.io.reader import TYPESTORE, BagReader, one_line
+from planar_vo.outputs import deferred_interrupts
 from planar_vo.ros.messages import odometry_message
 
-__all__ = ['ODOMETRY_TYPE', 'STORAGES', 'BagWriter', 'OdometryBagWriter']
+__all__ = ['MAX_STAMP_NS', 'ODOMETRY_TYPE', 'STORAGES', 'BagWriter', 'OdometryBagWriter',
+           'check_stamp_ns']
 
 log = logging.getLogger(__name__)
 
 ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 _BAG_VERSION = 9                       # rosbag2 metadata version written by Jazzy
+# builtin_interfaces/Time holds int32 seconds: stamps from 0 to 2038-01-19 03:14:07.999999999.
+MAX_STAMP_NS = 2**31 * 1_000_000_000 - 1
+# What a storage raises when the disk is full or the file cannot be written.
+_STORAGE_ERRORS = (OSError, sqlite3.Error)
+
+
+def _reason(err: BaseException) -> str:
+    """An OS error's reason (``No space left on device``), else the error on one line."""
+    return getattr(err, 'strerror', None) or one_line(err)
+
+
+def check_stamp_ns(role: str, stamp_ns: int) -> int:
+    """`stamp_ns` as an int if a ``builtin_interfaces/Time`` (and a bag) can hold it, i.e.
+    ``0 <= stamp_ns <= MAX_STAMP_NS``; else `BagError` naming `role` and the value."""
+    if not 0 <= stamp_ns <= MAX_STAMP_NS:
+        raise BagError(f'{role}: {stamp_ns} ns is outside the range of a ROS time stamp '
+                       f'(0 to {MAX_STAMP_NS} ns, i.e. 1970 to 2038)')
+    return int(stamp_ns)
 
 
 class BagWriter:
@@ -37,6 +69,10 @@ class BagWriter:
         path: the bag directory to create; must not exist.
         storage: ``'mcap'`` or ``'sqlite3'``.
 
+    Attributes:
+        kept: True once the complete bag is at `path`.
+        counts: messages written per topic.
+
     Raises:
         BagError: `path` exists (nothing is touched) or `storage` is unknown.
     """
@@ -45,13 +81,19 @@ class BagWriter:
         self.path = Path(path)
         if storage not in STORAGES:
             raise BagError(f"storage: expected one of {list(STORAGES)}, got '{storage}'")
+        self._refuse_existing()
+        self.storage = storage
+        self.counts: dict[str, int] = {}
+        self.kept = False
+        self._writer: Writer | None = None
+        self._tmp: Path | None = None
+        self._failure: str | None = None
+        self._connections: dict[str, Any] = {}
+
+    def _refuse_existing(self) -> None:
         if self.path.exists() or self.path.is_symlink():
             raise BagError(f"out: '{self.path}' already exists; refusing to overwrite it "
                            f'(remove it or choose another path)')
-        self.storage = storage
-        self.counts: dict[str, int] = {}
-        self._writer: Writer | None = None
-        self._connections: dict[str, Any] = {}
 
     # -- context -----------------------------------------------------------------------------
 
@@ -61,35 +103,73 @@ class BagWriter:
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
-        if exc_type is None:
+        if exc is None:
             self.close()
             return
         try:                           # keep what was written readable; the original error wins
             self.close()
         except BagError as err:
-            log.error('%s', err)
+            log.debug('%s', err)       # the note below says it
+        exc.add_note(self.outcome)
+
+    @property
+    def outcome(self) -> str:
+        """What is at `path`: a complete bag and its message counts, or nothing and why."""
+        if self.kept:
+            counts = ', '.join(f'{t}: {n}' for t, n in self.counts.items()) or 'none'
+            return f"kept '{self.path}', a complete bag with messages {counts}"
+        if self._failure:
+            return f"nothing was kept at '{self.path}' ({self._failure})"
+        return f"nothing was written to '{self.path}'"
 
     def open(self) -> None:
-        """Create the bag directory and storage file."""
+        """Create the storage in a hidden folder next to `path`."""
+        with deferred_interrupts():
+            self._open()
+
+    def _open(self) -> None:
         try:
-            self._writer = Writer(self.path, version=_BAG_VERSION,
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._tmp = Path(tempfile.mkdtemp(prefix=f'.{self.path.name}.', suffix='.partial',
+                                              dir=self.path.parent))
+            self._writer = Writer(self._tmp / self.path.name, version=_BAG_VERSION,
                                   storage_plugin=STORAGES[self.storage])
             self._writer.open()
         except Exception as err:       # noqa: BLE001 - rosbags/OS errors on creation
             self._writer = None
+            self._remove_tmp()
             raise BagError(f"out: cannot create bag '{self.path}': {one_line(err)}") from err
 
     def close(self) -> None:
-        """Finish the bag (index and ``metadata.yaml``); idempotent."""
+        """Finish the bag (index and ``metadata.yaml``) and move it to `path`; idempotent.
+
+        Raises:
+            BagError: the bag cannot be finished (a full disk) or a message could not be
+                written before; the partial bag is removed and nothing is kept.
+        """
         writer, self._writer = self._writer, None
         if writer is None:
             return
-        try:
-            writer.close()
-        except Exception as err:       # noqa: BLE001
-            with suppress(Exception):
-                writer.abort()
-            raise BagError(f"out: cannot finish bag '{self.path}': {one_line(err)}") from err
+        with deferred_interrupts():
+            try:
+                if self._failure:
+                    raise BagError(self._failure)
+                writer.close()
+                self._refuse_existing()
+                (self._tmp / self.path.name).rename(self.path)
+            except Exception as err:   # noqa: BLE001 - storage, OS and rosbags errors
+                with suppress(Exception):
+                    writer.abort()
+                self._failure = self._failure or f'cannot finish the bag: {_reason(err)}'
+                raise BagError(f"out: {self.outcome}") from err
+            finally:
+                self._remove_tmp()
+            self.kept = True
+
+    def _remove_tmp(self) -> None:
+        tmp, self._tmp = self._tmp, None
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
 
     # -- topics ------------------------------------------------------------------------------
 
@@ -126,11 +206,26 @@ class BagWriter:
     # -- messages ----------------------------------------------------------------------------
 
     def write_raw(self, topic: str, log_time_ns: int, rawdata: bytes | memoryview) -> None:
-        """Write an already serialized (CDR) message at log time `log_time_ns`."""
+        """Write an already serialized (CDR) message at log time `log_time_ns`.
+
+        Raises:
+            BagError: unknown topic, a log time outside `check_stamp_ns`'s range, or the
+                storage failed (a full disk): the bag is then lost (see `close`).
+        """
         connection = self._connections.get(topic)
         if connection is None or self._writer is None:
             raise BagError(f"topic: '{topic}' is not registered in open bag '{self.path}'")
-        self._writer.write(connection, int(log_time_ns), rawdata)
+        if self._failure:
+            raise BagError(f"out: bag '{self.path}' takes no more messages after a failed "
+                           f'write')
+        log_time_ns = check_stamp_ns(f"log time on '{topic}'", log_time_ns)
+        with deferred_interrupts():
+            try:
+                self._writer.write(connection, log_time_ns, rawdata)
+            except _STORAGE_ERRORS as err:
+                self._failure = 'removed after a failed write'
+                raise BagError(f"out: cannot write to bag '{self.path}' ({_reason(err)})"
+                               ) from err
         self.counts[topic] += 1
 
     def write_message(self, topic: str, log_time_ns: int, msg: Any) -> None:
@@ -155,6 +250,7 @@ class BagWriter:
             twist: body velocity ``(vx, vy, vz, wx, wy, wz)`` in `base_frame` (default zeros).
             log_time_ns: bag receive time (default `stamp_ns`).
         """
+        stamp_ns = check_stamp_ns(f"stamp on '{topic}'", stamp_ns)
         msg = odometry_message(TYPESTORE.types, stamp_ns, pose, odom_frame=odom_frame,
                                base_frame=base_frame, pose_covariance=pose_covariance,
                                twist=twist, twist_covariance=twist_covariance)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
-from planar_vo.errors import InputError
+from planar_vo.errors import InputError, OutputError, PlanarVoError
 
 __all__ = ['CAMERAS', 'DemoResult', 'run_demo']
 
@@ -42,9 +42,21 @@ def _prepare(out_dir: Path, force: bool) -> None:
         if not (out_dir / MARKER).exists() and not force:
             raise InputError(f"out: '{out_dir}' exists and is not a demo folder; choose another "
                              f"--out or pass --force")
-        shutil.rmtree(out_dir)
-    out_dir.mkdir(parents=True)
-    (out_dir / MARKER).write_text('written by planar_vo demo; replaced by the next run\n')
+    try:
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        out_dir.mkdir(parents=True)
+        (out_dir / MARKER).write_text('written by planar_vo demo; replaced by the next run\n')
+    except OSError as err:
+        raise OutputError(f"out: cannot write the demo folder '{out_dir}' "
+                          f'({err.strerror or err})') from err
+
+
+def _contents(out_dir: Path) -> str:
+    """What a stopped demo left in its folder, for the note on the exception."""
+    names = sorted(p.name for p in out_dir.iterdir() if not p.name.startswith('.')
+                   ) if out_dir.is_dir() else []
+    return f"'{out_dir}' holds: {', '.join(names) or 'nothing'}"
 
 
 def run_demo(out_dir: str | Path = 'planar_vo_demo', *, camera: str = '640x480',
@@ -61,21 +73,37 @@ def run_demo(out_dir: str | Path = 'planar_vo_demo', *, camera: str = '640x480',
         force: replace ``out_dir`` even if it is not a demo folder.
         progress: progress bars on stderr.
         log: where progress lines go.
+
+    Raises:
+        InputError: bad arguments, or `out_dir` exists and is not a demo folder.
+        OutputError, BagError: the folder or a file in it cannot be written (read-only or full
+            disk). On any error or interruption the exception carries a note listing what the
+            folder holds; every file in it is complete (bags, TUM, plots), or absent.
     """
+    if camera not in CAMERAS:
+        raise InputError(f"camera: expected one of {list(CAMERAS)}, got '{camera}'")
+    if frames is not None and frames < 3:
+        raise InputError(f'frames: expected at least 3, got {frames}')
+    out_dir = Path(out_dir)
+    _prepare(out_dir, force)
+    try:
+        return _run(out_dir, camera, seed, frames, storage, progress, log)
+    except (PlanarVoError, KeyboardInterrupt) as err:
+        err.add_note(_contents(out_dir))
+        raise
+
+
+def _run(out_dir: Path, camera: str, seed: int, frames: int | None, storage: str,
+         progress: bool, log) -> DemoResult:
+    """`run_demo` after the folder is prepared."""
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.sim.drive import demo_drive
     from planar_vo.tools.evaluation import evaluate, load_trajectory, write_report
     from planar_vo.tools.record import record_drive
     from planar_vo.tools.replay import replay_bag
 
-    if camera not in CAMERAS:
-        raise InputError(f"camera: expected one of {list(CAMERAS)}, got '{camera}'")
-    out_dir = Path(out_dir)
-    _prepare(out_dir, force)
     drive = demo_drive()
     if frames is not None:
-        if frames < 3:
-            raise InputError(f'frames: expected at least 3, got {frames}')
         drive = drive.subset(slice(0, frames))
     config = PlanarVoConfig()                  # the camera is mounted at config.mount (defaults)
     files = {'drive': out_dir / 'drive', 'odometry': out_dir / 'odometry',

@@ -28,7 +28,7 @@ from typing import Protocol
 import numpy as np
 
 from planar_vo.core.camera import CameraModel
-from planar_vo.errors import BagError, InputError
+from planar_vo.errors import BagError, InputError, OutputError
 from planar_vo.io.images import CameraFrameDecoder, resolve_camera_topics
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
 from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
@@ -163,14 +163,16 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         A `ReplaySummary`.
 
     Raises:
-        BagError: input missing/corrupt/ambiguous, output or TUM path exists, or the input is
-            found corrupt mid-way: then the output bag (and TUM file) is closed properly with
-            everything written so far, and the error says how much was kept.
+        BagError: input missing/corrupt/ambiguous, output or TUM path exists, the input found
+            corrupt mid-way, or the output bag cannot be written (a full disk).
+        OutputError: the TUM file cannot be written.
+
+    Whatever stops the replay (an error, SIGINT/SIGTERM as ``KeyboardInterrupt``), the output
+    bag holds everything written so far as a complete bag, or is removed when it cannot be
+    finished; the TUM file is written from the poses computed so far; and the exception carries
+    notes saying exactly what was kept. Neither output is ever left truncated.
     """
     from tqdm import tqdm
-
-    from planar_vo.core.trajectory import Trajectory
-    from planar_vo.tools.evaluation.files import write_tum
 
     start = time.perf_counter()
     out_path = Path(out_path)
@@ -196,8 +198,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             stamps_ns, speeds = _read_speeds(bag, speed_topic)
         next_speed = 0
         dropped: Counter[str] = Counter()
-        tum_stamps: list[int] = []
-        tum_poses: list[np.ndarray] = []
+        poses = _Poses()
         decoder = CameraFrameDecoder(bag, image_topic, info_topic)
         decoder.prime()
         bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
@@ -227,27 +228,63 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                     summary.speed_messages += max(0, end - next_speed)
                     next_speed = max(next_speed, end)
                     result = processor.process(frame.image, frame.stamp, frame.camera)
+                    reason = None if result.ok else getattr(result.reason, 'value',
+                                                            str(result.reason))
                     if result.ok:
                         writer.write(frame.stamp_ns, result.pose, result.pose_covariance,
                                      result.twist, result.twist_covariance,
                                      log_time_ns=frame.log_time_ns)
-                        tum_stamps.append(frame.stamp_ns)
-                        tum_poses.append(np.asarray(result.pose, dtype=np.float64))
+                        poses.add(frame.stamp_ns, result.pose)
                     else:
-                        reason = result.reason
-                        dropped[getattr(reason, 'value', str(reason))] += 1
-        except BagError as err:
-            kept = f'{writer.count} odometry messages written to {out_path} were kept'
-            raise BagError(f'{err}; {kept}') from err
+                        dropped[reason] += 1
+                    log.debug('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
+                              reason or 'odometry')
+        except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
+            if tum_path is not None:
+                err.add_note(poses.save(tum_path))
+            raise
         finally:
             bar.close()
-            summary.odometry_out = writer.count
-            summary.dropped = dict(dropped)
-            summary.copied = {t: writer.counts.get(t, 0) for t in copy}
-            summary.camera_info_errors = decoder.camera_errors
-            if tum_path is not None:
-                write_tum(tum_path, Trajectory.from_poses(
-                    np.array(tum_stamps, dtype=np.int64),
-                    np.array(tum_poses).reshape(-1, 4, 4)))
+    if tum_path is not None:
+        try:
+            poses.write(tum_path)
+        except OutputError as err:
+            err.add_note(writer.outcome)
+            raise
+    summary.odometry_out = writer.count
+    summary.dropped = dict(dropped)
+    summary.copied = {t: writer.counts.get(t, 0) for t in copy}
+    summary.camera_info_errors = decoder.camera_errors
     summary.wall_time = time.perf_counter() - start
     return summary
+
+
+class _Poses:
+    """The odometry poses written so far, for the TUM file."""
+
+    def __init__(self) -> None:
+        self.stamps_ns: list[int] = []
+        self.poses: list[np.ndarray] = []
+
+    def add(self, stamp_ns: int, pose: np.ndarray) -> None:
+        self.stamps_ns.append(stamp_ns)
+        self.poses.append(np.asarray(pose, dtype=np.float64))
+
+    def write(self, path: str | Path) -> None:
+        """Write them as a TUM file (complete or absent; `OutputError` if it cannot be)."""
+        from planar_vo.core.trajectory import Trajectory
+        from planar_vo.tools.evaluation.files import write_tum
+
+        write_tum(path, Trajectory.from_poses(np.array(self.stamps_ns, dtype=np.int64),
+                                              np.array(self.poses).reshape(-1, 4, 4)))
+
+    def save(self, path: str | Path) -> str:
+        """`write`, after a failure or an interruption: a note saying what became of the file
+        (not written without poses: an empty file would only block the next run)."""
+        if not self.poses:
+            return f"no poses were computed; '{path}' was not written"
+        try:
+            self.write(path)
+        except OutputError as err:
+            return str(err)
+        return f"wrote '{path}' with the {len(self.poses)} poses computed"

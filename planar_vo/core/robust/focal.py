@@ -11,7 +11,13 @@ from planar_vo.core.conventions import wrap_angle
 from planar_vo.core.robust import refine
 from planar_vo.core.robust.histogram import circular_kernel
 from planar_vo.core.robust.options import VotingConfig
-from planar_vo.core.robust.types import PlanarMotion, VotingStats, check_inputs, failed_estimate
+from planar_vo.core.robust.types import (
+    PlanarMotion,
+    VotingStats,
+    check_clusters,
+    check_inputs,
+    failed_estimate,
+)
 from planar_vo.core.robust.vote import vote_planar_motion
 from planar_vo.core.solvers import _ac_matrix, solve_1acf
 from planar_vo.errors import ConfigError
@@ -87,6 +93,7 @@ def vote_planar_motion_focal(p1: np.ndarray, p2: np.ndarray, A: np.ndarray,
     if not (0.0 < lo < hi and math.isfinite(hi)):
         raise ConfigError(f'focal_range: expected 0 < min < max, got {focal_range}')
     n = p1.shape[0]
+    clusters = check_clusters(clusters, n)
     if clusters is None:
         clusters = refine.spatial_clusters(p1, config)
     _, _, f_c, cond = solve_1acf(p1, p2, A, return_weight=True)

@@ -9,9 +9,9 @@ import numpy as np
 from planar_vo.core.checks import as_array, same_length
 from planar_vo.core.robust.options import VotingConfig
 from planar_vo.core.solvers import _check_ac
-from planar_vo.errors import ConfigError
+from planar_vo.errors import ConfigError, InputError
 
-__all__ = ['PlanarMotion', 'VotingStats', 'check_inputs', 'failed_estimate']
+__all__ = ['PlanarMotion', 'VotingStats', 'check_clusters', 'check_inputs', 'failed_estimate']
 
 
 @dataclass(frozen=True)
@@ -81,6 +81,31 @@ def check_inputs(q1, q2, A, weights, config):
     if not isinstance(config, VotingConfig):
         raise ConfigError(f'config: expected VotingConfig, got {type(config).__name__}')
     return q1, q2, A, w, config
+
+
+def check_clusters(clusters, n: int) -> np.ndarray | None:
+    """Checked cluster labels for ``n`` ACs, or None when not given.
+
+    Labels only say which ACs belong together, so ids of ``n`` or more are renumbered
+    ``0..K-1`` (order kept): the per-cluster sums (``np.bincount``) then stay of size at most
+    ``n`` whatever the ids (a label of ``2**62`` would otherwise allocate exabytes).
+
+    Raises:
+        InputError: not an integer array of shape ``(n,)``, or a negative label.
+    """
+    if clusters is None:
+        return None
+    try:
+        labels = np.asarray(clusters)
+    except (TypeError, ValueError):
+        labels = np.asarray(None)
+    if labels.shape != (n,) or not np.issubdtype(labels.dtype, np.integer) \
+            or (labels.size and labels.min() < 0):
+        raise InputError(f'clusters: expected non-negative integers of shape ({n},), got '
+                         f'{labels.dtype} {labels.shape}')
+    if labels.size and labels.max() >= n:
+        labels = np.unique(labels, return_inverse=True)[1].reshape(n)
+    return labels
 
 
 def failed_estimate(n: int, flag: str, candidates: int = 0, sharpness: float = 0.0,

@@ -30,14 +30,19 @@ from planar_vo.core.robust import histogram, refine
 from planar_vo.core.robust.options import VotingConfig
 from planar_vo.core.robust.ransac import ransac_planar_motion
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, lower_quantile, thin
-from planar_vo.core.robust.types import PlanarMotion, VotingStats, check_inputs, failed_estimate
+from planar_vo.core.robust.types import (
+    PlanarMotion,
+    VotingStats,
+    check_clusters,
+    check_inputs,
+    failed_estimate,
+)
 from planar_vo.core.solvers import (
     _ac_matrix,
     _ac_null_vectors,
     _cheirality_flip,
     solve_1ac,
 )
-from planar_vo.errors import InputError
 
 __all__ = ['PlanarMotion', 'VotingStats', 'vote_planar_motion']
 
@@ -66,14 +71,9 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
         InputError: wrong shapes or non-finite values; ConfigError: bad weights or config.
     """
     q1, q2, A, w, config = check_inputs(q1, q2, A, weights, config)
+    clusters = check_clusters(clusters, q1.shape[0])
     if clusters is None:
         clusters = refine.spatial_clusters(q1, config)
-    else:
-        clusters = np.asarray(clusters)
-        if clusters.shape != (q1.shape[0],) or not np.issubdtype(clusters.dtype, np.integer) \
-                or (clusters.size and clusters.min() < 0):
-            raise InputError(f'clusters: expected non-negative integers of shape '
-                             f'({q1.shape[0]},), got {clusters.dtype} {clusters.shape}')
     if config.method == 'ransac':
         return ransac_planar_motion(q1, q2, A, w, config, clusters)
     n = q1.shape[0]

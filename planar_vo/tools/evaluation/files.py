@@ -14,6 +14,7 @@ import numpy as np
 
 from planar_vo.core.trajectory import Trajectory
 from planar_vo.errors import InputError
+from planar_vo.outputs import write_file
 
 __all__ = [
     'POSE_TYPES',
@@ -91,14 +92,18 @@ def _format_ns(ns: int) -> str:
 
 
 def write_tum(path: str | Path, trajectory: Trajectory) -> None:
-    """Write a TUM file: stamps with all nine decimals, floats in shortest round-trip form."""
+    """Write a TUM file: stamps with all nine decimals, floats in shortest round-trip form.
+
+    The file is written under a temporary name and renamed when complete, so an interruption
+    or a full disk never leaves a truncated file at `path`.
+
+    Raises:
+        OutputError: the file cannot be written (the message names it and the reason).
+    """
     lines = ['# timestamp tx ty tz qx qy qz qw']
     for ns, p, q in zip(trajectory.stamps_ns, trajectory.positions, trajectory.quaternions):
         lines.append(' '.join([_format_ns(int(ns)), *(repr(float(v)) for v in (*p, *q))]))
-    try:
-        Path(path).write_text('\n'.join(lines) + '\n', encoding='utf-8')
-    except OSError as err:
-        raise InputError(f"tum: cannot write '{path}' ({err.strerror})") from err
+    write_file(path, '\n'.join(lines) + '\n', role='tum')
 
 
 # -- bags ---------------------------------------------------------------------------------------

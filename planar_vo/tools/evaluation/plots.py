@@ -1,7 +1,9 @@
 """PNG plots of an `Evaluation` (matplotlib, imported lazily, drawn off-screen with Agg).
 
 Figures are built with ``matplotlib.figure.Figure`` rather than pyplot, so no global backend or
-figure state is touched (safe inside other programs and tests).
+figure state is touched (safe inside other programs and tests). Each PNG is written under a
+temporary name and renamed when complete (`planar_vo.outputs.write_file`): an interrupted or
+failed plot leaves no truncated file, and `OutputError` names the file and the reason.
 """
 
 from __future__ import annotations
@@ -10,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from planar_vo.outputs import write_file
 from planar_vo.tools.evaluation.metrics import Evaluation
 
-__all__ = ['plot_ate', 'plot_trajectories', 'plot_yaw_heading', 'save_plots']
+__all__ = ['PLOTS', 'plot_ate', 'plot_trajectories', 'plot_yaw_heading', 'save_plots']
 
 
 def _figure(rows: int = 1, height: float = 4.5):
@@ -36,8 +39,7 @@ def plot_trajectories(evaluation: Evaluation, path: str | Path) -> Path:
     ax.grid(True, alpha=0.3)
     ax.legend(loc='best')
     ax.set_title('Trajectory, top view')
-    fig.savefig(path)
-    return Path(path)
+    return write_file(path, fig.savefig, role='plot')
 
 
 def plot_ate(evaluation: Evaluation, path: str | Path) -> Path:
@@ -52,8 +54,7 @@ def plot_ate(evaluation: Evaluation, path: str | Path) -> Path:
     ax.grid(True, alpha=0.3)
     ax.legend(loc='best')
     ax.set_title(f'Absolute trajectory error ({evaluation.alignment.method} alignment)')
-    fig.savefig(path)
-    return Path(path)
+    return write_file(path, fig.savefig, role='plot')
 
 
 def plot_yaw_heading(evaluation: Evaluation, path: str | Path) -> Path:
@@ -68,13 +69,17 @@ def plot_yaw_heading(evaluation: Evaluation, path: str | Path) -> Path:
         ax.grid(True, alpha=0.3)
     axes[0].set_title('Per-frame errors (estimate - reference)')
     axes[1].set_xlabel('time (s)')
-    fig.savefig(path)
-    return Path(path)
+    return write_file(path, fig.savefig, role='plot')
+
+
+# File name -> plot function, in the order they are written.
+PLOTS = {
+    'trajectory.png': plot_trajectories,
+    'ate.png': plot_ate,
+    'yaw_heading.png': plot_yaw_heading,
+}
 
 
 def save_plots(evaluation: Evaluation, out_dir: str | Path) -> list[Path]:
-    """All plots as ``trajectory.png``, ``ate.png``, ``yaw_heading.png`` in `out_dir`."""
-    out_dir = Path(out_dir)
-    return [plot_trajectories(evaluation, out_dir / 'trajectory.png'),
-            plot_ate(evaluation, out_dir / 'ate.png'),
-            plot_yaw_heading(evaluation, out_dir / 'yaw_heading.png')]
+    """All plots (`PLOTS`: ``trajectory.png``, ``ate.png``, ``yaw_heading.png``) in `out_dir`."""
+    return [plot(evaluation, Path(out_dir) / name) for name, plot in PLOTS.items()]

@@ -6,9 +6,10 @@ import json
 import math
 from pathlib import Path
 
-from planar_vo.errors import InputError
+from planar_vo.errors import PlanarVoError
+from planar_vo.outputs import write_file
 from planar_vo.tools.evaluation.metrics import Evaluation
-from planar_vo.tools.evaluation.plots import save_plots
+from planar_vo.tools.evaluation.plots import PLOTS
 
 __all__ = ['write_report']
 
@@ -29,14 +30,27 @@ def _json_ready(value):
 def write_report(evaluation: Evaluation, out_dir: str | Path, **extra) -> list[Path]:
     """Write ``metrics.json`` (the metrics plus ``extra`` fields) and the plots into ``out_dir``.
 
-    Returns the paths written, ``metrics.json`` first.
+    Each file is complete or absent (`planar_vo.outputs.write_file`). When one cannot be
+    written (a full or read-only disk) or the run is interrupted, the exception carries a note
+    naming the files that were written.
+
+    Returns:
+        The paths written, ``metrics.json`` first.
+
+    Raises:
+        OutputError: a file or the folder cannot be written.
     """
     out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"out-dir: cannot create '{out}' ({err.strerror})") from err
     metrics = {**{k: str(v) for k, v in extra.items()}, **evaluation.metrics()}
-    path = out / 'metrics.json'
-    path.write_text(json.dumps(_json_ready(metrics), indent=2) + '\n')
-    return [path, *save_plots(evaluation, out)]
+    written: list[Path] = []
+    try:
+        written.append(write_file(out / 'metrics.json',
+                                  json.dumps(_json_ready(metrics), indent=2) + '\n',
+                                  role='out-dir'))
+        for name, plot in PLOTS.items():
+            written.append(plot(evaluation, out / name))
+    except (PlanarVoError, KeyboardInterrupt) as err:
+        kept = ', '.join(p.name for p in written) or 'nothing'
+        err.add_note(f"written to '{out}': {kept}")
+        raise
+    return written
