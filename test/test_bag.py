@@ -18,8 +18,8 @@ from bagdata import (
     odometry_msg,
     storage_file,
     twist_msg,
-    zero_png,
     write_bag,
+    zero_png,
 )
 
 from planar_vo.core.camera import CameraModel

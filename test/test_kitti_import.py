@@ -16,7 +16,7 @@ from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import yaw_of
 from planar_vo.errors import BagError, InputError
 from planar_vo.io import import_kitti, iter_camera_frames, iter_messages, open_bag
-from planar_vo.outputs import stop_signals_interrupt
+from planar_vo.io.outputs import stop_signals_interrupt
 from planar_vo.ros.messages import pose_from_message
 
 P0 = np.array([[50.0, 0.0, 19.5, 0.0], [0.0, 50.0, 14.5, 0.0], [0.0, 0.0, 1.0, 0.0]])

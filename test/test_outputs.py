@@ -24,7 +24,7 @@ from planar_vo.cli import main
 from planar_vo.core.conventions import planar_pose
 from planar_vo.errors import BagError, OutputError
 from planar_vo.io import OdometryBagWriter, iter_messages, open_bag
-from planar_vo.outputs import (
+from planar_vo.io.outputs import (
     deferred_interrupts,
     interrupt_signal,
     replacing_file,

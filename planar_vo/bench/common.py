@@ -21,7 +21,7 @@ import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-from planar_vo.outputs import interrupt_signal, write_file
+from planar_vo.io.outputs import interrupt_signal, write_file
 
 __all__ = [
     'BENCH_EXTRA',
@@ -164,7 +164,7 @@ def write_markdown(path: Path, title: str, command: Sequence[str], sections: Ite
                    ) -> str:
     """Write a report that starts with the exact command that produced it; returns the text.
 
-    The file is complete or absent (`planar_vo.outputs.write_file`); `OutputError` if it cannot
+    The file is complete or absent (`planar_vo.io.outputs.write_file`); `OutputError` if it cannot
     be written."""
     text = '\n\n'.join([
         f'# {title}',

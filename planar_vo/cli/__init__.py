@@ -65,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     error, 128 + the signal number when stopped by SIGINT (130) or SIGTERM (143): both are
     handled alike, outputs are finished or removed and one line says what was kept.
     """
-    from planar_vo.outputs import interrupt_signal, stop_signals_interrupt
+    from planar_vo.io.outputs import interrupt_signal, stop_signals_interrupt
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -11,7 +11,7 @@ complete, so the path either holds a complete, readable bag or does not exist:
 
 Either way the exception leaving the ``with`` block carries a note saying what was kept
 (`BagWriter.outcome`). Writing a message and finishing the bag are never cut by SIGINT/SIGTERM
-(`planar_vo.outputs.deferred_interrupts`).
+(`planar_vo.io.outputs.deferred_interrupts`).
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from rosbags.interfaces import ConnectionExtRosbag2, MessageDefinitionFormat
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from planar_vo.errors import BagError
+from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import TYPESTORE, BagReader, one_line
-from planar_vo.outputs import deferred_interrupts
 from planar_vo.ros.messages import odometry_message
 
 __all__ = ['MAX_STAMP_NS', 'ODOMETRY_TYPE', 'STORAGES', 'BagWriter', 'OdometryBagWriter',

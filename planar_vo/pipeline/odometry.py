@@ -35,6 +35,7 @@ from planar_vo.errors import ImageError, PlanarVoError
 from planar_vo.frontend import ACExtractor, leveling_rotation, undistort_acs
 from planar_vo.frontend.images import as_gray
 from planar_vo.pipeline.calibration import FocalCalibrator, MountTiltEstimator
+from planar_vo.pipeline.clock import FrameClock, StampCheck
 from planar_vo.pipeline.motion import (
     base_step,
     compose_covariance,
@@ -43,7 +44,6 @@ from planar_vo.pipeline.motion import (
     step_covariance,
 )
 from planar_vo.pipeline.scale import SpeedIntegrator, ground_plane_scale
-from planar_vo.pipeline.clock import FrameClock, StampCheck
 from planar_vo.pipeline.types import DropReason, FrameResult, TrackingState
 
 __all__ = ['VisualOdometry']

@@ -14,7 +14,7 @@ import numpy as np
 
 from planar_vo.core.trajectory import Trajectory
 from planar_vo.errors import InputError
-from planar_vo.outputs import write_file
+from planar_vo.io.outputs import write_file
 
 __all__ = [
     'POSE_TYPES',

@@ -2,7 +2,7 @@
 
 Figures are built with ``matplotlib.figure.Figure`` rather than pyplot, so no global backend or
 figure state is touched (safe inside other programs and tests). Each PNG is written under a
-temporary name and renamed when complete (`planar_vo.outputs.write_file`): an interrupted or
+temporary name and renamed when complete (`planar_vo.io.outputs.write_file`): an interrupted or
 failed plot leaves no truncated file, and `OutputError` names the file and the reason.
 """
 
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planar_vo.outputs import write_file
+from planar_vo.io.outputs import write_file
 from planar_vo.tools.evaluation.metrics import Evaluation
 
 __all__ = ['PLOTS', 'plot_ate', 'plot_trajectories', 'plot_yaw_heading', 'save_plots']

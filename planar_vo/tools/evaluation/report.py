@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 
 from planar_vo.errors import PlanarVoError
-from planar_vo.outputs import write_file
+from planar_vo.io.outputs import write_file
 from planar_vo.tools.evaluation.metrics import Evaluation
 from planar_vo.tools.evaluation.plots import PLOTS
 
@@ -30,7 +30,7 @@ def _json_ready(value):
 def write_report(evaluation: Evaluation, out_dir: str | Path, **extra) -> list[Path]:
     """Write ``metrics.json`` (the metrics plus ``extra`` fields) and the plots into ``out_dir``.
 
-    Each file is complete or absent (`planar_vo.outputs.write_file`). When one cannot be
+    Each file is complete or absent (`planar_vo.io.outputs.write_file`). When one cannot be
     written (a full or read-only disk) or the run is interrupted, the exception carries a note
     naming the files that were written.
 
