@@ -9,6 +9,7 @@ radians. Sections:
 - `MountConfig`: the ``base_link -> camera optical`` transform (height, pitch, roll, yaw, offset).
 - `FrontendConfig`: how affine correspondences are extracted.
 - `VotingConfig`: histogram voting, inlier selection and refinement.
+- `EstimatorConfig`: the general-motion refinement behind the vote, and its reliability checks.
 - `KeyframeConfig`, `ScaleConfig`: keyframe selection and the source of metric scale.
 - `OdometryConfig`: frame checks and the planar-model covariance terms.
 - `RosConfig`: topics, frames and publishing (used by the node only).
@@ -22,11 +23,12 @@ import typing
 from typing import Any
 
 from planar_vo.core.options import Options, finite
-from planar_vo.core.robust.options import VotingConfig
+from planar_vo.core.robust.options import EstimatorConfig, VotingConfig
 from planar_vo.errors import ConfigError
 
 __all__ = [
     'CameraConfig',
+    'EstimatorConfig',
     'FrontendConfig',
     'KeyframeConfig',
     'MountConfig',
@@ -213,9 +215,11 @@ class ScaleConfig(Options):
             (``fixed_speed``), or ``'unit'`` (unit steps between keyframes).
         fallback: source used while the primary gives nothing (``'ground'`` with no road ACs in
             view, ``'speed'`` before the first message): ``'hold'`` keeps the speed of the last
-            metric step (for up to ``hold_seconds``, then unit steps), or ``'ground'``,
+            metric step, its uncertainty growing with the time since (never a unit step passed
+            off as metric), or ``'ground'``,
             ``'fixed'``, ``'unit'``.
-        hold_seconds: how long ``'hold'`` may keep the last metric speed.
+        hold_acceleration_std: how fast the speed may change while ``'hold'`` keeps it
+            (m/s per second): its standard deviation grows by this every second.
         speed_std: standard deviation of the speed source (m/s).
         fixed_speed: metres per second for ``'fixed'``.
         fixed_speed_std: its assumed standard deviation (m/s).
@@ -226,7 +230,7 @@ class ScaleConfig(Options):
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
     fallback: typing.Literal['hold', 'ground', 'fixed', 'unit'] = 'hold'
-    hold_seconds: float = 2.0
+    hold_acceleration_std: float = 1.0
     speed_std: float = 0.1
     fixed_speed: float = 10.0
     fixed_speed_std: float = 3.0
@@ -234,7 +238,8 @@ class ScaleConfig(Options):
     ground_min_correspondences: int = 10
 
     def validate(self) -> None:
-        self._require(self.hold_seconds >= 0.0, 'hold_seconds', 'a non-negative duration (s)')
+        self._require(0.0 < self.hold_acceleration_std < 1e3, 'hold_acceleration_std',
+                      'a positive rate of change of speed (m/s^2)')
         self._require(self.speed_std > 0.0 and finite(self.speed_std), 'speed_std',
                       'a positive speed in m/s')
         self._require(self.fixed_speed >= 0.0 and finite(self.fixed_speed), 'fixed_speed',
@@ -261,8 +266,15 @@ class OdometryConfig(Options):
             the new time, which then restarts tracking.
         max_time_jump_back: a stamp further back than this (s) resets tracking (a looped bag, a
             restarted clock); a smaller step back is a frame out of order.
-        planar_z_std: standard deviation of height changes (m) the planar model ignores.
-        planar_tilt_std: standard deviation of roll and pitch (rad) the planar model ignores.
+        output: ``'3d'`` (the full pose: the vehicle follows hills, with roll and pitch) or
+            ``'flat'`` (x, y and yaw; z, roll and pitch zero: for ground robots).
+        flat_z_std, flat_tilt_std: with ``output: flat``, the standard deviations (m, rad)
+            given to the dropped z and roll/pitch.
+        lost_speed_std, lost_turn_rate_std: while tracking is lost the pose is extrapolated
+            at the last velocity; its standard deviation grows by this much speed (m/s) and
+            turn rate (rad/s) per second of the gap.
+        turn_rate_time_constant: the extrapolated turn rate decays with this time constant
+            (s): a long gap does not spin the pose.
     """
 
     min_correspondences: int = 30
@@ -270,8 +282,12 @@ class OdometryConfig(Options):
     max_lost_frames: int = 5
     max_frame_gap: float = 10.0
     max_time_jump_back: float = 1.0
-    planar_z_std: float = 0.05
-    planar_tilt_std: float = 0.02
+    output: typing.Literal['3d', 'flat'] = '3d'
+    flat_z_std: float = 0.05
+    flat_tilt_std: float = 0.02
+    lost_speed_std: float = 1.0
+    lost_turn_rate_std: float = 0.05
+    turn_rate_time_constant: float = 2.0
 
     def validate(self) -> None:
         self._require(self.min_correspondences >= 1, 'min_correspondences', 'at least 1')
@@ -281,8 +297,13 @@ class OdometryConfig(Options):
                       'a positive duration in seconds')
         self._require(0.0 <= self.max_time_jump_back < 1e9, 'max_time_jump_back',
                       'a non-negative duration in seconds')
-        self._require(self.planar_z_std > 0.0, 'planar_z_std', 'a positive length')
-        self._require(self.planar_tilt_std > 0.0, 'planar_tilt_std', 'a positive angle')
+        self._require(0.0 < self.flat_z_std < 1e6, 'flat_z_std', 'a positive length (m)')
+        self._require(0.0 < self.flat_tilt_std < 10.0, 'flat_tilt_std', 'a positive angle (rad)')
+        self._require(0.0 < self.lost_speed_std < 1e3, 'lost_speed_std', 'a positive speed (m/s)')
+        self._require(0.0 < self.lost_turn_rate_std < 10.0, 'lost_turn_rate_std',
+                      'a positive turn rate (rad/s)')
+        self._require(0.0 < self.turn_rate_time_constant < 1e4, 'turn_rate_time_constant',
+                      'a positive duration (s)')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -323,6 +344,7 @@ class PlanarVoConfig(Options):
     mount: MountConfig = dataclasses.field(default_factory=MountConfig)
     frontend: FrontendConfig = dataclasses.field(default_factory=FrontendConfig)
     voting: VotingConfig = dataclasses.field(default_factory=VotingConfig)
+    estimator: EstimatorConfig = dataclasses.field(default_factory=EstimatorConfig)
     keyframe: KeyframeConfig = dataclasses.field(default_factory=KeyframeConfig)
     scale: ScaleConfig = dataclasses.field(default_factory=ScaleConfig)
     odometry: OdometryConfig = dataclasses.field(default_factory=OdometryConfig)

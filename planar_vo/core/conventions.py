@@ -26,10 +26,13 @@ and the solvers' unknown vector is ``x = [cos(a+b), sin(a+b), cos b, sin b]``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
     'R_BASE_OPTICAL',
+    'adjoint',
     'angle_difference',
     'camera_displacement',
     'camera_motion_to_base',
@@ -43,6 +46,11 @@ __all__ = [
     'rotation_rpy',
     'rotation_y',
     'se3',
+    'se3_exp',
+    'se3_log',
+    'skew',
+    'so3_exp',
+    'so3_log',
     'translation_direction',
     'wrap_angle',
     'yaw_of',
@@ -154,6 +162,69 @@ def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
         np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
         np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
     ], -2)
+
+
+# --------------------------------------------------------------------------------------------
+# Rotation vectors and twists (small motions, covariances)
+# --------------------------------------------------------------------------------------------
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` (3, 3) with ``[v]x u = v x u`` for a 3-vector ``v``."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def so3_exp(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix ``exp([w]x)`` of the rotation vector ``w`` (3,) (Rodrigues)."""
+    th = math.sqrt(float(w @ w))
+    K = skew(w)
+    if th < 1e-8:
+        return np.eye(3) + K + 0.5 * K @ K
+    return np.eye(3) + math.sin(th) / th * K + (1.0 - math.cos(th)) / (th * th) * K @ K
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) of ``R`` (angles below pi): ``so3_exp(so3_log(R)) = R``."""
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s = 0.5 * math.sqrt(float(w @ w))
+    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
+    th = math.atan2(s, c)
+    return w * (0.5 if th < 1e-8 else 0.5 * th / s)
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """``exp(xi^)`` (4, 4) of a twist ``xi = [phi, rho]`` (rotation vector, then translation)."""
+    phi, rho = xi[:3], xi[3:]
+    th = math.sqrt(float(phi @ phi))
+    K = skew(phi)
+    if th < 1e-9:
+        V = np.eye(3) + 0.5 * K
+    else:
+        V = (np.eye(3) + (1.0 - math.cos(th)) / th ** 2 * K
+             + (th - math.sin(th)) / th ** 3 * K @ K)
+    return se3(so3_exp(phi), V @ rho)
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """The twist ``[phi, rho]`` (6,) of a rigid transform (inverse of `se3_exp`)."""
+    phi = so3_log(T[:3, :3])
+    th = math.sqrt(float(phi @ phi))
+    K = skew(phi)
+    if th < 1e-9:
+        V_inv = np.eye(3) - 0.5 * K
+    else:
+        V_inv = (np.eye(3) - 0.5 * K + (1.0 - th * math.sin(th) / (2.0 * (1.0 - math.cos(th))))
+                 / th ** 2 * K @ K)
+    return np.concatenate([phi, V_inv @ T[:3, 3]])
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """Adjoint (6, 6) of ``T`` for twists ``[phi, rho]``: ``T exp(xi^) T^-1 = exp((Ad xi)^)``."""
+    R, p = T[:3, :3], T[:3, 3]
+    Ad = np.zeros((6, 6))
+    Ad[:3, :3] = R
+    Ad[3:, 3:] = R
+    Ad[3:, :3] = skew(p) @ R
+    return Ad
 
 
 # --------------------------------------------------------------------------------------------

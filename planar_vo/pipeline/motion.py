@@ -1,10 +1,21 @@
-"""Planar vehicle motion from camera motion, and the propagation of its covariance.
+"""Integration of relative camera motions into a 3D pose with covariance, and its ROS form.
 
-The estimators give the motion of the *level* camera between two views,
-``X2 = Ry(alpha) X1 + s t(beta)`` (`planar_vo.core.conventions`), with ``s`` the metric step. The
-vehicle's motion is ``T_base1_base2 = T_base_level T_level1_level2 T_base_level^-1``, with
-``T_level1_level2 = [R^T | -R^T s t]`` the pose of view 2 in view 1. Everything below is in the
-plane: a pose is ``(x, y, yaw)`` and a covariance 3x3 in that order.
+Conventions (`planar_vo.core.conventions`):
+
+- poses ``T`` (4, 4) map body to world (``p_w = T p_b``); uncertainty as a RIGHT perturbation
+  ``T = T_hat exp(xi^)`` with ``xi = [phi, rho]`` (rotation, translation; body axes), covariance
+  6x6 in that order;
+- a relative motion from `planar_vo.pipeline.estimator.MotionEstimator`: ``X2 = R X1 + t``
+  (camera frames, unit ``t``) with the 5x5 covariance of ``(w, d)``: ``R <- exp([w]x) R``,
+  ``t <- normalise(t + B d)``; the step length ``s`` (metres) with its variance.
+
+`compose` gives the camera pose ``T_w2 = T_w1 T_12`` with ``T_12 = [R^T | -s R^T t]`` and
+``Sigma_2 = Ad(T_12^-1) Sigma_1 Ad(T_12^-1)^T + J Sigma_m J^T`` (first order; ``J`` is the
+Jacobian of ``xi_12`` with respect to ``(w, d, s)``, by central differences). `to_base` moves a
+pose and its covariance to ``base_link`` through the mount; `ros_pose_covariance` turns the
+body-frame covariance into the 6x6 of ``nav_msgs/Odometry`` (REP-103 order x, y, z, roll,
+pitch, yaw; position and small rotations in the parent frame); `flatten` gives the 2D output
+(x, y, yaw; z, roll and pitch zero) for ground robots that want it.
 """
 
 from __future__ import annotations
@@ -14,77 +25,114 @@ import math
 import numpy as np
 
 from planar_vo.core.conventions import (
-    camera_motion_to_base,
-    rotation_y,
+    adjoint,
+    invert,
+    planar_pose,
     se3,
-    translation_direction,
+    se3_log,
+    so3_exp,
     yaw_of,
 )
 
 __all__ = [
-    'base_step',
-    'compose_covariance',
-    'planar_delta',
-    'ros_covariance',
-    'step_covariance',
+    'compose',
+    'flatten',
+    'relative_pose',
+    'ros_pose_covariance',
+    'ros_twist_covariance',
+    'to_base',
+    'yaw_rate_decay',
 ]
 
 
-def base_step(alpha: float, beta: float, scale: float, T_base_level: np.ndarray) -> np.ndarray:
-    """``T_base1_base2`` (4x4) of the vehicle for a level-camera motion and step length."""
-    R = rotation_y(alpha)
-    t = scale * translation_direction(beta)
-    T_c1_c2 = se3(R.T, -R.T @ t)
-    return camera_motion_to_base(T_c1_c2, T_base_level)
+def relative_pose(R: np.ndarray, t: np.ndarray, s: float) -> np.ndarray:
+    """``T_12`` (the pose of camera 2 in camera 1) of ``X2 = R X1 + t`` (unit ``t``) and the
+    step length ``s``."""
+    return se3(R.T, -s * (R.T @ t))
 
 
-def planar_delta(T: np.ndarray) -> np.ndarray:
-    """``(dx, dy, dyaw)`` of a (planar) rigid transform."""
-    return np.array([T[0, 3], T[1, 3], float(yaw_of(T[:3, :3]))])
+def compose(T1: np.ndarray, S1: np.ndarray, R: np.ndarray, t: np.ndarray, B: np.ndarray,
+            cov5: np.ndarray, s: float, var_s: float
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The camera pose and its 6x6 covariance after one relative motion (module docstring),
+    and the covariance of the step alone (in the frame of camera 2).
 
-
-def step_covariance(alpha: float, beta: float, scale: float, cov_ab: np.ndarray,
-                    var_scale: float, T_base_level: np.ndarray) -> np.ndarray:
-    """Covariance 3x3 of ``planar_delta(base_step(...))`` from that of ``(alpha, beta, s)``.
-
-    First-order propagation with a central-difference Jacobian (the map is smooth and cheap).
+    Args:
+        T1 (4, 4), S1 (6, 6): the pose of camera 1 and its covariance.
+        R (3, 3), t (3,), B (3, 2), cov5 (5, 5): the motion, its tangent basis and the
+            covariance of ``(w, d)``.
+        s, var_s: the step length (m) and its variance (m^2).
     """
-    x0 = np.array([alpha, beta, scale])
-    J = np.empty((3, 3))
-    for k, h in enumerate((1e-6, 1e-6, max(1e-6, 1e-6 * abs(scale)))):
-        d = np.zeros(3)
-        d[k] = h
-        J[:, k] = (planar_delta(base_step(*(x0 + d), T_base_level))
-                   - planar_delta(base_step(*(x0 - d), T_base_level))) / (2 * h)
-    C = np.zeros((3, 3))
-    C[:2, :2] = cov_ab
-    C[2, 2] = var_scale
-    return J @ C @ J.T
+    T12 = relative_pose(R, t, s)
+    T21 = invert(T12)
+    J = np.empty((6, 6))
+    eps = 1e-7
+    for k in range(6):
+        out = []
+        for sign in (1.0, -1.0):
+            d = np.zeros(6)
+            d[k] = sign * eps
+            tk = t + B @ d[3:5]
+            out.append(se3_log(T21 @ relative_pose(so3_exp(d[:3]) @ R,
+                                                   tk / np.linalg.norm(tk), s + d[5])))
+        J[:, k] = (out[0] - out[1]) / (2.0 * eps)
+    Sm = np.zeros((6, 6))
+    Sm[:5, :5] = cov5
+    Sm[5, 5] = var_s
+    Ad = adjoint(T21)
+    step = J @ Sm @ J.T
+    return T1 @ T12, Ad @ S1 @ Ad.T + step, step
 
 
-def compose_covariance(pose: np.ndarray, cov_pose: np.ndarray, delta: np.ndarray,
-                       cov_delta: np.ndarray) -> np.ndarray:
-    """Covariance of ``(x, y, yaw)`` after composing a pose with a body-frame step ``delta``.
+def to_base(T_wc: np.ndarray, S_c: np.ndarray, T_bc: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Camera pose (world = the first camera frame) -> base pose (world = the first base frame,
+    ``odom``): ``T_ob = T_bc T_wc T_bc^-1``; the camera's right perturbation maps to the base
+    by ``xi_b = Ad(T_bc) xi_c``."""
+    Ad = adjoint(T_bc)
+    return T_bc @ T_wc @ invert(T_bc), Ad @ S_c @ Ad.T
 
-    ``x' = x + cos(th) dx - sin(th) dy``, ``y' = y + sin(th) dx + cos(th) dy``,
-    ``th' = th + dth``; independent pose and step errors.
+
+def ros_pose_covariance(T: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """The 6x6 pose covariance of ``nav_msgs/Odometry`` from a body-frame one ``[phi, rho]``.
+
+    To first order the position error in the parent frame is ``R rho`` and the orientation
+    error a small rotation ``R phi`` about the parent's axes (roll, pitch, yaw for small
+    errors); REP-103 order ``(x, y, z, roll, pitch, yaw)``.
     """
-    th = float(yaw_of(pose[:3, :3]))
-    c, s = math.cos(th), math.sin(th)
-    dx, dy = delta[0], delta[1]
-    Jp = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
-    Jd = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return Jp @ cov_pose @ Jp.T + Jd @ cov_delta @ Jd.T
+    R = T[:3, :3]
+    J = np.zeros((6, 6))
+    J[:3, 3:] = R
+    J[3:, :3] = R
+    return J @ S @ J.T
 
 
-def ros_covariance(cov3: np.ndarray, planar_variance: tuple[float, float, float]) -> np.ndarray:
-    """6x6 covariance in REP-103 order ``(x, y, z, roll, pitch, yaw)`` from the planar 3x3.
-
-    ``z``, roll and pitch are not estimated (planar motion); they get the variances of the
-    planarity assumption, ``planar_variance = (var_z, var_roll, var_pitch)``.
-    """
+def ros_twist_covariance(S_step: np.ndarray, dt: float) -> np.ndarray:
+    """The 6x6 twist covariance ``(vx, vy, vz, wx, wy, wz)`` in the body frame of a step whose
+    body-frame covariance is ``S_step`` (``[phi, rho]``) over ``dt`` seconds."""
     C = np.zeros((6, 6))
-    idx = [0, 1, 5]
-    C[np.ix_(idx, idx)] = cov3
-    C[2, 2], C[3, 3], C[4, 4] = planar_variance
-    return C
+    C[:3, :3] = S_step[3:, 3:]
+    C[3:, 3:] = S_step[:3, :3]
+    C[:3, 3:] = S_step[3:, :3]
+    C[3:, :3] = S_step[:3, 3:]
+    return C / (dt * dt)
+
+
+def flatten(T: np.ndarray, C_ros: np.ndarray, z_std: float, tilt_std: float
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """The 2D output: ``(x, y, yaw)`` of a pose kept, z, roll and pitch set to zero, with the
+    ROS covariance ``C_ros`` reduced accordingly (x, y, yaw rows and columns kept; z, roll and
+    pitch get the variances of the flat-world assumption ``z_std``, ``tilt_std``)."""
+    flat = planar_pose(T[0, 3], T[1, 3], float(yaw_of(T[:3, :3])))
+    keep = [0, 1, 5]
+    C = np.zeros((6, 6))
+    C[np.ix_(keep, keep)] = C_ros[np.ix_(keep, keep)]
+    C[2, 2], C[3, 3], C[4, 4] = z_std ** 2, tilt_std ** 2, tilt_std ** 2
+    return flat, C
+
+
+def yaw_rate_decay(rate: float, dt: float, time_constant: float) -> float:
+    """The yaw (rad) a rate ``rate`` (rad/s) decaying exponentially with ``time_constant`` (s)
+    turns in ``dt`` seconds: ``rate tau (1 - exp(-dt / tau))``, bounded by ``rate tau`` however
+    long the gap (no spin in a long tunnel)."""
+    return rate * time_constant * (1.0 - math.exp(-dt / time_constant))

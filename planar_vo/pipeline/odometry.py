@@ -1,21 +1,27 @@
-"""`VisualOdometry`: frames in, planar poses out (no ROS; driven by the node, replay and tests).
+"""`VisualOdometry`: frames in, 3D poses out (no ROS; driven by the node, replay and tests).
 
 Per frame (see `VisualOdometry.process`):
 
-1. checks: timestamp order, camera model, image decodable and of the camera's size, not blank;
+1. checks: the stamp against the stream's time base (`planar_vo.pipeline.clock`), the camera
+   model, an image of the camera's size that is not blank;
 2. affine correspondences from the current keyframe to this frame (`planar_vo.frontend`);
-3. if the median parallax is below ``keyframe.stationary_parallax`` the vehicle is standing still;
-4. otherwise the ACs are undistorted, levelled by the mount's pitch and roll (so that the
-   camera's y axis is vertical) and normalised; `vote_planar_motion` estimates the motion of the
-   level camera since the keyframe;
-5. the step length comes from the configured scale source (speed topic, ground plane, fixed
-   speed, unit steps) with a fallback; the vehicle pose is the keyframe pose composed with the
-   step (`planar_vo.pipeline.motion`), and its covariance is propagated from the estimator's;
-6. the frame becomes the new keyframe once its parallax reaches ``keyframe.min_parallax`` (or
-   after ``keyframe.max_interval`` frames): slow or stopped vehicles do not accumulate noise,
-   and every frame is still output.
+3. if the median parallax is below ``keyframe.stationary_parallax`` the vehicle stands still;
+4. otherwise the ACs are undistorted and normalised, levelled by the mount tilt (configured or
+   estimated online), and `planar_vo.pipeline.estimator.MotionEstimator` estimates the
+   camera's relative pose since the keyframe: the 1AC vote in front, a general 5-DoF relative
+   pose refined on all AC constraints out, with its covariance and an honest reliability flag;
+5. the step length comes from the configured scale source (speed topic, the road at the
+   known camera height, a fixed speed) with a fallback (``hold``: the last metric speed, its
+   uncertainty growing with the time since); without any metric scale the step is a unit step
+   whose covariance says its length is unknown;
+6. the camera pose is the keyframe's composed with the step, with its 6x6 covariance
+   (`planar_vo.pipeline.motion`); the vehicle pose is the camera's through the configured
+   mount (``base_link``), in 3D or flattened to x, y, yaw (``odometry.output``);
+7. the frame becomes the new keyframe once its parallax reaches ``keyframe.min_parallax`` (or
+   after ``keyframe.max_interval`` frames); every frame is still output.
 
-Every frame yields a `FrameResult`; a frame without an update carries a `DropReason`.
+Every frame yields a `FrameResult`; a frame without an update carries a `DropReason`, and the
+tracking state (tracking, lost, reinitialised) says where the chain stands.
 """
 
 from __future__ import annotations
@@ -28,20 +34,31 @@ import numpy as np
 
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
-from planar_vo.core.conventions import R_BASE_OPTICAL, invert, rotation_rpy, se3
+from planar_vo.core.conventions import (
+    adjoint,
+    invert,
+    mount_transform,
+    planar_motion_from_pose,
+    rotation_rpy,
+    se3,
+    so3_log,
+)
 from planar_vo.core.correspondences import AffineCorrespondences
-from planar_vo.core.robust import vote_planar_motion
+from planar_vo.core.homography import apply_homography
 from planar_vo.errors import ImageError, PlanarVoError
 from planar_vo.frontend import ACExtractor, leveling_rotation, undistort_acs
 from planar_vo.frontend.images import as_gray
 from planar_vo.pipeline.calibration import FocalCalibrator, MountTiltEstimator
 from planar_vo.pipeline.clock import FrameClock, StampCheck
+from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator
+from planar_vo.pipeline.keyframes import Keyframe, KeyframeChain
 from planar_vo.pipeline.motion import (
-    base_step,
-    compose_covariance,
-    planar_delta,
-    ros_covariance,
-    step_covariance,
+    compose,
+    flatten,
+    ros_pose_covariance,
+    ros_twist_covariance,
+    to_base,
+    yaw_rate_decay,
 )
 from planar_vo.pipeline.scale import SpeedIntegrator, ground_plane_scale
 from planar_vo.pipeline.types import DropReason, FrameResult, TrackingState
@@ -50,11 +67,9 @@ __all__ = ['VisualOdometry']
 
 log = logging.getLogger(__name__)
 
-_LOST_VARIANCE = (1.0, 1.0, math.radians(5.0) ** 2)   # x, y, yaw added when tracking is lost
-
 
 class VisualOdometry:
-    """Monocular planar visual odometry (Hajder and Barath 1AC + voting).
+    """Monocular visual odometry for a vehicle-mounted camera (1AC voting + general refinement).
 
     Args:
         config: the whole configuration (`PlanarVoConfig`); defaults if None.
@@ -63,24 +78,30 @@ class VisualOdometry:
 
     Attributes:
         pose: ``T_odom_base`` after the last frame (4x4).
+        camera_pose: ``T_world_camera`` after the last frame (world = the first camera frame).
         counters: frames processed per outcome (``'ok'`` and `DropReason` values).
+        tilt_estimate: the last mount-tilt estimate (``mount.estimate_tilt``), else None.
     """
 
     def __init__(self, config: PlanarVoConfig | None = None,
                  camera: CameraModel | None = None) -> None:
         self.config = PlanarVoConfig() if config is None else config
         self._extractor = ACExtractor(self.config.frontend)
+        self._estimator = MotionEstimator(self.config.estimator, self.config.voting)
         self._camera = camera
         self._speed = SpeedIntegrator()
         self._calibrator = FocalCalibrator() if self.config.camera.estimate_focal else None
         mount = self.config.mount
-        self._set_tilt(mount.pitch, mount.roll)
-        # Mount-tilt estimation: general poses of keyframe pairs (five-point) feed it during a
-        # calibration phase; its pitch and roll then replace the configured ones.
-        self._tilt = None
-        if mount.estimate_tilt:
-            self._tilt = MountTiltEstimator()
+        # base_link is where the user says the camera sits (REP-105): the configured mount.
+        self._T_base_camera = mount_transform(mount.x, mount.y, mount.height, mount.roll,
+                                              mount.pitch, mount.yaw)
+        # The camera's tilt on the vehicle, estimated online from the refined motions (its
+        # pitch and roll relative to the plane of motion), levels the ACs for the planar vote
+        # and centres the planar prior once precise; the configured angles until then.
+        self._tilt = MountTiltEstimator() if mount.estimate_tilt else None
         self.tilt_estimate = None
+        self._estimator.R_lc = leveling_rotation(mount.pitch, mount.roll)
+        self._keyframes = KeyframeChain()
         self.counters: dict[str, int] = {}
         odometry = self.config.odometry
         self._clock = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
@@ -88,57 +109,23 @@ class VisualOdometry:
 
     # -- state ---------------------------------------------------------------------------------
 
-    def _set_tilt(self, pitch: float, roll: float) -> None:
-        """Levelling for a camera pitched and rolled by ``pitch``, ``roll`` (MountConfig sense)."""
-        mount = self.config.mount
-        # The level camera: the camera's centre, optical axes rotated by the mount's yaw only.
-        self._T_base_level = se3(rotation_rpy(0.0, 0.0, mount.yaw) @ R_BASE_OPTICAL,
-                                 np.array([mount.x, mount.y, mount.height]))
-        # Levelling rotation, level <- camera, applied to the ideal normalised rays.
-        self._R_level_camera = leveling_rotation(pitch, roll)
-        self._level = not np.allclose(self._R_level_camera, np.eye(3), atol=1e-12)
-
-    def _calibrate_tilt(self, q1: np.ndarray, q2: np.ndarray) -> None:
-        """Feed one pair to the mount-tilt estimator; adopt its estimate when precise."""
-        cfg = self.config.mount
-        if self._tilt is None or len(self._tilt) >= cfg.tilt_max_pairs:
-            return
-        step = max(1, len(q1) // 400)             # the five-point needs a few hundred points
-        if not self._tilt.add_acs(q1[::step], q2[::step]) or len(self._tilt) % 10:
-            return
-        estimate = self._tilt.estimate()
-        if estimate.pitch_std <= cfg.tilt_tolerance:
-            # Each angle is adopted only when it is precise: driving straight reveals the pitch
-            # (translations lie in the plane) but hardly the roll (that needs turns).
-            self.tilt_estimate = estimate
-            roll = estimate.roll if estimate.roll_std <= cfg.tilt_tolerance else cfg.roll
-            self._set_tilt(estimate.pitch, roll)
-            log.info('mount tilt estimated from %d pairs: pitch %.3f +- %.3f deg, roll %.3f +- '
-                     '%.3f deg (%s)', estimate.frames, np.rad2deg(estimate.pitch),
-                     np.rad2deg(estimate.pitch_std), np.rad2deg(estimate.roll),
-                     np.rad2deg(estimate.roll_std),
-                     'used' if roll == estimate.roll else 'not precise yet: configured roll kept')
-
     def reset(self) -> None:
         """Pose back to the identity and a new keyframe chain from the next frame; the counters
         and the calibrations (tilt, focal length) are kept."""
-        self.pose = np.eye(4)
-        self._cov = np.zeros((3, 3))
-        self._keyframe: np.ndarray | None = None
-        self._kf_pose = np.eye(4)
-        self._kf_cov = np.zeros((3, 3))
-        self._kf_stamp = float('nan')
-        self._kf_age = 0
+        self._keyframes.clear()
+        self.camera_pose = np.eye(4)
+        self._camera_cov = np.zeros((6, 6))
+        self.pose = self._T_base_camera @ invert(self._T_base_camera)
+        self._last_out: tuple[float, np.ndarray] | None = None   # stamp, camera pose
+        self._twist = np.zeros(6)
+        self._twist_cov = np.eye(6) * _UNKNOWN
+        self._held: tuple[float, float, float] | None = None      # speed, std, stamp
         self._lost = 0
         self._restart = False
         self._time_reset = False
         self._state = TrackingState.INITIALISING
         self._clock.reset()
-        self._last_out_stamp: float | None = None
-        self._last_out_pose = np.eye(4)
-        self._twist = np.zeros(6)
-        self._twist_cov = np.eye(6) * 1e6
-        self._held_speed = (float('nan'), float('inf'), float('-inf'))   # m/s, std, stamp
+        self._estimator.reset()
 
     @property
     def tracking(self) -> TrackingState:
@@ -211,7 +198,7 @@ class VisualOdometry:
             self._time_reset = True
         elif check is StampCheck.NEW_TIME_BASE:
             log.warning('time moved on by %.3f s: tracking restarts', stamp - last)
-            self._keyframe = None
+            self._keyframes.clear()
             self._restart = True
         t = time.perf_counter()
         try:
@@ -229,25 +216,17 @@ class VisualOdometry:
                               f'image is {gray.shape[1]}x{gray.shape[0]} but the camera model is '
                               f'{camera.width}x{camera.height}')
         if _is_blank(gray, self.config.odometry.min_contrast):
-            return self._drop(stamp, DropReason.BLANK_IMAGE,
-                              'image is blank (black, saturated or without texture)')
+            # Nothing to track: the frame counts towards lost tracking (a tunnel, a covered
+            # lens), but it never becomes a keyframe.
+            return self._lost_frame(stamp, DropReason.BLANK_IMAGE,
+                                    'image is blank (black, saturated or without texture)', 0)
         timings['decode'] = time.perf_counter() - t
-        if self._keyframe is None and self._restart:
-            return self._restart_chain(gray, stamp)
-        if self._keyframe is None:
-            self._new_keyframe(gray, stamp)
-            self._last_out_stamp, self._last_out_pose = stamp, self.pose.copy()
-            if self._time_reset:
-                self._time_reset = False
-                self._state = TrackingState.REINITIALISED
-                return self._drop(stamp, DropReason.TIME_JUMP_BACK,
-                                  f'time jumped back to {stamp:.9f}: tracking reset, pose at '
-                                  f'the origin, new keyframe chain')
-            self._state = TrackingState.TRACKING
-            return self._drop(stamp, DropReason.FIRST_FRAME, 'reference keyframe set')
+        keyframe = self._keyframes.current
+        if keyframe is None:
+            return self._start_chain(gray, stamp)
 
         t = time.perf_counter()
-        acs = self._extractor.extract(self._keyframe, gray)
+        acs = self._extractor.extract(keyframe.image, gray)
         timings['correspondences'] = time.perf_counter() - t
         if len(acs) < self.config.odometry.min_correspondences:
             return self._lost_frame(stamp, DropReason.TOO_FEW_CORRESPONDENCES,
@@ -255,36 +234,37 @@ class VisualOdometry:
                                     f'{self.config.odometry.min_correspondences})', len(acs))
         parallax = float(np.median(np.linalg.norm(acs.p2 - acs.p1, axis=1)))
         if parallax < self.config.keyframe.stationary_parallax:
-            return self._stationary(stamp, len(acs))
+            return self._stationary(keyframe, stamp, len(acs))
 
         t = time.perf_counter()
-        motion, stats, scale_info = self._estimate(acs, camera, stamp)
+        est = self._estimate(acs, camera)
         timings['solve'] = time.perf_counter() - t
-        if not stats.reliable:
+        if not est.reliable:
             return self._lost_frame(stamp, DropReason.UNRELIABLE,
-                                    f'motion estimate flagged {stats.flag!r} '
-                                    f'({stats.num_inliers} inliers of {len(acs)})', len(acs),
-                                    stats.num_inliers)
+                                    f'motion estimate flagged {est.flag!r} '
+                                    f'({est.num_inliers} inliers of {len(acs)})', len(acs),
+                                    est.num_inliers)
         t = time.perf_counter()
-        scale, var_scale, source = scale_info
-        step = base_step(motion.alpha, motion.beta, scale, self._T_base_level)
-        delta = planar_delta(step)
-        cov_step = step_covariance(motion.alpha, motion.beta, scale, stats.covariance,
-                                   var_scale, self._T_base_level)
-        self.pose = self._kf_pose @ step
-        self._cov = compose_covariance(self._kf_pose, self._kf_cov, delta, cov_step)
-        self._update_twist(stamp, cov_step)
-        keyframe = (parallax >= self.config.keyframe.min_parallax
-                    or self._kf_age + 1 >= self.config.keyframe.max_interval)
-        if keyframe:
-            self._new_keyframe(gray, stamp)
+        scale, var_scale, source = self._scale(acs, camera, est, keyframe, stamp)
+        timings['scale'] = time.perf_counter() - t
+        t = time.perf_counter()
+        self.camera_pose, self._camera_cov, step_cov = compose(
+            keyframe.pose, keyframe.covariance, est.R, est.t, est.basis,
+            self._motion_covariance(est), scale, var_scale)
+        self._update_twist(keyframe, stamp, step_cov)
+        new_keyframe = (parallax >= self.config.keyframe.min_parallax
+                        or keyframe.age + 1 >= self.config.keyframe.max_interval)
+        if new_keyframe:
+            self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov)
         else:
-            self._kf_age += 1
+            keyframe.age += 1
         self._lost = 0
         timings['integrate'] = time.perf_counter() - t
-        return self._result(stamp, True, keyframe=keyframe, scale_source=source,
-                            num_correspondences=len(acs), num_inliers=stats.num_inliers,
-                            alpha=motion.alpha, beta=motion.beta)
+        alpha, beta = planar_motion_from_pose(self._estimator.R_lc @ est.R @ self._estimator.R_lc.T,
+                                              self._estimator.R_lc @ est.t)
+        return self._result(stamp, True, keyframe=new_keyframe, scale_source=source,
+                            num_correspondences=len(acs), num_inliers=est.num_inliers,
+                            alpha=float(alpha), beta=float(beta))
 
     # -- steps ---------------------------------------------------------------------------------
 
@@ -293,7 +273,7 @@ class VisualOdometry:
         if camera is not None:
             if self._camera is not None and camera != self._camera:
                 log.info('camera model changed; starting a new keyframe')
-                self._keyframe = None
+                self._keyframes.clear()
             self._camera = camera
         if self._camera is None:
             c = self.config.camera
@@ -321,66 +301,114 @@ class VisualOdometry:
                 return model
         return self._camera
 
-    def _estimate(self, acs: AffineCorrespondences, camera: CameraModel, stamp: float):
-        """Motion of the level camera since the keyframe, with its scale."""
+    def _estimate(self, acs: AffineCorrespondences, camera: CameraModel) -> FrameEstimate:
+        """The camera's relative pose since the keyframe (`MotionEstimator`)."""
         if self._camera is None and self._calibrator is not None:
             ideal = undistort_acs(acs, camera)
             c = camera.K[:2, 2]
             self._calibrator.add(ideal.p1 - c, ideal.p2 - c, ideal.A, ideal.weights)
         norm = acs.normalized(camera)                 # undistorted, K^-1
-        if self._tilt is not None:
-            self._calibrate_tilt(norm.p1, norm.p2)
-        if self._level:
-            norm = norm.mapped(self._R_level_camera)
-        motion, stats = vote_planar_motion(norm.p1, norm.p2, norm.A, norm.weights,
-                                           self.config.voting)
-        if not stats.reliable:
-            return motion, stats, (float('nan'), float('inf'), '')
-        return motion, stats, self._scale(norm.p1, norm.p2, norm.A, motion, stats, stamp)
+        level = norm.mapped(self._estimator.R_lc)
+        if len(level) != len(norm):
+            # A ray the levelling rotation sends behind the camera (only beyond 90 degrees off
+            # axis): drop it from both, so that the two sets stay item by item the same.
+            keep = np.isfinite(apply_homography(self._estimator.R_lc, norm.p1)).all(1) & \
+                np.isfinite(apply_homography(self._estimator.R_lc, norm.p2)).all(1)
+            norm = norm.subset(keep)
+            level = norm.mapped(self._estimator.R_lc)
+        est = self._estimator.estimate(norm, level)
+        if est.reliable:
+            self._calibrate_tilt(est)
+        self._norm = norm
+        return est
 
-    def _scale(self, q1, q2, An, motion, stats, stamp: float) -> tuple[float, float, str]:
-        """Step length (m), its variance and the source used, with the configured fallback."""
+    def _calibrate_tilt(self, est: FrameEstimate) -> None:
+        """Feed a reliable relative pose to the mount-tilt estimate; adopt its pitch (and roll,
+        once observable) when precise (``mount.tilt_tolerance``). Amortised: the fit runs every
+        tenth pair, for at most ``mount.tilt_max_pairs`` pairs."""
+        cfg = self.config.mount
+        if self._tilt is None or len(self._tilt) >= cfg.tilt_max_pairs:
+            return
+        self._tilt.add_motion(est.R, est.t)
+        if len(self._tilt) < 10 or len(self._tilt) % 10:
+            return
+        estimate = self._tilt.estimate()
+        if estimate.pitch_std > cfg.tilt_tolerance:
+            return
+        roll = estimate.roll if estimate.roll_std <= cfg.tilt_tolerance else cfg.roll
+        self.tilt_estimate = estimate
+        self._estimator.R_lc = leveling_rotation(estimate.pitch, roll)
+        log.info('mount tilt estimated from %d pairs: pitch %.3f +- %.3f deg, roll %.3f +- '
+                 '%.3f deg (%s); base_link stays where mount.* puts it', estimate.frames,
+                 np.rad2deg(estimate.pitch), np.rad2deg(estimate.pitch_std),
+                 np.rad2deg(estimate.roll), np.rad2deg(estimate.roll_std),
+                 'used' if roll == estimate.roll else 'roll not observable yet: configured roll')
+
+    def _motion_covariance(self, est: FrameEstimate) -> np.ndarray:
+        """The estimator's 5x5 covariance, widened by the focal length's uncertainty while it
+        is provisional (an error of ``e`` relative scales every angle by about ``1 + e``)."""
+        cov = est.cov
+        if self._camera is None and self._calibrator is not None:
+            f = self._calibrator.estimate
+            rel = self._calibrator.std / f if math.isfinite(f) else 1.0
+            angle = float(np.linalg.norm(so3_log(est.R)))
+            cov = cov.copy()
+            cov[:3, :3] += np.eye(3) * (angle * min(rel, 1.0)) ** 2
+        return cov
+
+    def _scale(self, acs: AffineCorrespondences, camera: CameraModel, est: FrameEstimate,
+               keyframe: Keyframe, stamp: float) -> tuple[float, float, str]:
+        """Step length (m), its variance and the source used: the configured source, then the
+        fallback; a unit step of unknown length when no metric scale exists."""
         cfg = self.config.scale
-        dt = stamp - self._kf_stamp
-        for source in (cfg.source, cfg.fallback, 'unit'):
+        dt = stamp - keyframe.stamp
+        for source in (cfg.source, cfg.fallback):
             if source == 'speed':
-                d = self._speed.distance(self._kf_stamp, stamp)
+                d = self._speed.distance(keyframe.stamp, stamp)
                 if d is not None:
                     return self._metric(d, (cfg.speed_std * dt) ** 2, 'speed', stamp, dt)
             elif source == 'ground':
-                g = ground_plane_scale(q1, q2, An, motion.alpha, motion.beta,
-                                       self.config.mount.height, weights=stats.inliers,
+                norm = self._norm
+                R_l = self._estimator.R_lc @ est.R @ self._estimator.R_lc.T
+                alpha, beta = planar_motion_from_pose(R_l, self._estimator.R_lc @ est.t)
+                level = norm.mapped(self._estimator.R_lc)
+                g = ground_plane_scale(level.p1, level.p2, level.A, float(alpha), float(beta),
+                                       self.config.mount.height, weights=est.inliers,
                                        affine_tol=cfg.ground_affine_tolerance,
                                        min_count=cfg.ground_min_correspondences)
                 if math.isfinite(g.scale):
                     return self._metric(g.scale, g.std ** 2, 'ground', stamp, dt)
             elif source == 'fixed':
-                d = cfg.fixed_speed * dt
-                return d, (cfg.fixed_speed_std * dt) ** 2, 'fixed'
-            elif source == 'hold':
-                speed, std, when = self._held_speed
-                if math.isfinite(speed) and stamp - when <= cfg.hold_seconds:
-                    # Constant speed since the last metric step; its error grows with the gap.
-                    grow = 0.2 * speed * (stamp - when)
-                    return speed * dt, (std * dt) ** 2 + (grow * dt) ** 2, 'hold'
-            else:
-                return 1.0, 1.0, 'unit'
-        return 1.0, 1.0, 'unit'
+                return cfg.fixed_speed * dt, (cfg.fixed_speed_std * dt) ** 2, 'fixed'
+            elif source == 'hold' and self._held is not None:
+                # The last metric speed, its uncertainty growing with the time since: a vehicle
+                # changes its speed by about hold_acceleration_std m/s every second.
+                speed, std, when = self._held
+                std = math.hypot(std, cfg.hold_acceleration_std * (stamp - when))
+                return speed * dt, (std * dt) ** 2, 'hold'
+        return 1.0, _UNKNOWN, 'unit'
 
     def _metric(self, distance: float, variance: float, source: str, stamp: float, dt: float
                 ) -> tuple[float, float, str]:
         """Remember the speed of a metric step (for ``'hold'``) and return it."""
         if dt > 0:
-            self._held_speed = (distance / dt, math.sqrt(variance) / dt, stamp)
+            self._held = (distance / dt, math.sqrt(variance) / dt, stamp)
         return distance, variance, source
 
-    def _stationary(self, stamp: float, count: int) -> FrameResult:
-        """The image has not moved: neither has the vehicle (no new keyframe, no drift)."""
-        self.pose = self._kf_pose.copy()
-        self._cov = self._kf_cov.copy()
-        self._update_twist(stamp, np.diag([1e-6, 1e-6, 1e-8]))
+    def _stationary(self, keyframe: Keyframe, stamp: float, count: int) -> FrameResult:
+        """The image has not moved: neither has the vehicle (no new keyframe, no drift). The
+        keyframe's stamp follows, since nothing moved since it (a speed source then integrates
+        from here, however long the stop)."""
+        self.camera_pose = keyframe.pose.copy()
+        self._camera_cov = keyframe.covariance.copy()
+        keyframe.stamp = stamp
+        keyframe.age += 1
+        if self._held is not None:
+            self._held = (0.0, self._held[1], stamp)
+        self._twist = np.zeros(6)
+        self._twist_cov = np.diag([1e-6] * 3 + [1e-8] * 3)
+        self._last_out = (stamp, self.camera_pose.copy())
         self._lost = 0
-        self._kf_age += 1
         return self._result(stamp, True, keyframe=False, scale_source='stationary',
                             num_correspondences=count, alpha=0.0, beta=float('nan'))
 
@@ -390,60 +418,81 @@ class VisualOdometry:
         is dropped: the next usable frame starts a new keyframe chain (`_restart_chain`). The
         failed frame itself never becomes the keyframe, since it may be the cause (a blank or
         garbled image would leave the next real frame without correspondences)."""
+        if self._keyframes.current is None and not self._restart:
+            return self._drop(stamp, reason, message, count, inliers)
         self._lost += 1
-        self._kf_age += 1
+        keyframe = self._keyframes.current
+        if keyframe is not None:
+            keyframe.age += 1
         self._state = TrackingState.LOST
-        if self._lost >= self.config.odometry.max_lost_frames:
-            self._keyframe = None
+        if self._lost >= self.config.odometry.max_lost_frames and not self._restart:
+            self._keyframes.clear()
             self._restart = True
-            self._lost = 0
             message += '; tracking lost: the next usable frame starts a new keyframe chain'
         return self._drop(stamp, reason, message, count, inliers)
 
-    def _restart_chain(self, gray: np.ndarray, stamp: float) -> FrameResult:
-        """A new keyframe chain after lost tracking: the pose is extrapolated to this frame at
-        the last velocity, with its covariance inflated."""
-        dt = stamp - (self._last_out_stamp if self._last_out_stamp is not None else stamp)
-        v, w = self._twist[:2], self._twist[5]
-        guess = se3(rotation_rpy(0.0, 0.0, w * dt), np.array([v[0] * dt, v[1] * dt, 0.0]))
-        self.pose = self._last_out_pose @ guess
-        self._cov = self._cov + np.diag(_LOST_VARIANCE)
-        self._new_keyframe(gray, stamp)
-        self._restart = False
-        self._state = TrackingState.REINITIALISED
-        return self._drop(stamp, DropReason.REINITIALISED,
-                          'new keyframe chain after lost tracking (pose extrapolated)')
+    def _start_chain(self, gray: np.ndarray, stamp: float) -> FrameResult:
+        """The first keyframe of a chain: after start-up or a reset at the origin; after lost
+        tracking at the pose extrapolated from the last output (`_extrapolate`)."""
+        reason, message = DropReason.FIRST_FRAME, 'reference keyframe set'
+        if self._restart:
+            self._extrapolate(stamp)
+            reason, message = (DropReason.REINITIALISED,
+                               'new keyframe chain after lost tracking (pose extrapolated)')
+        elif self._time_reset:
+            reason, message = (DropReason.TIME_JUMP_BACK,
+                               f'time jumped back to {stamp:.9f}: tracking reset, pose at the '
+                               f'origin, new keyframe chain')
+        self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov)
+        self._state = (TrackingState.TRACKING if reason is DropReason.FIRST_FRAME
+                       else TrackingState.REINITIALISED)
+        self._restart = self._time_reset = False
+        self._lost = 0
+        if self._last_out is None:
+            self._last_out = (stamp, self.camera_pose.copy())
+        return self._drop(stamp, reason, message)
 
-    def _new_keyframe(self, gray: np.ndarray, stamp: float) -> None:
-        self._keyframe = gray
-        self._kf_pose = self.pose.copy()
-        self._kf_cov = self._cov.copy()
-        self._kf_stamp = stamp
-        self._kf_age = 0
+    def _extrapolate(self, stamp: float) -> None:
+        """The pose across a gap in tracking: the last velocity carried on, its turn rate
+        decaying (a long gap does not spin the pose), and the covariance grown with the time
+        of the gap (not with the frames in it)."""
+        cfg = self.config.odometry
+        last_stamp, last_pose = self._last_out if self._last_out else (stamp, self.camera_pose)
+        dt = max(stamp - last_stamp, 0.0)
+        T_bc = self._T_base_camera
+        v, w = self._twist[:3], self._twist[3:]
+        yaw = yaw_rate_decay(float(w[2]), dt, cfg.turn_rate_time_constant)
+        step_base = se3(rotation_rpy(0.0, 0.0, yaw), v * dt)
+        self.camera_pose = last_pose @ (invert(T_bc) @ step_base @ T_bc)
+        grow = np.diag([(cfg.lost_turn_rate_std * dt) ** 2] * 3
+                       + [(cfg.lost_speed_std * dt) ** 2] * 3)
+        Ad = adjoint(invert(T_bc))
+        self._camera_cov = self._camera_cov + Ad @ grow @ Ad.T
 
-    def _update_twist(self, stamp: float, cov_step: np.ndarray) -> None:
-        if self._last_out_stamp is not None and stamp > self._last_out_stamp:
-            dt = stamp - self._last_out_stamp
-            d = planar_delta(invert(self._last_out_pose) @ self.pose)
-            self._twist = np.array([d[0] / dt, d[1] / dt, 0.0, 0.0, 0.0, d[2] / dt])
-            tc = np.zeros((6, 6))
-            idx = [0, 1, 5]
-            tc[np.ix_(idx, idx)] = cov_step / (dt * dt)
-            tc[2, 2], tc[3, 3], tc[4, 4] = (v / (dt * dt) for v in self._planar_variance())
-            self._twist_cov = tc
-        self._last_out_stamp, self._last_out_pose = stamp, self.pose.copy()
-
-    def _planar_variance(self) -> tuple[float, float, float]:
-        o = self.config.odometry
-        return o.planar_z_std ** 2, o.planar_tilt_std ** 2, o.planar_tilt_std ** 2
+    def _update_twist(self, keyframe: Keyframe, stamp: float, step_cov: np.ndarray) -> None:
+        """The body-frame velocity over the step since the keyframe, with its covariance."""
+        dt = stamp - keyframe.stamp
+        if dt > 0:
+            T_bc = self._T_base_camera
+            rel = T_bc @ invert(keyframe.pose) @ self.camera_pose @ invert(T_bc)
+            self._twist = np.concatenate([rel[:3, 3], so3_log(rel[:3, :3])]) / dt
+            Ad = adjoint(T_bc)
+            self._twist_cov = ros_twist_covariance(Ad @ step_cov @ Ad.T, dt)
+        self._last_out = (stamp, self.camera_pose.copy())
 
     # -- results -------------------------------------------------------------------------------
 
     def _result(self, stamp: float, ok: bool, **fields) -> FrameResult:
         if ok:
             self._state = TrackingState.TRACKING
-        return FrameResult(stamp=stamp, ok=ok, pose=self.pose.copy(), tracking=self._state,
-                           pose_covariance=ros_covariance(self._cov, self._planar_variance()),
+        pose, cov_body = to_base(self.camera_pose, self._camera_cov, self._T_base_camera)
+        cov = ros_pose_covariance(pose, cov_body)
+        odometry = self.config.odometry
+        if odometry.output == 'flat':
+            pose, cov = flatten(pose, cov, odometry.flat_z_std, odometry.flat_tilt_std)
+        self.pose = pose
+        return FrameResult(stamp=stamp, ok=ok, pose=pose.copy(), pose_covariance=cov,
+                           tracking=self._state, camera_pose=self.camera_pose.copy(),
                            twist=self._twist.copy(), twist_covariance=self._twist_cov.copy(),
                            **fields)
 
@@ -451,6 +500,10 @@ class VisualOdometry:
               inliers: int = 0) -> FrameResult:
         return self._result(stamp, False, reason=reason, message=message,
                             num_correspondences=count, num_inliers=inliers)
+
+
+# Variance (m^2 or rad^2) that says "unknown": a unit step has no metric length.
+_UNKNOWN = 1e6
 
 
 def _with_timings(result: FrameResult, timings: dict[str, float]) -> FrameResult:

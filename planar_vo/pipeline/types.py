@@ -51,16 +51,21 @@ class FrameResult:
         reason: why not (None when ``ok``).
         message: human-readable detail for logs.
         keyframe: this frame became the new reference keyframe.
-        pose: ``T_odom_base`` (4x4) after this frame (the last known pose when not ``ok``).
-        pose_covariance: 6x6 covariance of the pose, REP-103 order (x, y, z, roll, pitch, yaw).
+        pose: ``T_odom_base`` (4x4) after this frame (the last known pose when not ``ok``); in 3D,
+            or flat (x, y, yaw) with ``odometry.output: flat``.
+        pose_covariance: 6x6 covariance of the pose, REP-103 order (x, y, z, roll, pitch, yaw):
+            position in ``odom`` and small rotations about its axes.
         twist: body-frame velocity ``(vx, vy, vz, wx, wy, wz)`` in ``base_link``.
         twist_covariance: 6x6 covariance of ``twist``.
-        scale_source: where the metric scale came from (``'speed'``, ``'ground'``, ``'fixed'``,
-            ``'unit'``).
+        scale_source: where the step length came from: ``'speed'``, ``'ground'``, ``'fixed'``,
+            ``'hold'`` (the last metric speed, its uncertainty growing), ``'stationary'``, or
+            ``'unit'`` (no metric scale: a unit step whose covariance says it is unknown).
         num_correspondences, num_inliers: ACs extracted and accepted.
         alpha, beta: the camera motion since the reference keyframe (radians; NaN if none).
         timings: seconds spent per stage (``'decode'``, ``'correspondences'``, ``'solve'``, ...).
         tracking: the tracking state after this frame.
+        camera_pose: ``T_world_camera`` (4x4) after this frame, world = the camera frame at the
+            start of the trajectory (the KITTI convention of camera poses).
     """
 
     stamp: float
@@ -79,3 +84,4 @@ class FrameResult:
     beta: float = float('nan')
     timings: dict[str, float] = field(default_factory=dict)
     tracking: TrackingState = TrackingState.INITIALISING
+    camera_pose: np.ndarray = field(default_factory=lambda: np.eye(4))

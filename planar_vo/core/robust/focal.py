@@ -95,7 +95,7 @@ def vote_planar_motion_focal(p1: np.ndarray, p2: np.ndarray, A: np.ndarray,
     n = p1.shape[0]
     clusters = check_clusters(clusters, n)
     if clusters is None:
-        clusters = refine.spatial_clusters(p1, config)
+        clusters = refine.spatial_clusters(p1, config.covariance_grid)
     _, _, f_c, cond = solve_1acf(p1, p2, A, return_weight=True)
     ok = np.isfinite(f_c) & (f_c >= lo) & (f_c <= hi) & (w > 0)
     if np.count_nonzero(ok) < config.min_inliers:

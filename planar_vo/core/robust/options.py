@@ -8,7 +8,7 @@ import typing
 
 from planar_vo.core.options import Options
 
-__all__ = ['VotingConfig']
+__all__ = ['EstimatorConfig', 'VotingConfig']
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,3 +70,50 @@ class VotingConfig(Options):
         self._require(self.covariance_grid >= 1, 'covariance_grid', 'at least 1')
         self._require(self.ransac_iterations >= 1, 'ransac_iterations', 'at least 1')
         self._require(0.0 < self.ransac_confidence < 1.0, 'ransac_confidence', 'in (0, 1)')
+
+
+@dataclasses.dataclass(frozen=True)
+class EstimatorConfig(Options):
+    """The general-motion estimator: planar voting in front, a general relative pose out.
+
+    Attributes:
+        model: ``'general'`` (the 1AC vote, then a 5-DoF relative pose refined on all three
+            constraints of every AC, the planar motion a soft prior; for real roads) or
+            ``'planar'`` (the vote's planar motion itself, the paper's estimator; for exactly
+            planar motion).
+        use_prior: apply the planar prior (pitch, roll and elevation of travel of the level
+            camera near the recent motions' robust centre, with their measured spread).
+        cauchy: Cauchy scale of the whitened residuals of the refinement.
+        rounds: at most this many inlier re-selection rounds of the refinement.
+        min_inliers: fewer inliers flag the frame (too_few_inliers).
+        min_inlier_share: a smaller share of the AC weight among the inliers flags the frame.
+        max_yaw_std: a larger yaw standard deviation (rad) flags the frame (imprecise).
+        ambiguity_ratio: a different answer with at least this share of the winner's support
+            flags the frame (ambiguous).
+        history: frames of recent motions behind the prior, the noise scales and the typical
+            inlier share (all measured online).
+        max_correspondences: the refinement uses at most this many ACs, evenly picked (its
+            cost grows with them, its accuracy barely beyond a few hundred); 0 uses all.
+    """
+
+    model: typing.Literal['general', 'planar'] = 'general'
+    use_prior: bool = True
+    cauchy: float = 2.5
+    rounds: int = 8
+    min_inliers: int = 30
+    min_inlier_share: float = 0.1
+    max_yaw_std: float = 0.0035
+    ambiguity_ratio: float = 0.8
+    history: int = 100
+    max_correspondences: int = 0
+
+    def validate(self) -> None:
+        self._require(self.cauchy > 0.0, 'cauchy', 'a positive number')
+        self._require(1 <= self.rounds <= 100, 'rounds', 'between 1 and 100')
+        self._require(self.min_inliers >= 5, 'min_inliers', 'at least 5')
+        self._require(0.0 <= self.min_inlier_share < 1.0, 'min_inlier_share', 'in [0, 1)')
+        self._require(self.max_yaw_std > 0.0, 'max_yaw_std', 'a positive angle (rad)')
+        self._require(0.0 < self.ambiguity_ratio <= 1.0, 'ambiguity_ratio', 'in (0, 1]')
+        self._require(10 <= self.history <= 100000, 'history', 'between 10 and 100000 frames')
+        self._require(self.max_correspondences == 0 or self.max_correspondences >= 50,
+                      'max_correspondences', '0 (all) or at least 50')

@@ -142,9 +142,9 @@ def to_alpha_beta_cov(cov_tb: np.ndarray) -> np.ndarray:
     return J @ cov_tb @ J.T
 
 
-def spatial_clusters(q: np.ndarray, config: VotingConfig) -> np.ndarray:
-    """Cluster id of each AC: its cell in a ``grid x grid`` partition of image-1 positions."""
-    k = config.covariance_grid
+def spatial_clusters(q: np.ndarray, k: int) -> np.ndarray:
+    """Cluster id ``(N,)`` of each point ``(N, 2)``: its cell in a ``k x k`` partition of the
+    points' bounding box (neighbouring ACs share errors: one surface, overlapping patches)."""
     u, v = q[:, 0], q[:, 1]
     u0, v0 = float(u.min()), float(v.min())
     su = k / max(float(u.max()) - u0, 1e-12)

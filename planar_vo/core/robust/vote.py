@@ -73,7 +73,7 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     q1, q2, A, w, config = check_inputs(q1, q2, A, weights, config)
     clusters = check_clusters(clusters, q1.shape[0])
     if clusters is None:
-        clusters = refine.spatial_clusters(q1, config)
+        clusters = refine.spatial_clusters(q1, config.covariance_grid)
     if config.method == 'ransac':
         return ransac_planar_motion(q1, q2, A, w, config, clusters)
     n = q1.shape[0]

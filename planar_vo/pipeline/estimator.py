@@ -1,0 +1,414 @@
+"""`MotionEstimator`: one frame pair's relative pose, planar voting in front, general answer out.
+
+For one pair of views (ACs in normalised coordinates of the camera, and the same ACs levelled by
+the current mount tilt ``R_lc``, camera -> level camera):
+
+1. `vote_planar_motion` (1AC + histogram voting) on the levelled ACs: the robust,
+   deterministic, outlier-ratio-independent front (candidates, inliers, initial motion);
+2. starting hypotheses: the vote lifted to the camera frame (``R_lc^T Ry(a) R_lc``,
+   ``R_lc^T [cos b, 0, sin b]``) and the previous pair's motion (constant velocity), each scored
+   by the MSAC cost ``sum_i w_i min(chi2_i, gate)`` over ALL ACs at the vote's coarse noise
+   scales;
+3. the best start is refined (`refine_general_motion`: 5 DoF, all three AC constraints,
+   whitened by first-order noise propagation, Cauchy IRLS, inliers re-selected over all ACs
+   every round, noise scales from the data, the soft planar prior); the other start too when
+   it is a different motion and not clearly worse;
+4. second hypotheses when the answer explains less than half of the ACs (and less than 0.8 of
+   the recent typical share) or used all its rounds: graduated non-convexity from the best
+   start, the same rotation with straight-ahead travel (the other side of the
+   rotation-translation valley), and a vote on the ACs the answer leaves unexplained;
+5. the answers compete on their support (MSAC gain over explaining nothing) at the tightest of
+   their noise scales; an unconverged winner gets more rounds;
+6. reliability: a competitor with at least ``ambiguity_ratio`` of the winner's support
+   (``ambiguous``), not settled (``unconverged``), implausible noise scales (``noisy``), too
+   few inliers or too small a share, an imprecise yaw (``imprecise``), a flat minimum
+   (``flat``);
+7. online state, from reliable pairs only: noise scales, inlier share, the non-planarity
+   behind the prior (robust centre and spread of the recent motions' level pitch/roll and
+   elevation of travel), the previous motion.
+
+With ``model: planar`` the vote's planar motion is the answer (the paper's estimator), its
+covariance completed by the measured non-planarity.
+
+Nothing is tuned to a drive: the prior's sigma and mean, the noise scales, the typical inlier
+share are measured online; the remaining thresholds are statistical (chi-square quantiles,
+sigmas) or generic.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planar_vo.core.conventions import rotation_y, so3_exp, so3_log, translation_direction
+from planar_vo.core.correspondences import AffineCorrespondences
+from planar_vo.core.robust import VotingConfig, vote_planar_motion
+from planar_vo.core.robust.general import (
+    GATE,
+    PlanarPrior,
+    ac_design,
+    chi_square,
+    essential,
+    noise_scales,
+    refine_general_motion,
+    residual_variances,
+    tangent_basis,
+)
+from planar_vo.core.robust.options import EstimatorConfig
+from planar_vo.core.robust.stats import MAD_TO_SIGMA
+
+__all__ = ['FrameEstimate', 'MotionEstimator', 'lift_planar']
+
+# Answers further apart than this are different solutions.
+_DISTINCT_ROTATION = math.radians(0.3)
+_DISTINCT_DIRECTION = math.radians(5.0)
+_SECOND_START_RATIO = 1.5     # a second start is refined if its MSAC cost is below this x best
+# A well-posed answer is a sharp minimum: turning the rotation by _PERTURBATION about the
+# vertical, or the direction of travel by 5 x that, raises the MSAC cost by at least
+# _FLAT_RISE per inlier.
+_PERTURBATION = math.radians(1.0)
+_FLAT_RISE = 0.2
+_HISTORY_MIN = 10             # frames before the measured history replaces the start values
+_PRIOR_START = (math.radians(0.5), math.radians(2.0))       # rotation, elevation: a car's bumps
+_PRIOR_FLOOR = (math.radians(0.02), math.radians(0.1))
+_RECHECK_SHARE, _RECHECK_RELATIVE, _GNC_INFLATION = 0.5, 0.8, 4.0
+# Noise scales above this many times the recent median flag the frame; before any history the
+# generic caps of the voting (5 x its default noise levels) apply.
+_MAX_SCALE_RATIO = 4.0
+_MAX_SCALES = (5e-3, 0.1)
+
+
+def lift_planar(alpha: float, beta: float, R_lc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Planar motion of the level camera -> the camera-frame motion ``(R, t)``."""
+    return (R_lc.T @ rotation_y(alpha) @ R_lc,
+            R_lc.T @ translation_direction(beta))
+
+
+def _rotation_distance(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.linalg.norm(so3_log(Ra @ Rb.T)))
+
+
+def _direction_distance(ta: np.ndarray, tb: np.ndarray) -> float:
+    return math.acos(max(-1.0, min(1.0, float(ta @ tb))))
+
+
+@dataclass
+class FrameEstimate:
+    """The motion of one frame pair.
+
+    Attributes:
+        R (3, 3), t (3,): relative pose ``X2 = R X1 + t`` (camera frame, unit ``t``).
+        cov: (5, 5) covariance of ``(w, d)``: ``R <- exp([w]x) R``, ``t <- normalise(t + B d)``.
+        basis: (3, 2) tangent basis ``B`` of ``t`` for ``cov``.
+        inliers: (N,) bool over the pair's ACs.
+        reliable, flag: usable or not, and why not (``'no_vote'``, ``'too_few_inliers'``,
+            ``'low_share'``, ``'imprecise'``, ``'ambiguous'``, ``'flat'``, ``'unconverged'``,
+            ``'noisy'``).
+        vote: ``(alpha, beta, reliable)`` of the planar vote (level frame).
+        stats: diagnostics (start used, costs, scales, rounds, ...).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    cov: np.ndarray
+    basis: np.ndarray
+    inliers: np.ndarray
+    reliable: bool
+    flag: str | None
+    vote: tuple[float, float, bool]
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def num_inliers(self) -> int:
+        return int(np.count_nonzero(self.inliers))
+
+
+class MotionEstimator:
+    """Frame pairs in, relative poses out, with the online state between pairs (module
+    docstring).
+
+    Args:
+        config: `EstimatorConfig`.
+        voting: `VotingConfig` of the planar vote.
+
+    Attributes:
+        R_lc: the levelling rotation (camera -> level camera) the pipeline keeps up to date.
+    """
+
+    def __init__(self, config: EstimatorConfig | None = None,
+                 voting: VotingConfig | None = None) -> None:
+        self.config = EstimatorConfig() if config is None else config
+        self.voting = VotingConfig() if voting is None else voting
+        self.R_lc = np.eye(3)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous motion and the measured history."""
+        n = self.config.history
+        self.scales: tuple[float, float] | None = None
+        self.previous: tuple[np.ndarray, np.ndarray] | None = None
+        self._motions: deque[np.ndarray] = deque(maxlen=n)
+        self._scales: deque[tuple[float, float]] = deque(maxlen=n)
+        self._shares: deque[float] = deque(maxlen=n)
+
+    # -- the prior ------------------------------------------------------------------------------
+
+    def prior(self) -> PlanarPrior | None:
+        """The planar prior from the recent motions (robust centre and spread), or None."""
+        if not self.config.use_prior:
+            return None
+        if len(self._motions) < _HISTORY_MIN:
+            return PlanarPrior(self.R_lc, *_PRIOR_START, np.zeros(3))
+        terms = self._level_terms()
+        centre = np.median(terms, axis=0)
+        spread = np.abs(terms - centre)
+        sigma_rot = max(MAD_TO_SIGMA * float(np.median(spread[:, :2])), _PRIOR_FLOOR[0])
+        sigma_elev = max(MAD_TO_SIGMA * float(np.median(spread[:, 2])), _PRIOR_FLOOR[1])
+        return PlanarPrior(self.R_lc, sigma_rot, sigma_elev, centre)
+
+    @property
+    def non_planarity(self) -> float:
+        """The measured spread (rad) of the pairs' rotation about the level horizontal axes
+        (the car's pitch and roll on its suspension and the road), NaN before enough pairs."""
+        if len(self._motions) < _HISTORY_MIN:
+            return float('nan')
+        rotations = self._level_terms()[:, :2]
+        spread = np.abs(rotations - np.median(rotations, axis=0))
+        return MAD_TO_SIGMA * float(np.median(spread))
+
+    def _level_terms(self) -> np.ndarray:
+        """``(K, 3)`` level pitch and roll rotation and elevation of travel of the history."""
+        h = np.array(self._motions)                           # (K, 6): log R, direction c
+        rho = h[:, :3] @ self.R_lc.T                          # log(R_lc R R_lc^T) = R_lc log R
+        c = h[:, 3:] @ self.R_lc.T
+        return np.column_stack([rho[:, 0], rho[:, 2], np.arcsin(np.clip(c[:, 1], -1.0, 1.0))])
+
+    # -- one frame pair ---------------------------------------------------------------------------
+
+    def estimate(self, acs: AffineCorrespondences, level: AffineCorrespondences
+                 ) -> FrameEstimate:
+        """The motion of one pair from its ACs in normalised camera coordinates (``acs``) and
+        the same ACs levelled by `R_lc` (``level``, same order and length)."""
+        motion, vstats = vote_planar_motion(level.p1, level.p2, level.A, level.weights,
+                                            self.voting)
+        vote = (motion.alpha, motion.beta, bool(vstats.reliable))
+        if self.config.model == 'planar':
+            return self._planar(acs, motion, vstats, vote)
+        q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
+        n = len(acs)
+        M = ac_design(q1, q2, A)
+        # Coarse noise scales for the starts (the planar model's accuracy): the vote's.
+        sp = vstats.point_scale if math.isfinite(vstats.point_scale) else 1e-3
+        sa = vstats.affine_scale if math.isfinite(vstats.affine_scale) else 2e-2
+        starts = []
+        if math.isfinite(motion.alpha) and math.isfinite(motion.beta):
+            starts.append(('vote',) + lift_planar(motion.alpha, motion.beta, self.R_lc))
+        if self.previous is not None:
+            starts.append(('previous',) + self.previous)
+        if not starts:
+            return self._failed(n, 'no_vote', vote)
+        scored = sorted((self._msac(M, acs, R0, t0, sp, sa) + (name, R0, t0)
+                         for name, R0, t0 in starts), key=lambda item: item[0])
+        prior = self.prior()
+        sp0, sa0 = self.scales if self.scales else (sp, sa)
+        answers = []
+        for k, (cost0, chi2, name, R0, t0) in enumerate(scored):
+            if k > 0 and answers:
+                # Another start only when it is a different motion and not clearly worse.
+                best = answers[0][1]
+                if (_rotation_distance(R0, best.R) < _DISTINCT_ROTATION
+                        and _direction_distance(t0, best.t) < _DISTINCT_DIRECTION):
+                    continue
+                if cost0 > _SECOND_START_RATIO * scored[0][0]:
+                    continue
+            active = (chi2 <= GATE) & (w > 0)
+            if np.count_nonzero(active) < 5:
+                continue
+            answers.append((name, refine_general_motion(
+                q1, q2, A, w, R0, t0, active, sp0, sa0, prior=prior, config=self.config, M=M)))
+        if not answers:
+            return self._failed(n, 'too_few_inliers', vote)
+        first = answers[0][1]
+        share = float(w[first.inliers].sum() / max(w.sum(), 1e-300))
+        typical = (float(np.median(self._shares)) if len(self._shares) >= _HISTORY_MIN
+                   else 1.0)
+        if (share < min(_RECHECK_SHARE, _RECHECK_RELATIVE * typical)
+                or first.rounds >= self.config.rounds):
+            answers += self._second_hypotheses(acs, level, M, scored[0], first, prior,
+                                               (sp, sa), (sp0, sa0))
+        return self._decide(acs, M, answers, prior, vote, vstats)
+
+    def _second_hypotheses(self, acs, level, M, best_start, first, prior, coarse, start_scales):
+        """Other answers when the first explains too little or did not settle (module
+        docstring, step 4)."""
+        q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
+        n = len(acs)
+        sp, sa = coarse
+        _, chi2_0, _, R0, t0 = best_start
+        answers = []
+        # (a) Graduated non-convexity from the best start: scales several times those measured
+        # at the start (inliers of a start ~1 deg off are not yet down-weighted), halved every
+        # round down to the first answer's.
+        active = (chi2_0 <= GATE) & (w > 0)
+        E0 = essential(R0, t0)
+        g0, h0 = residual_variances(E0, q1, q2, A)
+        r0 = (M.reshape(-1, 9) @ E0.ravel()).reshape(n, 3)
+        spg, sag = noise_scales(r0, g0, h0, active)
+        spg, sag = _GNC_INFLATION * max(spg, sp), _GNC_INFLATION * max(sag, sa)
+        target = (min(first.sp, sp), min(first.sa, sa))
+        # (b) The same rotation with straight-ahead travel: a start on the other side of the
+        # rotation-translation (bas-relief) valley.
+        forward = -R0 @ (self.R_lc.T @ np.array([0.0, 0.0, 1.0]))
+        for label, t_start in (('gnc', t0), ('forward', forward)):
+            chi2 = chi_square(M, q1, q2, A, R0, t_start, spg, sag)
+            active = (chi2 <= GATE) & (w > 0)
+            if np.count_nonzero(active) >= 5:
+                answers.append((label, refine_general_motion(
+                    q1, q2, A, w, R0, t_start, active, spg, sag, prior=prior, config=self.config,
+                    M=M, shrink=0.5, target=target, extra_rounds=4)))
+        # (c) Sequential consensus: a vote on the ACs the first answer leaves unexplained.
+        rest = w * ~first.inliers
+        if np.count_nonzero(rest) >= self.config.min_inliers:
+            m2, v2 = vote_planar_motion(level.p1, level.p2, level.A, rest, self.voting)
+            if math.isfinite(m2.alpha) and math.isfinite(m2.beta):
+                R2, t2 = lift_planar(m2.alpha, m2.beta, self.R_lc)
+                if (_rotation_distance(R2, first.R) >= _DISTINCT_ROTATION
+                        or _direction_distance(t2, first.t) >= _DISTINCT_DIRECTION):
+                    sp2 = v2.point_scale if math.isfinite(v2.point_scale) else sp
+                    sa2 = v2.affine_scale if math.isfinite(v2.affine_scale) else sa
+                    chi2 = chi_square(M, q1, q2, A, R2, t2, sp2, sa2)
+                    active = (chi2 <= GATE) & (w > 0)
+                    if np.count_nonzero(active) >= 5:
+                        answers.append(('revote', refine_general_motion(
+                            q1, q2, A, w, R2, t2, active, *start_scales, prior=prior,
+                            config=self.config, M=M)))
+        return answers
+
+    def _decide(self, acs, M, answers, prior, vote, vstats) -> FrameEstimate:
+        """The winning answer, its reliability, and the state update."""
+        q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
+        # Compete at common noise scales, the tightest of the answers' (a wrong answer inflates
+        # its own scales to explain more ACs; at tight scales it explains few).
+        sp_c = min(g.sp for _, g in answers)
+        sa_c = min(g.sa for _, g in answers)
+        final = sorted(((self._msac(M, acs, g.R, g.t, sp_c, sa_c)[0], name, g)
+                        for name, g in answers), key=lambda item: item[0])
+        cost_best, name, best = final[0]
+        if not best.converged:
+            # More rounds from where the winner stopped (rare: slow linear convergence of the
+            # fixed-whitening iteration in turns); flagged only if still not settled.
+            more = refine_general_motion(q1, q2, A, w, best.R, best.t, best.chi2 <= GATE,
+                                         best.sp, best.sa, prior=prior, config=self.config,
+                                         M=M)
+            more.iterations += best.iterations
+            best = more
+            cost_best = self._msac(M, acs, best.R, best.t, sp_c, sa_c)[0]
+        stats = {'start': name, 'msac': cost_best, 'point_scale': best.sp,
+                 'affine_scale': best.sa, 'iterations': best.iterations, 'rounds': best.rounds,
+                 'answers': len(final), 'vote_reliable': bool(vstats.reliable)}
+        flag = None
+        zero = float(w.sum()) * GATE                  # the MSAC cost of explaining nothing
+        for cost_other, _, other in final[1:]:
+            if (_rotation_distance(other.R, best.R) >= _DISTINCT_ROTATION
+                    or _direction_distance(other.t, best.t) >= _DISTINCT_DIRECTION):
+                # Compare the supports (MSAC gains over explaining nothing): with many outliers
+                # the costs are dominated by the outliers' constant and their ratio says little.
+                ratio = (zero - cost_other) / max(zero - cost_best, 1e-300)
+                stats['competitor_ratio'] = max(ratio, stats.get('competitor_ratio', 0.0))
+                if ratio > self.config.ambiguity_ratio:
+                    flag = 'ambiguous'
+        flag = flag or self._judge(M, acs, best, cost_best, stats)
+        if flag is None:
+            self._update(best, stats['share'])
+        return FrameEstimate(best.R, best.t, best.cov, best.basis, best.inliers, flag is None,
+                             flag, vote, stats)
+
+    def _judge(self, M, acs, best, cost_best, stats) -> str | None:
+        """Reliability of the winning answer (None when reliable); see the module docstring."""
+        cfg = self.config
+        w = acs.weights
+        if not best.converged:
+            return 'unconverged'
+        # A motion that 'fits' only with inflated noise scales explains the data by its noise
+        # model, not by its geometry.
+        if len(self._scales) >= _HISTORY_MIN:
+            cap_p, cap_a = _MAX_SCALE_RATIO * np.median(np.array(self._scales), axis=0)
+        else:
+            cap_p, cap_a = _MAX_SCALES
+        if best.sp > cap_p or best.sa > cap_a:
+            return 'noisy'
+        stats['share'] = float(w[best.inliers].sum() / max(w.sum(), 1e-300))
+        if int(best.inliers.sum()) < cfg.min_inliers:
+            return 'too_few_inliers'
+        if stats['share'] < cfg.min_inlier_share:
+            return 'low_share'
+        axis = self.R_lc.T @ np.array([0.0, 1.0, 0.0])          # the level vertical
+        var_yaw = float(axis @ best.cov[:3, :3] @ axis)
+        stats['yaw_std'] = math.sqrt(var_yaw) if np.isfinite(var_yaw) and var_yaw >= 0 \
+            else math.inf
+        if not stats['yaw_std'] <= cfg.max_yaw_std:
+            return 'imprecise'
+        support = max(float(w[best.inliers].sum()), 1e-300)
+        rises = []
+        for R_p, t_p in ((so3_exp(_PERTURBATION * axis) @ best.R, best.t),
+                         (so3_exp(-_PERTURBATION * axis) @ best.R, best.t),
+                         (best.R, _turn(best.t, best.basis[:, 0], 5 * _PERTURBATION)),
+                         (best.R, _turn(best.t, best.basis[:, 1], 5 * _PERTURBATION))):
+            cost = self._msac(M, acs, R_p, t_p, best.sp, best.sa)[0]
+            rises.append((cost - cost_best) / support)
+        stats['rise'] = min(rises)
+        return 'flat' if stats['rise'] < _FLAT_RISE else None
+
+    def _update(self, best, share: float) -> None:
+        self.scales = (best.sp, best.sa)
+        self._scales.append(self.scales)
+        self._shares.append(share)
+        self.previous = (best.R, best.t)
+        c = -best.R.T @ best.t
+        self._motions.append(np.concatenate([so3_log(best.R), c / np.linalg.norm(c)]))
+
+    # -- helpers -------------------------------------------------------------------------------
+
+    @staticmethod
+    def _msac(M, acs, R, t, sp, sa) -> tuple[float, np.ndarray]:
+        chi2 = chi_square(M, acs.p1, acs.p2, acs.A, R, t, sp, sa)
+        return float(acs.weights @ np.minimum(chi2, GATE)), chi2
+
+    def _planar(self, acs, motion, vstats, vote) -> FrameEstimate:
+        """The vote's planar motion as the answer (``model: planar``): its 2x2 covariance of
+        ``(alpha, beta)`` in the level frame, completed by the non-planarity (pitch, roll and
+        elevation of travel) the planar model ignores."""
+        n = len(acs)
+        if not vstats.reliable:
+            return self._failed(n, vstats.flag or 'unreliable', vote)
+        R, t = lift_planar(motion.alpha, motion.beta, self.R_lc)
+        B = tangent_basis(t)
+        sigma = self.non_planarity if math.isfinite(self.non_planarity) else _PRIOR_START[0]
+        # Level frame: w = R_lc^T [pitch, yaw, roll]; the heading beta turns t about the level
+        # vertical, the elevation tilts it out of the plane.
+        cov_level = np.diag([sigma ** 2, vstats.covariance[0, 0], sigma ** 2])
+        cov = np.zeros((5, 5))
+        cov[:3, :3] = self.R_lc.T @ cov_level @ self.R_lc
+        up = self.R_lc.T @ np.array([0.0, 1.0, 0.0])
+        dt_dbeta = np.cross(up, t)                   # the heading turns t about the vertical
+        dt_delev = np.cross(t, dt_dbeta)             # ... the elevation tilts it
+        J = B.T @ np.column_stack([dt_dbeta, dt_delev])
+        cov[3:, 3:] = J @ np.diag([vstats.covariance[1, 1], _PRIOR_START[1] ** 2]) @ J.T
+        est = FrameEstimate(R, t, cov, B, vstats.inliers.copy(), True, None, vote,
+                            {'start': 'vote', 'point_scale': vstats.point_scale,
+                             'affine_scale': vstats.affine_scale})
+        self.previous = (R, t)
+        return est
+
+    def _failed(self, n: int, flag: str, vote: tuple) -> FrameEstimate:
+        return FrameEstimate(np.full((3, 3), np.nan), np.full(3, np.nan),
+                             np.full((5, 5), np.inf), np.full((3, 2), np.nan),
+                             np.zeros(n, bool), False, flag, vote, {})
+
+
+def _turn(t: np.ndarray, b: np.ndarray, angle: float) -> np.ndarray:
+    """``t`` turned by ``angle`` towards the orthogonal unit vector ``b``."""
+    return math.cos(angle) * t + math.sin(angle) * b

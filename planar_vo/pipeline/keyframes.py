@@ -1,0 +1,77 @@
+"""Keyframes: the reference views the frames are tracked against.
+
+A frame becomes the new keyframe once its parallax to the current one reaches
+``keyframe.min_parallax`` (or after ``keyframe.max_interval`` frames): small baselines carry
+little information, and a slow or stopped vehicle does not accumulate noise. The last few
+keyframes are kept (bounded) for the calibrations that pair the current view with an older one
+(the focal length needs a turn between the views).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ['Keyframe', 'KeyframeChain']
+
+
+@dataclass
+class Keyframe:
+    """One reference view.
+
+    Attributes:
+        image: 8-bit grey ``(H, W)``.
+        stamp: seconds; moved forward while the vehicle stands still (no motion since).
+        pose: ``T_world_camera`` (4, 4), world = the first camera frame of the chain.
+        covariance: 6x6 right-perturbation covariance of ``pose`` (``[phi, rho]``).
+        index: running number of the keyframe in the chain.
+        age: frames tracked against it so far.
+    """
+
+    image: np.ndarray
+    stamp: float
+    pose: np.ndarray
+    covariance: np.ndarray
+    index: int
+    age: int = 0
+
+
+class KeyframeChain:
+    """The current keyframe and the few before it (at most ``keep``).
+
+    Args:
+        keep: keyframes kept (the current one included).
+    """
+
+    def __init__(self, keep: int = 6) -> None:
+        self._frames: deque[Keyframe] = deque(maxlen=max(1, int(keep)))
+        self._count = 0
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    @property
+    def current(self) -> Keyframe | None:
+        """The keyframe frames are tracked against (None after `clear`)."""
+        return self._frames[-1] if self._frames else None
+
+    def add(self, image: np.ndarray, stamp: float, pose: np.ndarray,
+            covariance: np.ndarray) -> Keyframe:
+        """Make a view the new keyframe."""
+        frame = Keyframe(image, stamp, pose.copy(), covariance.copy(), self._count)
+        self._count += 1
+        self._frames.append(frame)
+        return frame
+
+    def find(self, index: int) -> Keyframe | None:
+        """The kept keyframe with this running number, or None."""
+        for frame in self._frames:
+            if frame.index == index:
+                return frame
+        return None
+
+    def clear(self) -> None:
+        """Drop every keyframe (the next usable frame starts a new chain)."""
+        self._frames.clear()
