@@ -116,7 +116,9 @@ def run_drive(prefix: Path, env: dict, tmp_path: Path, bag: Path, params: dict[s
     ``frames`` images, stop the node with ``stop_signal`` (exit code 0 expected).
 
     Returns (odometry messages, status messages, node output); the last path message is
-    checked against the odometry (``ros.path_max_length`` poses at most)."""
+    checked against the odometry (``ros.path_max_length`` poses at most; every pose is kept and
+    every one published unless ``params`` set ``ros.path_spacing`` and ``ros.path_period``)."""
+    params = {'ros.path_spacing': 0.0, 'ros.path_period': 0.0, **params}
     with Probe(env) as probe, \
             NodeProcess(node_args(prefix, params, extra), env, tmp_path / 'node.log') as node:
         odom = probe.subscribe('/odom', Odometry)
@@ -403,8 +405,9 @@ def test_invalid_parameter_is_one_fatal_line_and_exit_code_1(prefix, ros_env, tm
 
 
 @pytest.mark.timeout(60)
-def test_run_time_parameter_changes_are_validated(prefix, ros_env, tmp_path):
-    from rcl_interfaces.srv import GetParameters, SetParameters
+def test_run_time_parameter_changes_are_validated_and_described(prefix, ros_env, tmp_path):
+    from rcl_interfaces.msg import ParameterType
+    from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
     from rclpy.parameter import Parameter
 
     # An integer for a float parameter and a list for the empty-list default are accepted.
@@ -419,22 +422,49 @@ def test_run_time_parameter_changes_are_validated(prefix, ros_env, tmp_path):
             (result,) = probe.call(SetParameters, '/planar_vo/set_parameters', request).results
             return result.successful, result.reason
 
-        assert set_parameter('voting.bins', 3) == \
-            (False, 'voting.bins: expected at least 36, got 3')
-        ok, reason = set_parameter('voting.bins', 360)
-        assert not ok and reason.startswith('voting.bins: read at start-up only')
+        # Start-up parameters are read-only; values outside the declared ranges are refused by
+        # rclpy, relations between parameters by the config object.
+        assert set_parameter('voting.bins', 360) == \
+            (False, 'Trying to set a read-only parameter: voting.bins.')
         ok, reason = set_parameter('ros.warn_period', -1.0)
-        assert not ok and reason.startswith('ros.warn_period: expected a non-negative')
+        assert not ok and reason.startswith('Parameter ros.warn_period out of range Min: 0.0')
+        ok, reason = set_parameter('ros.path_max_length', 0)
+        assert not ok and 'out of range' in reason
         assert set_parameter('ros.warn_period', 1) == (True, '')
         assert set_parameter('ros.path_max_length', 5) == (True, '')
+        assert set_parameter('ros.path_spacing', 2.0) == (True, '')
         values = probe.call(GetParameters, '/planar_vo/get_parameters', GetParameters.Request(
             names=['ros.warn_period', 'voting.bins', 'mount.height'])).values
         assert [values[0].integer_value, values[1].integer_value, values[2].integer_value] == \
             [1, 720, 2]
+
+        # What `ros2 param describe` shows: plain-text description, range, read-only flag.
+        names = ['mount.height', 'camera.focal_tolerance', 'frontend.max_correspondences',
+                 'ros.path_max_length', 'ros.image_transport']
+        described = {d.name: d for d in probe.call(
+            DescribeParameters, '/planar_vo/describe_parameters',
+            DescribeParameters.Request(names=names)).descriptors}
+        height = described['mount.height']
+        assert height.read_only and height.type == ParameterType.PARAMETER_INTEGER
+        assert height.description.startswith('camera position in base_link (metres)')
+        assert (height.floating_point_range[0].from_value,
+                height.floating_point_range[0].to_value) == (0.0, math.inf)
+        tolerance = described['camera.focal_tolerance'].floating_point_range[0]
+        assert (tolerance.from_value, tolerance.to_value) == (0.0, 1.0)
+        cap = described['frontend.max_correspondences'].integer_range[0]
+        assert (cap.from_value, cap.to_value, cap.step) == (1, 30000, 0)
+        assert not described['ros.path_max_length'].read_only
+        assert described['ros.path_max_length'].integer_range[0].from_value == 1
+        transport = described['ros.image_transport']
+        assert transport.read_only and not transport.integer_range and \
+            not transport.floating_point_range
+        assert all('`' not in d.description for d in described.values())
         assert node.stop(signal.SIGINT) == 0
         output = node.output()
-    assert 'mount.height = 2.0' in output and 'camera.distortion = [0.1, -0.01, 0.0, 0.0]' \
-        in output, output
+    start = [ln for ln in output.splitlines() if 'listening on' in ln]
+    assert len(start) == 1 and start[0].startswith('[INFO]'), output
+    assert '2 set: camera.distortion = [0.1, -0.01, 0.0, 0.0], mount.height = 2.0' in start[0]
+    assert 'voting.bins = ' not in output           # the full dump is at DEBUG level
 
 
 # -- the warning throttle --------------------------------------------------------------------------
