@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import time
 import os
 import re
 import signal
@@ -606,3 +607,131 @@ def test_pipeline_failures_are_counted_and_the_node_carries_on(monkeypatch, loca
     assert node.outcomes == {'first_frame': 1, 'ok': 5, 'pipeline_error': 2}
     assert node.summary().startswith('summary: 8 frames in, 5 odometry out, 3 dropped '
                                      '(first_frame 1, pipeline_error 2)')
+
+
+def statuses(node) -> list[dict[str, str]]:
+    return [{kv.key: kv.value for kv in s.status[0].values} for s in node.published['status']]
+
+
+@pytest.mark.timeout(60)
+def test_tracking_states_lost_and_reinitialised_are_logged_once_each(local_node, drive_bag, rng):
+    """Frames 10-14 replaced by noise (nothing to track): lost for max_lost_frames (5), then the
+    next real frame starts a new chain (reinitialised) and tracking resumes."""
+    from sensor_msgs.msg import Image
+
+    node = local_node(MOUNT_PARAMS)
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    noise = rng.integers(0, 256, (480, 640), dtype=np.uint8)
+
+    def swap(i):
+        if 10 <= i < 15:
+            original = node._on_image
+
+            def once(msg):
+                node._on_image = original
+                noisy = to_rclpy(image_msg(noise, 'mono8', stamp_to_ns(msg.header.stamp)), Image)
+                original(noisy)
+            node._on_image = once
+
+    feed(node, drive_bag, 22, swap)
+    states = [s['tracking'] for s in statuses(node)]
+    results = [s['result'] for s in statuses(node)]
+    assert states == ['tracking'] * 10 + ['lost'] * 5 + ['reinitialised'] + ['tracking'] * 6
+    assert set(results[10:15]) <= {'too_few_correspondences', 'unreliable'}
+    assert results[15] == 'reinitialised' and results[16:] == ['ok'] * 6
+    assert [s['scale_source'] for s in statuses(node)][9:17] == \
+        ['ground'] + ['none'] * 6 + ['ground']
+    changes = [ln for level, ln in lines if 'tracking state' in ln]
+    assert [c.split(' at ')[0] for c in changes] == [
+        'tracking state initialising -> tracking', 'tracking state tracking -> lost',
+        'tracking state lost -> reinitialised', 'tracking state reinitialised -> tracking']
+    assert [level for level, ln in lines if 'tracking state' in ln] == \
+        ['info', 'warning', 'warning', 'info']
+    assert statuses(node)[-1]['tracking_changes'] == '4'
+    assert float(statuses(node)[-1]['focal_px']) == 500.0
+
+
+class _Recorder:
+    """A logger that records (level, line) instead of logging."""
+
+    def __init__(self, logger, lines):
+        self._lines = lines
+
+    def __getattr__(self, level):
+        return lambda message, *args, **kwargs: self._lines.append((level, message))
+
+
+@pytest.mark.timeout(60)
+def test_implausible_camera_info_is_counted_and_the_last_valid_model_kept(local_node,
+                                                                          drive_bag):
+    """A CameraInfo with 100 times the focal length (a 0.7-degree field of view) and one whose
+    principal point lies outside the image are refused like any invalid CameraInfo."""
+    from sensor_msgs.msg import CameraInfo
+
+    node = local_node(MOUNT_PARAMS)
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    wrong_focal = CAMERA.K.copy()
+    wrong_focal[0, 0] = wrong_focal[1, 1] = 50000.0
+    wrong_centre = CAMERA.K.copy()
+    wrong_centre[0, 2] = 1280.0
+
+    def wrong(i):
+        if i in (4, 8):
+            k = wrong_focal if i == 4 else wrong_centre
+            node._on_camera_info(to_rclpy(camera_info_msg(0, 640, 480, 500.0, k=k), CameraInfo))
+
+    node._throttle.period = 0.0
+    feed(node, drive_bag, 12, wrong)
+    assert node._camera == CameraModel.from_camera_info(
+        to_rclpy(camera_info_msg(0, 640, 480, 500.0, k=CAMERA.K), CameraInfo))
+    final = statuses(node)[-1]
+    assert final['camera_info_errors'] == '2' and final['odometry_out'] == '11'
+    assert float(final['focal_px']) == 500.0
+    warnings = [ln for level, ln in lines if level == 'warning' and 'camera_info' in ln]
+    assert len(warnings) == 2
+    assert 'horizontal field of view 0.733 deg' in warnings[0] and \
+        'keeping the last valid one' in warnings[0]
+    assert 'principal point (1280, 239.5) lies outside the 640x480 image' in warnings[1]
+
+
+@pytest.mark.timeout(120)
+def test_path_cost_is_bounded_after_an_hour_at_10_hz(local_node):
+    """36,000 odometry poses (an hour at 10 Hz, 1 m apart): the path keeps at most
+    ros.path_max_length poses and is published once per second of image time, so the poses
+    serialised per frame stay at most path_max_length / 10, whatever the drive's length."""
+    from nav_msgs.msg import Odometry as OdometryMsg
+
+    node = local_node({'ros.path_spacing': 0.5})
+    listener = rclpy.create_node('path_listener', context=node.context)
+    received = []
+    listener.create_subscription(PathMsg, 'path', received.append, 1)
+    try:
+        deadline = time.monotonic() + 10
+        while node._path_pub.get_subscription_count() == 0:
+            assert time.monotonic() < deadline, 'path subscriber not matched'
+            time.sleep(0.01)
+        sizes = []
+        publish = node._path_pub.publish
+        node._path_pub.publish = lambda msg: (sizes.append(len(msg.poses)), publish(msg))
+        start = time.perf_counter()
+        frames = 36000
+        for i in range(frames):
+            odom = OdometryMsg()
+            odom.header.frame_id = 'odom'
+            odom.header.stamp.sec, odom.header.stamp.nanosec = divmod(i * 100_000_000, 10 ** 9)
+            odom.pose.pose.position.x = float(i)
+            node._publish(odom)
+        per_frame_ms = 1e3 * (time.perf_counter() - start) / frames
+    finally:
+        listener.destroy_node()
+    assert len(node._path) == 1000 and len(sizes) == frames // 10
+    assert max(sizes) == 1000 and sum(sizes) / frames <= 100
+    poses = node.path_poses()
+    assert poses[-1].pose.position.x == frames - 1                  # ends at the latest pose
+    assert poses[0].pose.position.x == frames - 1000
+    print(f'path: {per_frame_ms:.3f} ms per frame (odometry, path, no TF) after {frames} '
+          f'frames; {sum(sizes) / frames:.0f} poses serialised per frame')
