@@ -700,12 +700,12 @@ def test_implausible_camera_info_is_counted_and_the_last_valid_model_kept(local_
 
 @pytest.mark.timeout(120)
 def test_path_cost_is_bounded_after_an_hour_at_10_hz(local_node):
-    """36,000 odometry poses (an hour at 10 Hz, 1 m apart): the path keeps at most
-    ros.path_max_length poses and is published once per second of image time, so the poses
-    serialised per frame stay at most path_max_length / 10, whatever the drive's length."""
+    """36,000 odometry poses (an hour at 10 Hz, 1 m apart; the default path parameters): the
+    path keeps at most ros.path_max_length (500) poses and is published once per second of
+    image time, so at most 50 poses are serialised per frame, whatever the drive's length."""
     from nav_msgs.msg import Odometry as OdometryMsg
 
-    node = local_node({'ros.path_spacing': 0.5})
+    node = local_node({})
     listener = rclpy.create_node('path_listener', context=node.context)
     received = []
     listener.create_subscription(PathMsg, 'path', received.append, 1)
@@ -728,10 +728,10 @@ def test_path_cost_is_bounded_after_an_hour_at_10_hz(local_node):
         per_frame_ms = 1e3 * (time.perf_counter() - start) / frames
     finally:
         listener.destroy_node()
-    assert len(node._path) == 1000 and len(sizes) == frames // 10
-    assert max(sizes) == 1000 and sum(sizes) / frames <= 100
+    assert len(node._path) == 500 and len(sizes) == frames // 10
+    assert max(sizes) == 500 and sum(sizes) / frames <= 50
     poses = node.path_poses()
     assert poses[-1].pose.position.x == frames - 1                  # ends at the latest pose
-    assert poses[0].pose.position.x == frames - 1000
+    assert poses[0].pose.position.x == frames - 500
     print(f'path: {per_frame_ms:.3f} ms per frame (odometry, path, no TF) after {frames} '
           f'frames; {sum(sizes) / frames:.0f} poses serialised per frame')

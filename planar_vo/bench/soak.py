@@ -185,7 +185,7 @@ def report(blocks: list[dict], info: dict) -> str:
     return '\n\n'.join([
         f'A {info["lap_frames"]}-frame lap of the rendered street ({info["camera"]}, rendered in '
         f'{info["render_s"]:.0f} s) driven round and round at 10 Hz through an in-process '
-        f'PlanarVoNode (default parameters: path decimated to 0.5 m, at most 1,000 poses, '
+        f'PlanarVoNode (default parameters: path decimated to 1 m, at most 500 poses, '
         f'published once per second of image time to a subscriber: '
         f'{"yes" if info["path_subscribed"] else "NO (not matched)"}). One row per '
         f'{info["every"]} frames; time is the median over the block.',

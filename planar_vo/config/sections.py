@@ -252,12 +252,12 @@ class RosConfig(Options):
         image_transport: ``'raw'`` (``image``) or ``'compressed'`` (``image/compressed``).
         speed_topic_type: ``'twist'`` (``geometry_msgs/TwistStamped``) or ``'odometry'``.
         path_max_length: poses kept in the published ``nav_msgs/Path`` (the oldest are
-            dropped): bounds its memory and its publishing cost (about 5 us per pose).
+            dropped): bounds its memory and its publishing cost (about 10 us per pose).
         path_spacing: a pose joins the path once it is this far (m) from the last one kept (0:
             every odometry pose); the path always ends at the latest pose.
         path_period: the path is published at most once per this many seconds of image time
             (0: with every odometry message); with the two above this bounds its cost per
-            frame (1,000 poses once per second: about 0.5 ms per frame at 10 Hz).
+            frame (500 poses once per second: about 0.5 ms per frame at 10 Hz).
         warn_period: seconds between repeats of the same warning.
         diagnostics_period: seconds between ``/diagnostics`` messages.
         image_timeout: warn when no image has arrived for this many seconds.
@@ -268,8 +268,8 @@ class RosConfig(Options):
     publish_tf: bool = True
     image_transport: typing.Literal['raw', 'compressed'] = 'raw'
     speed_topic_type: typing.Literal['twist', 'odometry'] = 'twist'
-    path_max_length: int = bounded(1000, 1, 1_000_000)
-    path_spacing: float = bounded(0.5, 0.0, expected='a non-negative distance (m)')
+    path_max_length: int = bounded(500, 1, 1_000_000)
+    path_spacing: float = bounded(1.0, 0.0, expected='a non-negative distance (m)')
     path_period: float = bounded(1.0, 0.0, expected='a non-negative number of seconds')
     warn_period: float = bounded(5.0, 0.0, expected='a non-negative number of seconds')
     diagnostics_period: float = bounded(1.0, 0.0, low_open=True,

@@ -569,9 +569,9 @@ class PlanarVoNode(Node):
         have passed since the last one (or ``force``); returns whether it was published.
 
         Image time rather than wall time: the cost per frame is then the same live and in a
-        bag played fast. A message costs about 5 us per pose, so with at most
-        ``ros.path_max_length`` poses (1,000: 5 ms) once per second (every 10 frames at 10 Hz)
-        the path costs well under 1 ms per frame however long the drive."""
+        bag played fast. A message costs about 10 us per pose, so with at most
+        ``ros.path_max_length`` poses (500: about 5 ms) once per second (every 10 frames at
+        10 Hz) the path costs about 0.5 ms per frame however long the drive."""
         stamp = stamp_to_ns(header.stamp) / 1e9
         self._path_header = header
         if self._path_pub.get_subscription_count() == 0 or (
