@@ -735,3 +735,237 @@ def test_path_cost_is_bounded_after_an_hour_at_10_hz(local_node):
     assert poses[0].pose.position.x == frames - 500
     print(f'path: {per_frame_ms:.3f} ms per frame (odometry, path, no TF) after {frames} '
           f'frames; {sum(sizes) / frames:.0f} poses serialised per frame')
+
+
+# -- renamed node, parameter files, reset, diagnostics (over DDS) --------------------------------
+
+def edited_parameter_file(prefix: Path, out: Path, key: str | None = None) -> Path:
+    """The installed config/planar_vo.yaml with the drive's mount (and optionally another node
+    key than its ``/**``)."""
+    text = (prefix / 'share/planar_vo/config/planar_vo.yaml').read_text()
+    assert '\n/**:\n' in text
+    for old, new in (('      height: 1.5\n', f'      height: {MOUNT.height}\n'),
+                     ('      pitch: 0.0\n', f'      pitch: {MOUNT.pitch}\n')):
+        assert old in text
+        text = text.replace(old, new)
+    if key is not None:
+        text = text.replace('\n/**:\n', f'\n{key}:\n')
+    out.write_text(text)
+    return out
+
+
+@pytest.mark.timeout(120)
+def test_renamed_node_with_the_shipped_parameter_file_resets_and_publishes_diagnostics(
+        prefix, ros_env, tmp_path, drive_bag):
+    from diagnostic_msgs.msg import DiagnosticArray as Diagnostics
+    from std_srvs.srv import Trigger
+
+    params = edited_parameter_file(prefix, tmp_path / 'params.yaml')
+    args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args', *REMAP,
+            '-r', '__node:=front_vo', '-r', '__ns:=/car', '--params-file', str(params)]
+    stamps = image_stamps(drive_bag)
+    with Probe(ros_env) as probe, NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
+        odom = probe.subscribe('/car/odom', Odometry)
+        status = probe.subscribe('/car/status', DiagnosticArray)
+        diagnostics = probe.subscribe('/diagnostics', Diagnostics)
+        probe.wait_for_publisher('/car/status', alive=[node])
+        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC]),
+                         ros_env, tmp_path / 'player.log') as player:
+            probe.spin_until(lambda: last_count(status, 'frames') >= 15, 60.0, '15 frames',
+                             alive=[node, player])
+            response = probe.call(Trigger, '/car/front_vo/reset', Trigger.Request())
+            assert response.success and 'counters kept' in response.message
+            probe.spin_until(lambda: last_count(status, 'frames') >= len(stamps), 60.0,
+                             'every frame', alive=[node, player])
+            probe.spin_until(lambda: any(status_values(d).get('resets') == '1'
+                                         for d in diagnostics), 10.0, 'diagnostics after reset',
+                             alive=[node])
+        assert node.stop(signal.SIGINT) == 0
+        output = node.output()
+
+    # The /** file applied to the renamed node: the mount came from it, no warning about it.
+    assert 'mount.height = 1.4, mount.pitch = 0.05' in output and 'set nothing' not in output
+    assert '[car.front_vo]' in output and 'listening on /camera/image_raw' in output
+    # The reset started a new chain at the next image: pose back at the origin, counters kept.
+    results = [status_values(s)['result'] for s in status]
+    assert results.count('first_frame') == 2 and len(results) == len(stamps)
+    restart = results.index('first_frame', 1)
+    final = status_values(status[-1])
+    assert (final['frames'], final['odometry_out'], final['resets']) == \
+        (str(len(stamps)), str(len(stamps) - 2), '1')
+    restart_ns = int(status_values(status[restart])['stamp_ns'])
+    after = [m for m in odom if stamp_to_ns(m.header.stamp) > restart_ns]
+    assert 0.5 < after[0].pose.pose.position.x < 1.0 and abs(after[0].pose.pose.position.y) < 0.05
+    assert_tracks_ground_truth(*odom_track(after), ground_truth(drive_bag), restart_ns,
+                               yaw_deg=math.degrees(float(yaw_of(
+                                   (invert(ground_truth(drive_bag)[restart_ns]) @
+                                    ground_truth(drive_bag)[stamps[-1]])[:3, :3]))))
+    assert 'reset by ~/reset' in output and \
+        output.count('tracking state initialising -> tracking') == 2
+    # /diagnostics: a name and hardware id an aggregator can group, the state and the rates.
+    ours = [d.status[0] for d in diagnostics if d.status[0].name == 'front_vo: visual odometry']
+    assert ours and {s.hardware_id for s in ours} == {'/car/front_vo'}
+    values = {kv.key: kv.value for kv in ours[-1].values}
+    assert values['tracking'] == 'tracking' and values['image_topic'] == '/camera/image_raw'
+    assert values['listening_on'] == '/camera/image_raw /camera/camera_info'
+    assert float(values['focal_px']) == 500.0 and values['scale_source'] == 'ground'
+    assert ours[-1].level == DiagnosticStatus.OK
+
+
+@pytest.mark.timeout(60)
+def test_parameter_file_for_another_node_name_is_reported(prefix, ros_env, tmp_path):
+    params = edited_parameter_file(prefix, tmp_path / 'old.yaml', key='planar_vo')
+    args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args', '-r', '__node:=front_vo',
+            '--params-file', str(params), '-p', 'ros.image_timeout:=0.5']
+    with NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
+        deadline = time.monotonic() + 30
+        while 'no image for' not in node.output():
+            assert time.monotonic() < deadline and node.popen.poll() is None, node.output()
+            time.sleep(0.05)
+        assert node.stop(signal.SIGINT) == 0
+        output = node.output()
+    warning = [ln for ln in output.splitlines() if 'set nothing' in ln]
+    assert len(warning) == 1 and warning[0].startswith('[WARN]'), output
+    assert f'parameter file {params} set nothing for this node /front_vo: its parameters are ' \
+           f'keyed on planar_vo; key them on /** (any node) or on /front_vo' in warning[0]
+    assert '1 set: ros.image_timeout = 0.5' in output
+    # No image: the warning names the resolved topics it listens on.
+    assert 'no image for 0 s on /image (0 publisher(s)); listening on /image, /camera_info' \
+        in output or 'no image for 1 s on /image (0 publisher(s)); listening on /image, ' \
+        '/camera_info' in output, output
+
+
+def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):
+    import subprocess
+
+    proc = subprocess.run([str(prefix / 'lib/planar_vo/planar_vo_node'), '--help'],
+                          env=ros_env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith('usage: ros2 run planar_vo planar_vo_node')
+    for needle in ('-r image:=/camera/image_raw',
+                   '-r image/compressed:=/camera/image_raw/compressed',
+                   'share/planar_vo/config/planar_vo.yaml', 'scale.source (default',
+                   '~/reset'):
+        assert needle in proc.stdout, needle
+    assert 'listening on' not in proc.stdout + proc.stderr
+
+
+# -- hostile clocks and a fast speed topic (over DDS) ---------------------------------------------
+
+YEAR_NS = 365 * 86400 * 10 ** 9
+
+
+def write_clock_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
+    """F0-F24 of the drive with one extra image after F15 stamped a year later (a single bad
+    clock sample), then F0-F9 again with their original stamps (a looped bag: time jumps back
+    2.4 s). Returns the expected ``(stamp_ns, result)`` of every image, in publishing order."""
+    with open_bag(clean) as reader:
+        frames = list(iter_camera_frames(reader, IMAGE_TOPIC))[:25]
+    entries, expected = [], []
+    log_ns = frames[0].stamp_ns
+
+    def publish(frame, stamp_ns: int, result: str) -> None:
+        nonlocal log_ns
+        entries.append((CAMERA_INFO_TOPIC, 'sensor_msgs/msg/CameraInfo', log_ns - 1000,
+                        camera_info_msg(stamp_ns, 640, 480, 500.0, k=CAMERA.K)))
+        entries.append((IMAGE_TOPIC, 'sensor_msgs/msg/Image', log_ns,
+                        image_msg(frame.image, 'mono8', stamp_ns)))
+        expected.append((stamp_ns, result))
+        log_ns += 100_000_000
+
+    for i, frame in enumerate(frames):
+        publish(frame, frame.stamp_ns, 'first_frame' if i == 0 else 'ok')
+        if i == 15:
+            publish(frame, frame.stamp_ns + YEAR_NS, 'time_jump_ahead')
+    for i, frame in enumerate(frames[:10]):
+        publish(frame, frame.stamp_ns, 'time_jump_back' if i == 0 else 'ok')
+    from bagdata import write_bag
+
+    write_bag(out, 'mcap', sorted(entries, key=lambda e: e[2]))
+    return expected
+
+
+@pytest.mark.timeout(120)
+def test_future_stamp_and_looped_bag_neither_wedge_nor_count_as_gaps(prefix, ros_env, tmp_path,
+                                                                      drive_bag):
+    expected = write_clock_bag(drive_bag, tmp_path / 'clock')
+    odom, status, output = run_drive(prefix, ros_env, tmp_path, tmp_path / 'clock',
+                                     {**MOUNT_PARAMS, 'ros.path_max_length': 9}, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
+                                     frames=len(expected), reliable=True,
+                                     extra=['-p', f'qos_overrides.{IMAGE_TOPIC}.subscription.'
+                                                  f'reliability:=reliable'])
+    assert [(int(status_values(s)['stamp_ns']), status_values(s)['result'])
+            for s in status] == expected
+    # The glitch is that frame's problem only; the loop resets tracking at the origin.
+    states = [status_values(s)['tracking'] for s in status]
+    assert states == ['tracking'] * 26 + ['reinitialised'] + ['tracking'] * 9
+    final = status_values(status[-1])
+    assert (final['gaps'], final['missing_frames'], final['dropped.time_jump_ahead'],
+            final['dropped.time_jump_back'], final['odometry_out']) == ('0', '0', '1', '1', '33')
+    looped = odom[-9:]                        # F1-F9 again, from the origin
+    assert [stamp_to_ns(m.header.stamp) for m in looped] == [s for s, _ in expected[27:]]
+    truth = ground_truth(drive_bag)
+    assert_tracks_ground_truth(*odom_track(looped), truth, expected[26][0], yaw_deg=0.0)
+    for needle in ('tracking state initialising -> tracking',
+                   'tracking state tracking -> reinitialised',
+                   'tracking state reinitialised -> tracking', 'time jumped back 2.400 s',
+                   'time_jump_ahead: timestamp'):
+        assert sum(needle in ln for ln in output.splitlines()) == 1, (needle, output[-3000:])
+    assert 'gap of' not in output
+    assert '0 frames missing in 0 gaps' in summary_line(output)
+
+
+@pytest.mark.timeout(120)
+def test_a_100_hz_speed_topic_loses_no_sample_while_images_are_processed(
+        prefix, ros_env, tmp_path, drive_bag):
+    """Speed messages in bursts of 20 every 0.2 s (100 Hz on average), best effort like a
+    wheel-odometry driver, while the node processes the drive's images."""
+    from geometry_msgs.msg import TwistStamped as Twist
+    from rclpy.qos import qos_profile_sensor_data
+
+    stamps = image_stamps(drive_bag)
+    args = node_args(prefix, {**MOUNT_PARAMS, 'scale.source': 'speed'})
+    with Probe(ros_env) as probe, NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
+        status = probe.subscribe('/status', DiagnosticArray)
+        speed = probe.node.create_publisher(Twist, '/speed', qos_profile_sensor_data)
+        probe.wait_for_publisher('/status', alive=[node])
+        probe.spin_until(lambda: speed.get_subscription_count() > 0, 20.0, 'speed subscriber',
+                         alive=[node])
+        sent = 0
+
+        def send(count: int) -> None:
+            nonlocal sent
+            for _ in range(count):
+                msg = Twist()
+                t = stamps[0] + sent * 10_000_000
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 10 ** 9)
+                msg.twist.linear.x = 8.0
+                speed.publish(msg)
+                sent += 1
+
+        def pause(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            probe.spin_until(lambda: time.monotonic() > end, seconds + 1.0, 'a pause')
+
+        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC]),
+                         ros_env, tmp_path / 'player.log') as player:
+            # Discovery completes on both sides before the count starts (a best-effort
+            # writer may see the reader before the reader sees it).
+            while last_count(status, 'speed_messages') == 0:
+                send(1)
+                pause(0.05)
+                assert last_count(status, 'frames') < 10, 'speed never arrived'
+            pause(0.3)
+            frames = last_count(status, 'frames')
+            probe.spin_until(lambda: last_count(status, 'frames') >= frames + 2, 10.0,
+                             'two more frames', alive=[node, player])
+            base, warm_up = last_count(status, 'speed_messages'), sent
+            # The last bursts go out well before the last image, whose status counts them.
+            while sent - warm_up < 400 and last_count(status, 'frames') < len(stamps) - 8:
+                send(20)
+                pause(0.2)
+            probe.spin_until(lambda: last_count(status, 'frames') >= len(stamps), 60.0,
+                             'every frame', alive=[node, player])
+        assert node.stop(signal.SIGINT) == 0
+    assert base == warm_up and sent - warm_up >= 200
+    assert last_count(status, 'speed_messages') == sent

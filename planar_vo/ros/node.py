@@ -97,7 +97,7 @@ try:  # tf2_ros comes with a ROS installation; it is not on PyPI.
 except ImportError:  # pragma: no cover - depends on the installation
     TransformBroadcaster = None
 
-__all__ = ['LIVE_PARAMETERS', 'SPEED_QUEUE_DEPTH', 'PlanarVoNode', 'main', 'parameter_files',
+__all__ = ['LIVE_PARAMETERS', 'SPEED_QUEUE_DEPTH', 'PlanarVoNode', 'main', 'ros_arguments',
            'usage']
 
 # Parameters that may change while the node runs; the others shape subscriptions and the pipeline
@@ -157,6 +157,8 @@ class PlanarVoNode(Node):
     Args:
         parameter_files: the ``--params-file`` files of the command line, to warn about a file
             that set nothing for this node (keyed on another node name).
+        command_line_parameters: the names given with ``-p`` (they do not count as set by a
+            file).
         **kwargs: `rclpy.node.Node` arguments (``context``, ``parameter_overrides``, ...).
 
     Attributes:
@@ -165,7 +167,8 @@ class PlanarVoNode(Node):
         tracking: the tracking state after the last image (or the reset).
     """
 
-    def __init__(self, *, parameter_files: Sequence[str] = (), **kwargs: Any) -> None:
+    def __init__(self, *, parameter_files: Sequence[str] = (),
+                 command_line_parameters: Sequence[str] = (), **kwargs: Any) -> None:
         super().__init__('planar_vo', **kwargs)
         self._defaults = flatten(PlanarVoConfig())
         self._check_unknown_overrides()
@@ -177,7 +180,7 @@ class PlanarVoNode(Node):
         self._declare_parameters()
         self.config = self._checked_config(self._parameter_values())
         self._log_parameters()
-        self._check_parameter_files(parameter_files)
+        self._check_parameter_files(parameter_files, set(command_line_parameters))
         ros = self.config.ros
 
         self._vo = VisualOdometry(self.config)
@@ -319,10 +322,10 @@ class PlanarVoNode(Node):
                 f'from {self.config.scale.source}; {len(self._defaults)} parameters, '
                 f'{len(changed)} set: {settings} (the others: ros2 param dump, or DEBUG logs)')
 
-    def _check_parameter_files(self, files: Sequence[str]) -> None:
+    def _check_parameter_files(self, files: Sequence[str], given: set[str]) -> None:
         """Warn about a parameter file that set nothing for this node: rcl silently skips a
         file keyed on another node name (``planar_vo:`` for a node renamed ``front_vo``)."""
-        applied = set(self._parameter_overrides)
+        applied = set(self._parameter_overrides) - given
         for path in files:
             keys, names = _parameter_file_entries(path)
             if names and not names & applied:
@@ -781,9 +784,10 @@ def _format_value(value: Any) -> str:
     return str(value)
 
 
-def parameter_files(argv: Sequence[str]) -> list[str]:
-    """The ``--params-file`` arguments inside the ``--ros-args`` sections of ``argv``."""
-    files, ros, items = [], False, iter(argv)
+def ros_arguments(argv: Sequence[str]) -> tuple[list[str], set[str]]:
+    """The ``--params-file`` files and the names set with ``-p NAME:=VALUE`` inside the
+    ``--ros-args`` sections of ``argv``."""
+    files, names, ros, items = [], set(), False, iter(argv)
     for arg in items:
         if arg == '--ros-args':
             ros = True
@@ -791,7 +795,9 @@ def parameter_files(argv: Sequence[str]) -> list[str]:
             ros = False
         elif ros and arg == '--params-file':
             files.append(next(items, ''))
-    return files
+        elif ros and arg in ('-p', '--param'):
+            names.add(next(items, '').partition(':=')[0].rpartition(':')[2])
+    return files, names
 
 
 def _installed_parameter_file() -> str:
@@ -910,7 +916,8 @@ def main(args: list[str] | None = None) -> int:
     library_log = logging.getLogger('planar_vo')
     node = executor = handler = None
     try:
-        node = PlanarVoNode(parameter_files=parameter_files(argv))
+        files, names = ros_arguments(argv)
+        node = PlanarVoNode(parameter_files=files, command_line_parameters=names)
         handler = _RosLogHandler(node.get_logger())
         library_log.addHandler(handler)
         library_log.setLevel(logging.INFO)
