@@ -890,11 +890,12 @@ def write_clock_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
 
 
 @pytest.mark.timeout(120)
-def test_future_stamp_and_looped_bag_neither_wedge_nor_count_as_gaps(prefix, ros_env, tmp_path,
-                                                                      drive_bag):
+def test_future_stamp_and_looped_bag_neither_wedge_nor_count_as_gaps(
+        prefix, ros_env, tmp_path, drive_bag):
     expected = write_clock_bag(drive_bag, tmp_path / 'clock')
     odom, status, output = run_drive(prefix, ros_env, tmp_path, tmp_path / 'clock',
-                                     {**MOUNT_PARAMS, 'ros.path_max_length': 9}, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
+                                     {**MOUNT_PARAMS, 'ros.path_max_length': 9},
+                                     topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
                                      frames=len(expected), reliable=True,
                                      extra=['-p', f'qos_overrides.{IMAGE_TOPIC}.subscription.'
                                                   f'reliability:=reliable'])
