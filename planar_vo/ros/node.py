@@ -172,13 +172,12 @@ class PlanarVoNode(Node):
         super().__init__('planar_vo', **kwargs)
         self._defaults = flatten(PlanarVoConfig())
         self._check_unknown_overrides()
-        # Validated before declaring, so that a bad value is reported in the config's words
-        # rather than as rclpy's range error.
+        # Validated before declaring (the declared values are these), so that a bad value is
+        # reported in the config's words rather than as rclpy's range error.
         self.config = self._checked_config({
             name: param.value for name, param in self._parameter_overrides.items()
             if name in self._defaults})
         self._declare_parameters()
-        self.config = self._checked_config(self._parameter_values())
         self._log_parameters()
         self._check_parameter_files(parameter_files, set(command_line_parameters))
         ros = self.config.ros
