@@ -28,6 +28,7 @@ PINS := \
 	rosbags==0.11.9 \
 	PyYAML==6.0.3 \
 	tqdm==4.70.1 \
+	threadpoolctl==3.8.0 \
 	matplotlib==3.10.8 \
 	pytest==9.0.3 \
 	pytest-timeout==2.4.0 \

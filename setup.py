@@ -53,6 +53,7 @@ setup(
         'rosbags>=0.11,<0.12',
         'PyYAML>=6,<7',
         'tqdm>=4.66,<5',
+        'threadpoolctl>=3.1,<4',
         'matplotlib>=3.8,<4',
     ],
     extras_require={'ros': ROS, 'test': TEST, 'bench': BENCH},

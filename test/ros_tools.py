@@ -5,6 +5,10 @@ The player runs in its own process, like ``ros2 bag play`` would::
     python test/ros_tools.py play BAG [--topics T ...] [--compress png|jpeg] [--rate R]
                                       [--reliable] [--hold]
 
+and measures the node's CPU time while a bag plays into it (a benchmark figure, not a test)::
+
+    python test/ros_tools.py node-cpu BAG [--topics T ...] [NODE ARGUMENTS ...]
+
 It reads the bag with `planar_vo.io`, waits until every publisher has a matched subscriber,
 then publishes the Image, CompressedImage, CameraInfo, TwistStamped and Odometry messages of the
 chosen topics in log-time order at the recorded rate (header stamps as recorded), and prints
@@ -281,6 +285,60 @@ def player_args(bag: Path, *, topics: Iterable[str] = (), compress_fmt: str | No
     return args
 
 
+def node_cpu(bag: Path, topics: list[str], node_args: list[str]) -> int:
+    """Play ``bag`` at its recorded rate into the installed node and compare the node's CPU
+    time (utime + stime of /proc/<pid>/stat, all its threads) with the processing time it
+    reports per frame (``time_ms.node`` of ``status``), from the first status to the end."""
+    import random
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.SystemRandom().randint(101, 200)),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    env['PATH'] = str(Path(sys.executable).parent) + os.pathsep + env.get('PATH', '')
+    exe = Path(sys.prefix) / 'lib/planar_vo/planar_vo_node'
+
+    def cpu_seconds(pid: int) -> float:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+    with tempfile_dir() as tmp, Probe(env) as probe, \
+            NodeProcess([str(exe), '--ros-args', *node_args], env, tmp / 'node.log') as node:
+        status = probe.subscribe('/status', rclpy_class('diagnostic_msgs/msg/DiagnosticArray'))
+        probe.wait_for_publisher('/status', alive=[node])
+        with NodeProcess(player_args(bag, topics=topics), env, tmp / 'player.log') as player:
+            probe.spin_until(lambda: len(status) >= 1, 60.0, 'the first frame',
+                             alive=[node, player])
+            cpu0, wall0, first = cpu_seconds(node.popen.pid), time.monotonic(), len(status)
+            probe.spin_until(lambda: 'played' in player.output(), 3600.0, 'the end of the bag',
+                             alive=[node, player])
+            count = -1
+            while count != len(status):                  # until the node has caught up
+                count, end = len(status), time.monotonic() + 0.5
+                probe.spin_until(lambda: time.monotonic() > end, 5.0, 'the last frames')
+            cpu, wall = cpu_seconds(node.popen.pid) - cpu0, time.monotonic() - wall0
+            last = len(status)
+        node.stop()
+    frames = status[first:last]
+    work = sum(float(kv.value) for s in frames for kv in s.status[0].values
+               if kv.key == 'time_ms.node') / 1e3
+    print(f'node-cpu: {len(frames)} frames in {wall:.1f} s; node CPU {cpu:.2f} s '
+          f'({100 * cpu / wall:.0f} % of a core); processing {work:.2f} s '
+          f'({1e3 * work / max(len(frames), 1):.1f} ms per frame); CPU / processing '
+          f'{cpu / work:.2f}')
+    return 0
+
+
+def tempfile_dir():
+    """A temporary directory as a context manager yielding a Path."""
+    import contextlib
+    import tempfile
+
+    @contextlib.contextmanager
+    def manager():
+        with tempfile.TemporaryDirectory() as tmp:
+            yield Path(tmp)
+    return manager()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -295,7 +353,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--hold', action='store_true', help='stay up after playing until a signal')
     p.add_argument('--timeout', type=float, default=20.0,
                    help='seconds to wait for subscribers')
+    c = sub.add_parser('node-cpu', help='the node\'s CPU time while a bag plays into it')
+    c.add_argument('bag', type=Path)
+    c.add_argument('--topics', nargs='+', default=['/camera/image_raw', '/camera/camera_info'])
+    c.add_argument('node_args', nargs=argparse.REMAINDER,
+                   help='node arguments after --ros-args (default: the camera remaps)')
     args = parser.parse_args(argv)
+    if args.command == 'node-cpu':
+        return node_cpu(args.bag, args.topics, args.node_args or [
+            '-r', 'image:=/camera/image_raw', '-r', 'camera_info:=/camera/camera_info'])
     return play(args.bag, args.topics, args.compress, args.rate, args.reliable, args.hold,
                 args.timeout)
 

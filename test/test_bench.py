@@ -60,6 +60,29 @@ def test_bench_cli_parses_each_benchmark():
     assert exc.value.code == 2
 
 
+def test_soak_trend_ignores_slow_blocks_and_reports_growth(capsys):
+    from planar_vo.bench.soak import lap, report, run, trend_change
+
+    x = np.arange(500.0, 10001.0, 500.0)
+    flat = np.full(x.size, 20.0)
+    flat[[2, 17]] = 35.0                        # two blocks slowed by other processes
+    assert trend_change(x, flat) == 0.0
+    assert trend_change(x, 20.0 + 0.001 * x) == pytest.approx(100 * 9.5 / 20.5)
+    # The lap closes: its last pose is one 0.8 m step before the first.
+    poses = lap().poses
+    assert np.linalg.norm(poses[-1][:2, 3] - poses[0][:2, 3]) == pytest.approx(0.8, abs=0.01)
+    blocks = [{'frames': int(f), 'rss_mb': 300.0 + 0.01 * f, 'cpu_ms': 20.0, 'node_ms': 25.0,
+               'path_ms': 0.3, 'path_max_ms': 4.0, 'path_poses': 500, 'ok': int(f) - 1}
+              for f in x]
+    text = report(blocks, {'camera': '640x480', 'lap_frames': 219, 'render_s': 13.0,
+                           'summary': 'summary: ...', 'path_subscribed': True, 'every': 500})
+    assert 'RSS +29.0 %, node CPU time +0.0 %' in text and '**NOT flat**' in text
+    args = build_parser().parse_args(['bench', 'soak', '--frames', '100', '--every', '60'])
+    with pytest.raises(InputError, match=r'expected every >= 10 and frames >= 2 \* every, '
+                                         r'got 100, 60'):
+        run(args)
+
+
 def test_command_line_spells_out_every_option():
     parser = build_parser()
     args = parser.parse_args(['bench', 'paper', '--quick', '--sigmas', '0', '1.5'])

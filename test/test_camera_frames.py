@@ -87,6 +87,48 @@ def test_camera_info_errors(changes, match):
         CameraModel.from_camera_info(SimpleNamespace(**fields))
 
 
+@pytest.mark.parametrize(('changes', 'match'), [
+    # A focal length 100 times too long: a 0.7-degree view, no lens on a vehicle has that.
+    ({'k': np.diag([50000.0, 50000.0, 1.0]) + np.array([[0, 0, 319.5], [0, 0, 239.5], [0, 0, 0]])},
+     r'horizontal field of view 0.733 deg \(fx 50000, fy 50000 px on 640x480\) is outside the '
+     r'3-160 deg of real rectilinear lenses'),
+    # Only the vertical focal length wrong.
+    ({'k': np.array([[500.0, 0, 319.5], [0, 20000.0, 239.5], [0, 0, 1]])},
+     r'vertical field of view 1.38 deg'),
+    # A focal length 100 times too short: wider than a rectilinear lens can see.
+    ({'k': np.array([[5.0, 0, 319.5], [0, 5.0, 239.5], [0, 0, 1]])},
+     r'horizontal field of view 178 deg .* 3-160 deg of real rectilinear lenses'),
+    ({'k': np.array([[50.0, 0, 319.5], [0, 50.0, 239.5], [0, 0, 1]]),
+      'distortion_model': 'equidistant', 'd': [0.0] * 4},
+     r'horizontal field of view 733 deg .* 3-280 deg of real fisheye lenses'),
+    # The principal point of a 1920x1440 calibration on 640x480 images.
+    ({'k': np.array([[500.0, 0, 959.5], [0, 500.0, 719.5], [0, 0, 1]])},
+     r'principal point \(959.5, 719.5\) lies outside the 640x480 image'),
+])
+def test_implausible_camera_info_is_refused(changes, match):
+    fields = dict(width=640, height=480, k=K.ravel(), d=[], distortion_model='')
+    fields.update({k: np.ravel(v) if k == 'k' else v for k, v in changes.items()})
+    with pytest.raises(CameraModelError, match=match):
+        CameraModel.from_camera_info(SimpleNamespace(**fields))
+
+
+@pytest.mark.parametrize(('width', 'height', 'fx', 'model'), [
+    (1241, 376, 718.856, 'none'),            # KITTI: 82 x 29 degrees
+    (640, 480, 4000.0, 'none'),              # a 9-degree telephoto
+    (1280, 800, 320.0, 'equidistant'),       # a 229-degree fisheye
+    (320, 240, 60.0, 'plumb_bob'),           # 139 degrees, a wide-angle lens
+])
+def test_real_lenses_are_plausible(width, height, fx, model):
+    d = {'none': (), 'plumb_bob': (-0.3, 0.1, 0.0, 0.0, 0.0), 'equidistant': (0.0,) * 4}[model]
+    camera = CameraModel(width, height, np.array([[fx, 0, width / 2], [0, fx, height / 2],
+                                                  [0, 0, 1.0]]), model, d)
+    camera.check_plausible()
+    horizontal, vertical = np.degrees(camera.field_of_view)
+    expected = (2 * np.degrees(width / 2 / fx) if model == 'equidistant' else
+                2 * np.degrees(np.arctan(width / 2 / fx)))
+    assert horizontal == pytest.approx(expected, rel=1e-12) and 3.0 <= vertical <= horizontal
+
+
 def test_mount_transform_conventions():
     T = mount_transform(height=1.65)
     np.testing.assert_allclose(T[:3, :3], R_BASE_OPTICAL)

@@ -64,7 +64,7 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
      r'ambiguity_ratio, bins'),
     ({'votes': {}}, r'unknown configuration key\(s\) votes'),
     ({'voting': {'bins': 'x'}}, r"voting.bins: expected int, got str 'x'"),
-    ({'voting': {'bins': 10}}, r'voting.bins: expected at least 36, got 10'),
+    ({'voting': {'bins': 10}}, r'voting.bins: expected in \[36, 100000\], got 10'),
     ({'mount': {'height': -1.0}}, r'mount.height: expected a positive height'),
     ({'frontend': {'method': 'sift'}}, r"frontend.method: expected one of \['flow', 'klt', "
                                        r"'asift'\], got 'sift'"),
@@ -99,5 +99,50 @@ def test_load_config_errors(tmp_path):
         load_config(bad)
     wrong = tmp_path / 'wrong.yaml'
     wrong.write_text('planar_vo:\n  ros__parameters:\n    voting:\n      bins: 1\n')
-    with pytest.raises(ConfigError, match=r'wrong.yaml: voting.bins: expected at least 36'):
+    with pytest.raises(ConfigError, match=r'wrong.yaml: voting.bins: expected in \[36, 100000\]'):
         load_config(wrong)
+
+
+def test_ranges_are_declared_once_and_checked_by_the_config():
+    from planar_vo.config import ranges
+    from planar_vo.core.options import Range
+
+    declared = ranges()
+    assert declared['mount.height'] == Range(0.0, None, low_open=True,
+                                             expected='a positive height above the ground (m)')
+    assert str(declared['camera.focal_tolerance']) == 'in (0, 1)'
+    assert str(declared['frontend.max_correspondences']) == 'in [1, 30000]'
+    assert str(declared['ros.path_max_length']) == 'in [1, 1e+06]'
+    assert 'ros.odom_frame' not in declared and 'scale.source' not in declared
+    defaults = flatten(PlanarVoConfig())
+    # Every declared range holds its default, and a value just outside it is refused with the
+    # range's own words.
+    for key, allowed in declared.items():
+        assert defaults[key] in allowed, key
+        if allowed.low is not None:
+            below = allowed.low if allowed.low_open else allowed.low - 1
+            with pytest.raises(ConfigError, match=rf'^{key}: expected '):
+                PlanarVoConfig.from_flat({key: below})
+    with pytest.raises(ConfigError, match=r'ros.path_spacing: expected a non-negative distance'):
+        PlanarVoConfig.from_flat({'ros.path_spacing': -0.5})
+    with pytest.raises(ConfigError, match=r'mount.x: expected a finite offset \(m\), got inf'):
+        PlanarVoConfig.from_flat({'mount.x': float('inf')})
+    # Relations between fields stay in validate().
+    with pytest.raises(ConfigError, match=r'frontend.patch_stride: expected between 1 and '
+                                          r'patch_radius pixels, got 12'):
+        PlanarVoConfig.from_flat({'frontend.patch_stride': 12})
+
+
+def test_descriptions_are_plain_text():
+    assert not [k for k, v in describe().items() if '`' in v]
+    assert describe()['ros.image_transport'] == "'raw' (image) or 'compressed' (image/compressed)."
+
+
+def test_parameter_file_keyed_on_any_node_and_old_files_still_load(tmp_path):
+    text = to_ros_yaml()
+    assert '\n/**:\n  ros__parameters:\n' in text
+    old = tmp_path / 'old.yaml'
+    old.write_text(to_ros_yaml(PlanarVoConfig.from_flat({'voting.bins': 360}),
+                               node_name='planar_vo'))
+    assert '\nplanar_vo:\n  ros__parameters:\n' in old.read_text()
+    assert load_config(old).voting.bins == 360

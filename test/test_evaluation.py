@@ -207,6 +207,28 @@ def test_heading_undefined_when_standing_still(rng):
     assert ev.metrics()['heading_error_deg']['count'] == 2
 
 
+def test_plots_mark_the_slow_frames_whose_heading_is_ill_defined(tmp_path, rng):
+    from planar_vo.tools.evaluation.plots import SLOW_SPEED, save_plots, slow_steps
+
+    # 1 m per frame, a crawl of 2 cm per frame (0.2 m/s), standing still, 1 m per frame again;
+    # the estimate's heading is off by up to 30 degrees only where it crawls or stands.
+    x = np.cumsum([0.0] + [1.0] * 10 + [0.02] * 5 + [0.0] * 5 + [1.0] * 10)
+    stamps = T0 + np.arange(len(x), dtype=np.int64) * 100_000_000
+    zero = np.zeros_like(x)
+    gt = Trajectory.from_poses(stamps, planar_pose(x, zero, zero))
+    y = np.zeros_like(x)
+    y[11:21] = 0.01 * rng.standard_normal(10)
+    est = Trajectory.from_poses(stamps, planar_pose(x, y, zero))
+    ev = evaluate(gt, est, align='none')
+    slow = slow_steps(ev)
+    assert SLOW_SPEED == 0.5 and slow.tolist() == [False] * 10 + [True] * 10 + [False] * 10
+    assert np.nanmax(np.abs(ev.heading_error_deg[slow])) > 5.0
+    assert np.nanmax(np.abs(ev.heading_error_deg[~slow])) < 2.0
+    paths = save_plots(ev, tmp_path)
+    assert [p.name for p in paths] == ['trajectory.png', 'ate.png', 'yaw_heading.png']
+    assert all(cv2.imread(str(p)) is not None for p in paths)
+
+
 def test_evaluate_needs_matching_stamps(rng):
     gt = _drive(rng, 5)
     late = gt.shifted(10**9)

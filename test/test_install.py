@@ -62,7 +62,13 @@ def test_package_xml_version_and_dependencies():
     assert root.findtext('license') == 'Apache-2.0'
     deps = {e.text for e in root if e.tag.endswith('depend')}
     assert {'rclpy', 'sensor_msgs', 'nav_msgs', 'geometry_msgs', 'std_msgs', 'python3-numpy',
-            'python3-opencv', 'python3-pytest'} <= deps
+            'python3-opencv', 'python3-pytest', 'python3-threadpoolctl'} <= deps
+    # Every ROS package the node imports is declared.
+    source = (ROOT / 'planar_vo/ros/node.py').read_text()
+    imported = set(re.findall(r'^from (\w+)\.(?:msg|srv) import', source, re.M))
+    assert imported == {'builtin_interfaces', 'diagnostic_msgs', 'geometry_msgs', 'nav_msgs',
+                        'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs'}
+    assert imported | {'rclpy'} <= deps
     assert root.find('export/build_type').text == 'ament_python'
 
 
@@ -72,6 +78,8 @@ def test_launch_file_uses_the_node_and_default_parameters():
     assert any(isinstance(n, ast.FunctionDef) and n.name == 'generate_launch_description'
                for n in tree.body)
     assert "executable='planar_vo_node'" in source and "'planar_vo.yaml'" in source
+    for argument in ('params_file', 'namespace', 'use_sim_time', 'log_level'):
+        assert f"DeclareLaunchArgument('{argument}'" in source, argument
     try:
         import launch_ros  # noqa: F401
     except ImportError:

@@ -14,6 +14,7 @@ import os
 import re
 import signal
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -116,7 +117,9 @@ def run_drive(prefix: Path, env: dict, tmp_path: Path, bag: Path, params: dict[s
     ``frames`` images, stop the node with ``stop_signal`` (exit code 0 expected).
 
     Returns (odometry messages, status messages, node output); the last path message is
-    checked against the odometry (``ros.path_max_length`` poses at most)."""
+    checked against the odometry (``ros.path_max_length`` poses at most; every pose is kept and
+    every one published unless ``params`` set ``ros.path_spacing`` and ``ros.path_period``)."""
+    params = {'ros.path_spacing': 0.0, 'ros.path_period': 0.0, **params}
     with Probe(env) as probe, \
             NodeProcess(node_args(prefix, params, extra), env, tmp_path / 'node.log') as node:
         odom = probe.subscribe('/odom', Odometry)
@@ -344,9 +347,13 @@ def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
                    'no_camera_info: no camera intrinsics yet', 'duplicate_stamp: timestamp',
                    'out_of_order: timestamp', 'size_changed: image is 320x240',
                    'ignoring camera_info: camera_info: K is all zeros', 'gap of 300 ms'):
-        lines = [ln for ln in output.splitlines() if needle in ln]
+        lines = [ln for ln in output.splitlines()
+                 if needle in ln and 'tracking state' not in ln]
         assert len(lines) == 1 and lines[0].startswith('[WARN]'), (needle, output[-4000:])
     assert "got '32FC1'" in output
+    # A blank frame is a frame that cannot be tracked: the tracking state says so, once.
+    assert len([ln for ln in output.splitlines()
+                if 'tracking state tracking -> lost' in ln and 'blank_image' in ln]) == 1
 
     # The faults did not corrupt the estimate: one chain from F2 to F29 (through the gap and
     # past the stray half-size frame) tracks the ground truth.
@@ -361,31 +368,35 @@ def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
 # -- 4: signals ------------------------------------------------------------------------------------
 
 @pytest.mark.timeout(60)
-@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
-def test_signal_mid_stream_exits_cleanly_with_a_summary(prefix, ros_env, tmp_path,
-                                                        drive_bag, sig):
+@pytest.mark.parametrize('sig,after', [(signal.SIGINT, 3), (signal.SIGINT, 12),
+                                       (signal.SIGTERM, 3), (signal.SIGTERM, 12)],
+                         ids=['SIGINT-3', 'SIGINT-12', 'SIGTERM-3', 'SIGTERM-12'])
+def test_first_signal_mid_stream_exits_cleanly_with_a_summary(prefix, ros_env, tmp_path,
+                                                              drive_bag, sig, after):
+    """The first SIGINT or SIGTERM stops the node within a second (the signal only sets a
+    flag; the spin loop looks at it at least every 0.1 s), whatever it was doing."""
     with Probe(ros_env) as probe, \
             NodeProcess(node_args(prefix, MOUNT_PARAMS), ros_env, tmp_path / 'node.log') as node:
         status = probe.subscribe('/status', DiagnosticArray)
         probe.wait_for_publisher('/status', alive=[node])
         with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC]),
                          ros_env, tmp_path / 'player.log') as player:
-            probe.spin_until(lambda: last_count(status, 'frames') >= 5, 30.0, '5 frames',
-                             alive=[node, player])
-            assert node.stop(sig, timeout=10.0) == 0     # while images keep arriving
+            probe.spin_until(lambda: last_count(status, 'frames') >= after, 30.0,
+                             f'{after} frames', alive=[node, player])
+            assert node.stop(sig, timeout=5.0) == 0     # while images keep arriving
         output = node.output()
     assert 'Traceback' not in output and 'Failed to publish log message' not in output, output
     if importlib.util.find_spec('tf2_ros') is None:
         assert output.count('ros.publish_tf: tf2_ros is not installed') == 1
     frames = int(re.search(r'summary: (\d+) frames in', summary_line(output)).group(1))
-    assert frames >= 5
+    assert frames >= after
 
 
 # -- 5, 6: parameters ------------------------------------------------------------------------------
 
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize('arg,message', [
-    ('voting.bins:=3', 'voting.bins: expected at least 36, got 3'),
+    ('voting.bins:=3', 'voting.bins: expected in [36, 100000], got 3'),
     ('scale.source:=gps', "scale.source: expected one of ['speed', 'ground', 'fixed', 'unit'], "
                           "got 'gps'"),
     ('mount.height:=high', "mount.height: expected float, got str 'high'"),
@@ -403,8 +414,9 @@ def test_invalid_parameter_is_one_fatal_line_and_exit_code_1(prefix, ros_env, tm
 
 
 @pytest.mark.timeout(60)
-def test_run_time_parameter_changes_are_validated(prefix, ros_env, tmp_path):
-    from rcl_interfaces.srv import GetParameters, SetParameters
+def test_run_time_parameter_changes_are_validated_and_described(prefix, ros_env, tmp_path):
+    from rcl_interfaces.msg import ParameterType
+    from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
     from rclpy.parameter import Parameter
 
     # An integer for a float parameter and a list for the empty-list default are accepted.
@@ -419,22 +431,49 @@ def test_run_time_parameter_changes_are_validated(prefix, ros_env, tmp_path):
             (result,) = probe.call(SetParameters, '/planar_vo/set_parameters', request).results
             return result.successful, result.reason
 
-        assert set_parameter('voting.bins', 3) == \
-            (False, 'voting.bins: expected at least 36, got 3')
-        ok, reason = set_parameter('voting.bins', 360)
-        assert not ok and reason.startswith('voting.bins: read at start-up only')
+        # Start-up parameters are read-only; values outside the declared ranges are refused by
+        # rclpy, relations between parameters by the config object.
+        assert set_parameter('voting.bins', 360) == \
+            (False, 'Trying to set a read-only parameter: voting.bins.')
         ok, reason = set_parameter('ros.warn_period', -1.0)
-        assert not ok and reason.startswith('ros.warn_period: expected a non-negative')
+        assert not ok and reason.startswith('Parameter ros.warn_period out of range Min: 0.0')
+        ok, reason = set_parameter('ros.path_max_length', 0)
+        assert not ok and 'out of range' in reason
         assert set_parameter('ros.warn_period', 1) == (True, '')
         assert set_parameter('ros.path_max_length', 5) == (True, '')
+        assert set_parameter('ros.path_spacing', 2.0) == (True, '')
         values = probe.call(GetParameters, '/planar_vo/get_parameters', GetParameters.Request(
             names=['ros.warn_period', 'voting.bins', 'mount.height'])).values
         assert [values[0].integer_value, values[1].integer_value, values[2].integer_value] == \
             [1, 720, 2]
+
+        # What `ros2 param describe` shows: plain-text description, range, read-only flag.
+        names = ['mount.height', 'camera.focal_tolerance', 'frontend.max_correspondences',
+                 'ros.path_max_length', 'ros.image_transport']
+        described = {d.name: d for d in probe.call(
+            DescribeParameters, '/planar_vo/describe_parameters',
+            DescribeParameters.Request(names=names)).descriptors}
+        height = described['mount.height']
+        assert height.read_only and height.type == ParameterType.PARAMETER_INTEGER
+        assert height.description.startswith('camera position in base_link (metres)')
+        assert (height.floating_point_range[0].from_value,
+                height.floating_point_range[0].to_value) == (0.0, math.inf)
+        tolerance = described['camera.focal_tolerance'].floating_point_range[0]
+        assert (tolerance.from_value, tolerance.to_value) == (0.0, 1.0)
+        cap = described['frontend.max_correspondences'].integer_range[0]
+        assert (cap.from_value, cap.to_value, cap.step) == (1, 30000, 0)
+        assert not described['ros.path_max_length'].read_only
+        assert described['ros.path_max_length'].integer_range[0].from_value == 1
+        transport = described['ros.image_transport']
+        assert transport.read_only and not transport.integer_range and \
+            not transport.floating_point_range
+        assert all('`' not in d.description for d in described.values())
         assert node.stop(signal.SIGINT) == 0
         output = node.output()
-    assert 'mount.height = 2.0' in output and 'camera.distortion = [0.1, -0.01, 0.0, 0.0]' \
-        in output, output
+    start = [ln for ln in output.splitlines() if 'listening on' in ln]
+    assert len(start) == 1 and start[0].startswith('[INFO]'), output
+    assert '2 set: camera.distortion = [0.1, -0.01, 0.0, 0.0], mount.height = 2.0' in start[0]
+    assert 'voting.bins = ' not in output           # the full dump is at DEBUG level
 
 
 # -- the warning throttle --------------------------------------------------------------------------
@@ -576,3 +615,369 @@ def test_pipeline_failures_are_counted_and_the_node_carries_on(monkeypatch, loca
     assert node.outcomes == {'first_frame': 1, 'ok': 5, 'pipeline_error': 2}
     assert node.summary().startswith('summary: 8 frames in, 5 odometry out, 3 dropped '
                                      '(first_frame 1, pipeline_error 2)')
+
+
+def statuses(node) -> list[dict[str, str]]:
+    return [{kv.key: kv.value for kv in s.status[0].values} for s in node.published['status']]
+
+
+@pytest.mark.timeout(60)
+def test_tracking_states_lost_and_reinitialised_are_logged_once_each(local_node, drive_bag, rng):
+    """Frames 10-14 replaced by noise (nothing to track): lost for max_lost_frames (5), then the
+    next real frame starts a new chain (reinitialised) and tracking resumes."""
+    from sensor_msgs.msg import Image
+
+    node = local_node(MOUNT_PARAMS)
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    noise = rng.integers(0, 256, (480, 640), dtype=np.uint8)
+
+    def swap(i):
+        if 10 <= i < 15:
+            original = node._on_image
+
+            def once(msg):
+                node._on_image = original
+                noisy = to_rclpy(image_msg(noise, 'mono8', stamp_to_ns(msg.header.stamp)), Image)
+                original(noisy)
+            node._on_image = once
+
+    feed(node, drive_bag, 22, swap)
+    states = [s['tracking'] for s in statuses(node)]
+    results = [s['result'] for s in statuses(node)]
+    assert states == ['tracking'] * 10 + ['lost'] * 5 + ['reinitialised'] + ['tracking'] * 6
+    assert set(results[10:15]) <= {'too_few_correspondences', 'unreliable'}
+    assert results[15] == 'reinitialised' and results[16:] == ['ok'] * 6
+    assert [s['scale_source'] for s in statuses(node)][9:17] == \
+        ['ground'] + ['none'] * 6 + ['ground']
+    changes = [ln for level, ln in lines if 'tracking state' in ln]
+    assert [c.split(' at ')[0] for c in changes] == [
+        'tracking state initialising -> tracking', 'tracking state tracking -> lost',
+        'tracking state lost -> reinitialised', 'tracking state reinitialised -> tracking']
+    assert [level for level, ln in lines if 'tracking state' in ln] == \
+        ['info', 'warning', 'warning', 'info']
+    assert statuses(node)[-1]['tracking_changes'] == '4'
+    assert float(statuses(node)[-1]['focal_px']) == 500.0
+
+
+class _Recorder:
+    """A logger that records (level, line) instead of logging."""
+
+    def __init__(self, logger, lines):
+        self._lines = lines
+
+    def __getattr__(self, level):
+        return lambda message, *args, **kwargs: self._lines.append((level, message))
+
+
+@pytest.mark.timeout(60)
+def test_implausible_camera_info_is_counted_and_the_last_valid_model_kept(local_node,
+                                                                          drive_bag):
+    """A CameraInfo with 100 times the focal length (a 0.7-degree field of view) and one whose
+    principal point lies outside the image are refused like any invalid CameraInfo."""
+    from sensor_msgs.msg import CameraInfo
+
+    node = local_node(MOUNT_PARAMS)
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    wrong_focal = CAMERA.K.copy()
+    wrong_focal[0, 0] = wrong_focal[1, 1] = 50000.0
+    wrong_centre = CAMERA.K.copy()
+    wrong_centre[0, 2] = 1280.0
+
+    def wrong(i):
+        if i in (4, 8):
+            k = wrong_focal if i == 4 else wrong_centre
+            node._on_camera_info(to_rclpy(camera_info_msg(0, 640, 480, 500.0, k=k), CameraInfo))
+
+    node._throttle.period = 0.0
+    feed(node, drive_bag, 12, wrong)
+    assert node._camera == CameraModel.from_camera_info(
+        to_rclpy(camera_info_msg(0, 640, 480, 500.0, k=CAMERA.K), CameraInfo))
+    final = statuses(node)[-1]
+    assert final['camera_info_errors'] == '2' and final['odometry_out'] == '11'
+    assert float(final['focal_px']) == 500.0
+    warnings = [ln for level, ln in lines if level == 'warning' and 'camera_info' in ln]
+    assert len(warnings) == 2
+    assert 'horizontal field of view 0.733 deg' in warnings[0] and \
+        'keeping the last valid one' in warnings[0]
+    assert 'principal point (1280, 239.5) lies outside the 640x480 image' in warnings[1]
+
+
+@pytest.mark.timeout(120)
+def test_path_cost_is_bounded_after_an_hour_at_10_hz(local_node):
+    """36,000 odometry poses (an hour at 10 Hz, 1 m apart; the default path parameters): the
+    path keeps at most ros.path_max_length (500) poses and is published once per second of
+    image time, so at most 50 poses are serialised per frame, whatever the drive's length."""
+    from nav_msgs.msg import Odometry as OdometryMsg
+
+    node = local_node({})
+    listener = rclpy.create_node('path_listener', context=node.context)
+    received = []
+    listener.create_subscription(PathMsg, 'path', received.append, 1)
+    try:
+        deadline = time.monotonic() + 10
+        while node._path_pub.get_subscription_count() == 0:
+            assert time.monotonic() < deadline, 'path subscriber not matched'
+            time.sleep(0.01)
+        sizes = []
+        publish = node._path_pub.publish
+        node._path_pub.publish = lambda msg: (sizes.append(len(msg.poses)), publish(msg))
+        start = time.perf_counter()
+        frames = 36000
+        for i in range(frames):
+            odom = OdometryMsg()
+            odom.header.frame_id = 'odom'
+            odom.header.stamp.sec, odom.header.stamp.nanosec = divmod(i * 100_000_000, 10 ** 9)
+            odom.pose.pose.position.x = float(i)
+            node._publish(odom)
+        per_frame_ms = 1e3 * (time.perf_counter() - start) / frames
+    finally:
+        listener.destroy_node()
+    assert len(node._path) == 500 and len(sizes) == frames // 10
+    assert max(sizes) == 500 and sum(sizes) / frames <= 50
+    poses = node.path_poses()
+    assert poses[-1].pose.position.x == frames - 1                  # ends at the latest pose
+    assert poses[0].pose.position.x == frames - 500
+    print(f'path: {per_frame_ms:.3f} ms per frame (odometry, path, no TF) after {frames} '
+          f'frames; {sum(sizes) / frames:.0f} poses serialised per frame')
+
+
+# -- renamed node, parameter files, reset, diagnostics (over DDS) --------------------------------
+
+def edited_parameter_file(prefix: Path, out: Path, key: str | None = None) -> Path:
+    """The installed config/planar_vo.yaml with the drive's mount (and optionally another node
+    key than its ``/**``)."""
+    text = (prefix / 'share/planar_vo/config/planar_vo.yaml').read_text()
+    assert '\n/**:\n' in text
+    for old, new in (('      height: 1.5\n', f'      height: {MOUNT.height}\n'),
+                     ('      pitch: 0.0\n', f'      pitch: {MOUNT.pitch}\n')):
+        assert old in text
+        text = text.replace(old, new)
+    if key is not None:
+        text = text.replace('\n/**:\n', f'\n{key}:\n')
+    out.write_text(text)
+    return out
+
+
+@pytest.mark.timeout(120)
+def test_renamed_node_with_the_shipped_parameter_file_resets_and_publishes_diagnostics(
+        prefix, ros_env, tmp_path, drive_bag):
+    from diagnostic_msgs.msg import DiagnosticArray as Diagnostics
+    from std_srvs.srv import Trigger
+
+    params = edited_parameter_file(prefix, tmp_path / 'params.yaml')
+    args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args', *REMAP,
+            '-r', '__node:=front_vo', '-r', '__ns:=/car', '--params-file', str(params)]
+    stamps = image_stamps(drive_bag)
+    with Probe(ros_env) as probe, NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
+        odom = probe.subscribe('/car/odom', Odometry)
+        status = probe.subscribe('/car/status', DiagnosticArray)
+        diagnostics = probe.subscribe('/diagnostics', Diagnostics)
+        probe.wait_for_publisher('/car/status', alive=[node])
+        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC]),
+                         ros_env, tmp_path / 'player.log') as player:
+            probe.spin_until(lambda: last_count(status, 'frames') >= 15, 60.0, '15 frames',
+                             alive=[node, player])
+            response = probe.call(Trigger, '/car/front_vo/reset', Trigger.Request())
+            assert response.success and 'counters kept' in response.message
+            probe.spin_until(lambda: last_count(status, 'frames') >= len(stamps), 60.0,
+                             'every frame', alive=[node, player])
+            probe.spin_until(lambda: any(status_values(d).get('resets') == '1'
+                                         for d in diagnostics), 10.0, 'diagnostics after reset',
+                             alive=[node])
+        assert node.stop(signal.SIGINT) == 0
+        output = node.output()
+
+    # The /** file applied to the renamed node: the mount came from it, no warning about it.
+    assert 'mount.height = 1.4, mount.pitch = 0.05' in output and 'set nothing' not in output
+    assert '[car.front_vo]' in output and 'listening on /camera/image_raw' in output
+    # The reset started a new chain at the next image: pose back at the origin, counters kept.
+    results = [status_values(s)['result'] for s in status]
+    assert results.count('first_frame') == 2 and len(results) == len(stamps)
+    restart = results.index('first_frame', 1)
+    final = status_values(status[-1])
+    assert (final['frames'], final['odometry_out'], final['resets']) == \
+        (str(len(stamps)), str(len(stamps) - 2), '1')
+    restart_ns = int(status_values(status[restart])['stamp_ns'])
+    after = [m for m in odom if stamp_to_ns(m.header.stamp) > restart_ns]
+    assert 0.5 < after[0].pose.pose.position.x < 1.0 and abs(after[0].pose.pose.position.y) < 0.05
+    assert_tracks_ground_truth(*odom_track(after), ground_truth(drive_bag), restart_ns,
+                               yaw_deg=math.degrees(float(yaw_of(
+                                   (invert(ground_truth(drive_bag)[restart_ns]) @
+                                    ground_truth(drive_bag)[stamps[-1]])[:3, :3]))))
+    assert 'reset by ~/reset' in output and \
+        output.count('tracking state initialising -> tracking') == 2
+    # /diagnostics: a name and hardware id an aggregator can group, the state and the rates.
+    ours = [d.status[0] for d in diagnostics if d.status[0].name == 'front_vo: visual odometry']
+    assert ours and {s.hardware_id for s in ours} == {'/car/front_vo'}
+    values = {kv.key: kv.value for kv in ours[-1].values}
+    assert values['tracking'] == 'tracking' and values['image_topic'] == '/camera/image_raw'
+    assert values['listening_on'] == '/camera/image_raw /camera/camera_info'
+    assert float(values['focal_px']) == 500.0 and values['scale_source'] == 'ground'
+    assert ours[-1].level == DiagnosticStatus.OK
+
+
+@pytest.mark.timeout(60)
+def test_parameter_file_for_another_node_name_is_reported(prefix, ros_env, tmp_path):
+    params = edited_parameter_file(prefix, tmp_path / 'old.yaml', key='planar_vo')
+    args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args', '-r', '__node:=front_vo',
+            '--params-file', str(params), '-p', 'ros.image_timeout:=0.5']
+    with NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
+        deadline = time.monotonic() + 30
+        while 'no image for' not in node.output():
+            assert time.monotonic() < deadline and node.popen.poll() is None, node.output()
+            time.sleep(0.05)
+        assert node.stop(signal.SIGINT) == 0
+        output = node.output()
+    warning = [ln for ln in output.splitlines() if 'set nothing' in ln]
+    assert len(warning) == 1 and warning[0].startswith('[WARN]'), output
+    assert f'parameter file {params} set nothing for this node /front_vo: its parameters are ' \
+           f'keyed on planar_vo; key them on /** (any node) or on /front_vo' in warning[0]
+    assert '1 set: ros.image_timeout = 0.5' in output
+    # No image: the warning names the resolved topics it listens on.
+    assert 'no image for 0 s on /image (0 publisher(s)); listening on /image, /camera_info' \
+        in output or 'no image for 1 s on /image (0 publisher(s)); listening on /image, ' \
+        '/camera_info' in output, output
+
+
+def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):
+    import subprocess
+
+    proc = subprocess.run([str(prefix / 'lib/planar_vo/planar_vo_node'), '--help'],
+                          env=ros_env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith('usage: ros2 run planar_vo planar_vo_node')
+    for needle in ('-r image:=/camera/image_raw',
+                   '-r image/compressed:=/camera/image_raw/compressed',
+                   'share/planar_vo/config/planar_vo.yaml', 'scale.source (default',
+                   '~/reset'):
+        assert needle in proc.stdout, needle
+    assert 'listening on' not in proc.stdout + proc.stderr
+
+
+# -- hostile clocks and a fast speed topic (over DDS) ---------------------------------------------
+
+YEAR_NS = 365 * 86400 * 10 ** 9
+
+
+def write_clock_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
+    """F0-F24 of the drive with one extra image after F15 stamped a year later (a single bad
+    clock sample), then F0-F9 again with their original stamps (a looped bag: time jumps back
+    2.4 s). Returns the expected ``(stamp_ns, result)`` of every image, in publishing order."""
+    with open_bag(clean) as reader:
+        frames = list(iter_camera_frames(reader, IMAGE_TOPIC))[:25]
+    entries, expected = [], []
+    log_ns = frames[0].stamp_ns
+
+    def publish(frame, stamp_ns: int, result: str) -> None:
+        nonlocal log_ns
+        entries.append((CAMERA_INFO_TOPIC, 'sensor_msgs/msg/CameraInfo', log_ns - 1000,
+                        camera_info_msg(stamp_ns, 640, 480, 500.0, k=CAMERA.K)))
+        entries.append((IMAGE_TOPIC, 'sensor_msgs/msg/Image', log_ns,
+                        image_msg(frame.image, 'mono8', stamp_ns)))
+        expected.append((stamp_ns, result))
+        log_ns += 100_000_000
+
+    for i, frame in enumerate(frames):
+        publish(frame, frame.stamp_ns, 'first_frame' if i == 0 else 'ok')
+        if i == 15:
+            publish(frame, frame.stamp_ns + YEAR_NS, 'time_jump_ahead')
+    for i, frame in enumerate(frames[:10]):
+        publish(frame, frame.stamp_ns, 'time_jump_back' if i == 0 else 'ok')
+    from bagdata import write_bag
+
+    write_bag(out, 'mcap', sorted(entries, key=lambda e: e[2]))
+    return expected
+
+
+@pytest.mark.timeout(120)
+def test_future_stamp_and_looped_bag_neither_wedge_nor_count_as_gaps(
+        prefix, ros_env, tmp_path, drive_bag):
+    expected = write_clock_bag(drive_bag, tmp_path / 'clock')
+    odom, status, output = run_drive(prefix, ros_env, tmp_path, tmp_path / 'clock',
+                                     {**MOUNT_PARAMS, 'ros.path_max_length': 9},
+                                     topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
+                                     frames=len(expected), reliable=True,
+                                     extra=['-p', f'qos_overrides.{IMAGE_TOPIC}.subscription.'
+                                                  f'reliability:=reliable'])
+    assert [(int(status_values(s)['stamp_ns']), status_values(s)['result'])
+            for s in status] == expected
+    # The glitch is that frame's problem only; the loop resets tracking at the origin.
+    states = [status_values(s)['tracking'] for s in status]
+    assert states == ['tracking'] * 26 + ['reinitialised'] + ['tracking'] * 9
+    final = status_values(status[-1])
+    assert (final['gaps'], final['missing_frames'], final['dropped.time_jump_ahead'],
+            final['dropped.time_jump_back'], final['odometry_out']) == ('0', '0', '1', '1', '33')
+    looped = odom[-9:]                        # F1-F9 again, from the origin
+    assert [stamp_to_ns(m.header.stamp) for m in looped] == [s for s, _ in expected[27:]]
+    truth = ground_truth(drive_bag)
+    assert_tracks_ground_truth(*odom_track(looped), truth, expected[26][0], yaw_deg=0.0)
+    for needle in ('tracking state initialising -> tracking',
+                   'tracking state tracking -> reinitialised',
+                   'tracking state reinitialised -> tracking', 'time jumped back 2.400 s',
+                   'time_jump_ahead: timestamp'):
+        assert sum(needle in ln for ln in output.splitlines()) == 1, (needle, output[-3000:])
+    assert 'gap of' not in output
+    assert '0 frames missing in 0 gaps' in summary_line(output)
+
+
+@pytest.mark.timeout(120)
+def test_a_100_hz_speed_topic_loses_no_sample_while_images_are_processed(
+        prefix, ros_env, tmp_path, drive_bag):
+    """Speed messages in bursts of 20 every 0.2 s (100 Hz on average), best effort like a
+    wheel-odometry driver, while the node processes the drive's images."""
+    from geometry_msgs.msg import TwistStamped as Twist
+    from rclpy.qos import qos_profile_sensor_data
+
+    stamps = image_stamps(drive_bag)
+    args = node_args(prefix, {**MOUNT_PARAMS, 'scale.source': 'speed'})
+    with Probe(ros_env) as probe, NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
+        status = probe.subscribe('/status', DiagnosticArray)
+        speed = probe.node.create_publisher(Twist, '/speed', qos_profile_sensor_data)
+        probe.wait_for_publisher('/status', alive=[node])
+        probe.spin_until(lambda: speed.get_subscription_count() > 0, 20.0, 'speed subscriber',
+                         alive=[node])
+        sent = 0
+
+        def send(count: int) -> None:
+            nonlocal sent
+            for _ in range(count):
+                msg = Twist()
+                t = stamps[0] + sent * 10_000_000
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 10 ** 9)
+                msg.twist.linear.x = 8.0
+                speed.publish(msg)
+                sent += 1
+
+        def pause(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            probe.spin_until(lambda: time.monotonic() > end, seconds + 1.0, 'a pause')
+
+        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC]),
+                         ros_env, tmp_path / 'player.log') as player:
+            # Discovery completes on both sides before the count starts (a best-effort
+            # writer may see the reader before the reader sees it).
+            while last_count(status, 'speed_messages') == 0:
+                send(1)
+                pause(0.05)
+                assert last_count(status, 'frames') < 10, 'speed never arrived'
+            pause(0.3)
+            frames = last_count(status, 'frames')
+            probe.spin_until(lambda: last_count(status, 'frames') >= frames + 2, 10.0,
+                             'two more frames', alive=[node, player])
+            # Samples sent while discovery completes may be lost (best effort): the count
+            # starts here, once the node receives them.
+            base, warm_up = last_count(status, 'speed_messages'), sent
+            # The last bursts go out well before the last image, whose status counts them.
+            while sent - warm_up < 400 and last_count(status, 'frames') < len(stamps) - 8:
+                send(20)
+                pause(0.2)
+            probe.spin_until(lambda: last_count(status, 'frames') >= len(stamps), 60.0,
+                             'every frame', alive=[node, player])
+        assert node.stop(signal.SIGINT) == 0
+    assert sent - warm_up >= 200
+    # Every burst sample arrived (a late warm-up sample can only add to the count).
+    assert last_count(status, 'speed_messages') - base >= sent - warm_up

@@ -71,6 +71,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=(logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)],
                         format='%(levelname)s %(name)s: %(message)s')
+    from planar_vo.pipeline.threads import limit_blas_threads
+
+    limit_blas_threads()        # idle OpenBLAS workers busy-wait: one thread is faster here
     command = f'planar_vo {args.command}'        # before run(): bench replaces args.command
     with stop_signals_interrupt():
         try:

@@ -46,9 +46,13 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
         raise ConfigError(f'{path}: {err}') from None
 
 
-def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = 'planar_vo') -> str:
+def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = '/**') -> str:
     """The configuration as a commented ROS 2 parameter file (the form of
-    ``config/planar_vo.yaml``, which is this function's output for the defaults)."""
+    ``config/planar_vo.yaml``, which is this function's output for the defaults).
+
+    Keyed on ``/**`` by default, so that the file applies to the node under any name or
+    namespace (``-r __node:=front_vo``, ``-r __ns:=/car``); ``node_name`` keys it on one node.
+    """
     import textwrap
 
     import yaml
@@ -58,15 +62,16 @@ def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = 'plana
     out = ['# planar_vo parameters, in ROS 2 parameter-file form (ros2 run planar_vo',
            '#   planar_vo_node --ros-args --params-file FILE). The planar_vo command reads the',
            '# same file with --config. Mirrors planar_vo.config.PlanarVoConfig (SI units, rad).',
+           '# Keyed on /** so that it applies whatever the node is named or namespaced as.',
            f'{node_name}:', '  ros__parameters:']
     for section, values in config.to_dict().items():
         out.append(f'    {section}:')
         keys = list(values)
         for i, key in enumerate(keys):
-            doc = docs[f'{section}.{key}'].replace('``', '')
-            if i == 0 or doc != docs[f'{section}.{keys[i - 1]}'].replace('``', ''):
+            doc = docs[f'{section}.{key}']
+            if i == 0 or doc != docs[f'{section}.{keys[i - 1]}']:
                 # Fields documented together (fx, fy, cx, cy) share one comment.
-                group = [k for k in keys[i:] if docs[f'{section}.{k}'].replace('``', '') == doc]
+                group = [k for k in keys[i:] if docs[f'{section}.{k}'] == doc]
                 names = ', '.join(group)
                 head = f'{names}: ' if len(group) > 1 else ''
                 for line in textwrap.wrap(head + doc, 86):

@@ -1,5 +1,6 @@
 """Dotted keys of the configuration (``voting.bins``): the names of ROS parameters, with their
-descriptions read from the sections' ``Attributes:`` docstrings."""
+descriptions read from the sections' ``Attributes:`` docstrings and their ranges from the
+sections' fields (`planar_vo.core.options.bounded`)."""
 
 from __future__ import annotations
 
@@ -8,13 +9,14 @@ import typing
 from typing import Any
 
 from planar_vo.config.sections import PlanarVoConfig
-from planar_vo.core.options import Options
+from planar_vo.core.options import Options, Range
 
-__all__ = ['describe', 'flatten']
+__all__ = ['describe', 'flatten', 'ranges']
 
 
 def describe(section: type[Options] = None, prefix: str = '') -> dict[str, str]:
-    """Dotted key -> one-line description, read from the sections' ``Attributes:`` docstrings."""
+    """Dotted key -> one-line plain-text description (reStructuredText quotes removed), read
+    from the sections' ``Attributes:`` docstrings."""
     section = PlanarVoConfig if section is None else section
     docs: dict[str, str] = {}
     current: list[str] = []
@@ -43,7 +45,23 @@ def describe(section: type[Options] = None, prefix: str = '') -> dict[str, str]:
         if isinstance(hint, type) and issubclass(hint, Options):
             out.update(describe(hint, key))
         else:
-            out[key] = docs.get(f.name, '')
+            out[key] = docs.get(f.name, '').replace('``', '').replace('`', '')
+    return out
+
+
+def ranges(section: type[Options] = None, prefix: str = '') -> dict[str, Range]:
+    """Dotted key -> `Range` of every numeric parameter declared with a range."""
+    section = PlanarVoConfig if section is None else section
+    out: dict[str, Range] = {}
+    hints = typing.get_type_hints(section)
+    declared = section.ranges()
+    for f in dataclasses.fields(section):
+        key = f'{prefix}.{f.name}' if prefix else f.name
+        hint = hints[f.name]
+        if isinstance(hint, type) and issubclass(hint, Options):
+            out.update(ranges(hint, key))
+        elif f.name in declared:
+            out[key] = declared[f.name]
     return out
 
 

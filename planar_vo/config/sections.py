@@ -22,7 +22,7 @@ import math
 import typing
 from typing import Any
 
-from planar_vo.core.options import Options, finite
+from planar_vo.core.options import Options, bounded, finite
 from planar_vo.core.robust.options import EstimatorConfig, VotingConfig
 from planar_vo.errors import ConfigError
 
@@ -54,20 +54,17 @@ class CameraConfig(Options):
             this; until then a provisional focal length is used.
     """
 
-    fx: float = 0.0
-    fy: float = 0.0
-    cx: float = 0.0
-    cy: float = 0.0
+    fx: float = bounded(0.0, 0.0, expected='fx, fy >= 0 (0 = from CameraInfo)')
+    fy: float = bounded(0.0, 0.0, expected='fx, fy >= 0 (0 = from CameraInfo)')
+    cx: float = bounded(0.0, expected='finite intrinsics')
+    cy: float = bounded(0.0, expected='finite intrinsics')
     distortion_model: typing.Literal['none', 'plumb_bob', 'equidistant'] = 'none'
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
-    focal_tolerance: float = 0.02
+    focal_tolerance: float = bounded(0.02, 0.0, 1.0, low_open=True, high_open=True)
 
     def validate(self) -> None:
-        self._require(finite(self.fx, self.fy, self.cx, self.cy), 'fx', 'finite intrinsics')
-        self._require(self.fx >= 0.0 and self.fy >= 0.0, 'fx', 'fx, fy >= 0 (0 = from CameraInfo)')
         self._require(finite(*self.distortion), 'distortion', 'finite coefficients')
-        self._require(0.0 < self.focal_tolerance < 1.0, 'focal_tolerance', 'in (0, 1)')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,24 +87,16 @@ class MountConfig(Options):
             each, so this bounds the extra cost).
     """
 
-    x: float = 0.0
-    y: float = 0.0
-    height: float = 1.5
-    roll: float = 0.0
-    pitch: float = 0.0
-    yaw: float = 0.0
+    x: float = bounded(0.0, expected='a finite offset (m)')
+    y: float = bounded(0.0, expected='a finite offset (m)')
+    height: float = bounded(1.5, 0.0, low_open=True,
+                            expected='a positive height above the ground (m)')
+    roll: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
+    pitch: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
+    yaw: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
     estimate_tilt: bool = False
-    tilt_tolerance: float = 0.002
-    tilt_max_pairs: int = 100
-
-    def validate(self) -> None:
-        self._require(finite(self.x, self.y, self.height, self.roll, self.pitch, self.yaw),
-                      'height', 'finite values')
-        self._require(self.height > 0.0, 'height', 'a positive height above the ground (m)')
-        for name in ('roll', 'pitch', 'yaw'):
-            self._require(abs(getattr(self, name)) <= math.pi, name, 'an angle in [-pi, pi] rad')
-        self._require(self.tilt_tolerance > 0.0, 'tilt_tolerance', 'a positive angle (rad)')
-        self._require(self.tilt_max_pairs >= 10, 'tilt_max_pairs', 'at least 10')
+    tilt_tolerance: float = bounded(0.002, 0.0, low_open=True, expected='a positive angle (rad)')
+    tilt_max_pairs: int = bounded(100, 10)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,38 +137,28 @@ class FrontendConfig(Options):
     """
 
     method: typing.Literal['flow', 'klt', 'asift'] = 'flow'
-    max_correspondences: int = 4000
-    grid_step: int = 10
-    patch_radius: int = 9
-    patch_stride: int = 3
-    lk_iterations: int = 2
-    lk_max_iterations: int = 4
+    # cv2.remap takes at most 32767 rows: one row per patch.
+    max_correspondences: int = bounded(4000, 1, 30000)
+    grid_step: int = bounded(10, 2, expected='at least 2 pixels')
+    patch_radius: int = bounded(9, 2, expected='at least 2 pixels')
+    patch_stride: int = bounded(3, 1, expected='between 1 and patch_radius pixels')
+    lk_iterations: int = bounded(2, 1)
+    lk_max_iterations: int = bounded(4, 1, expected='at least lk_iterations')
     dis_preset: typing.Literal['ultrafast', 'fast', 'medium'] = 'ultrafast'
     fb_preset: typing.Literal['ultrafast', 'fast', 'medium'] = 'ultrafast'
-    fb_threshold: float = 0.0
-    min_texture: float = 1.5
-    max_residual: float = 0.3
+    fb_threshold: float = bounded(0.0, 0.0,
+                                  expected='a non-negative number of pixels (0 disables)')
+    min_texture: float = bounded(1.5, 0.0, expected='a non-negative number')
+    max_residual: float = bounded(0.3, 0.0, low_open=True, expected='a positive ratio')
     refine_affine: bool = True
     reseed: bool = True
-    match_ratio: float = 0.8
+    match_ratio: float = bounded(0.8, 0.0, 1.0, low_open=True)
 
     def validate(self) -> None:
-        # cv2.remap takes at most 32767 rows: one row per patch.
-        self._require(1 <= self.max_correspondences <= 30000, 'max_correspondences',
-                      'between 1 and 30000')
-        self._require(self.grid_step >= 2, 'grid_step', 'at least 2 pixels')
-        self._require(self.patch_radius >= 2, 'patch_radius', 'at least 2 pixels')
-        self._require(1 <= self.patch_stride <= self.patch_radius, 'patch_stride',
+        self._require(self.patch_stride <= self.patch_radius, 'patch_stride',
                       'between 1 and patch_radius pixels')
-        self._require(self.lk_iterations >= 1, 'lk_iterations', 'at least 1')
         self._require(self.lk_max_iterations >= self.lk_iterations, 'lk_max_iterations',
                       'at least lk_iterations')
-        self._require(self.fb_threshold >= 0.0 and finite(self.fb_threshold), 'fb_threshold',
-                      'a non-negative number of pixels (0 disables)')
-        self._require(self.min_texture >= 0.0 and finite(self.min_texture), 'min_texture',
-                      'a non-negative number')
-        self._require(self.max_residual > 0.0, 'max_residual', 'a positive ratio')
-        self._require(0.0 < self.match_ratio <= 1.0, 'match_ratio', 'in (0, 1]')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,14 +173,12 @@ class KeyframeConfig(Options):
             still: zero motion is output and no keyframe is made.
     """
 
-    min_parallax: float = 3.0
-    max_interval: int = 10
-    stationary_parallax: float = 0.25
+    min_parallax: float = bounded(3.0, 0.0, expected='a non-negative pixel count')
+    max_interval: int = bounded(10, 1, expected='at least 1 frame')
+    stationary_parallax: float = bounded(0.25, 0.0, expected='a pixel count in [0, min_parallax]')
 
     def validate(self) -> None:
-        self._require(self.min_parallax >= 0.0, 'min_parallax', 'a non-negative pixel count')
-        self._require(self.max_interval >= 1, 'max_interval', 'at least 1 frame')
-        self._require(0.0 <= self.stationary_parallax <= self.min_parallax, 'stationary_parallax',
+        self._require(self.stationary_parallax <= self.min_parallax, 'stationary_parallax',
                       'a pixel count in [0, min_parallax]')
 
 
@@ -230,25 +207,14 @@ class ScaleConfig(Options):
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
     fallback: typing.Literal['hold', 'ground', 'fixed', 'unit'] = 'hold'
-    hold_acceleration_std: float = 1.0
-    speed_std: float = 0.1
-    fixed_speed: float = 10.0
-    fixed_speed_std: float = 3.0
-    ground_affine_tolerance: float = 0.05
-    ground_min_correspondences: int = 10
-
-    def validate(self) -> None:
-        self._require(0.0 < self.hold_acceleration_std < 1e3, 'hold_acceleration_std',
-                      'a positive rate of change of speed (m/s^2)')
-        self._require(self.speed_std > 0.0 and finite(self.speed_std), 'speed_std',
-                      'a positive speed in m/s')
-        self._require(self.fixed_speed >= 0.0 and finite(self.fixed_speed), 'fixed_speed',
-                      'a non-negative speed in m/s')
-        self._require(self.fixed_speed_std > 0.0, 'fixed_speed_std', 'a positive speed in m/s')
-        self._require(self.ground_affine_tolerance > 0.0, 'ground_affine_tolerance',
-                      'a positive number')
-        self._require(self.ground_min_correspondences >= 1, 'ground_min_correspondences',
-                      'at least 1')
+    hold_acceleration_std: float = bounded(1.0, 0.0, 1e3, low_open=True, high_open=True,
+                                           expected='a positive rate of change of speed (m/s^2)')
+    speed_std: float = bounded(0.1, 0.0, low_open=True, expected='a positive speed in m/s')
+    fixed_speed: float = bounded(10.0, 0.0, expected='a non-negative speed in m/s')
+    fixed_speed_std: float = bounded(3.0, 0.0, low_open=True, expected='a positive speed in m/s')
+    ground_affine_tolerance: float = bounded(0.05, 0.0, low_open=True,
+                                             expected='a positive number')
+    ground_min_correspondences: int = bounded(10, 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -277,33 +243,24 @@ class OdometryConfig(Options):
             (s): a long gap does not spin the pose.
     """
 
-    min_correspondences: int = 30
-    min_contrast: float = 2.0
-    max_lost_frames: int = 5
-    max_frame_gap: float = 10.0
-    max_time_jump_back: float = 1.0
+    min_correspondences: int = bounded(30, 1)
+    min_contrast: float = bounded(2.0, 0.0, expected='a non-negative grey level')
+    max_lost_frames: int = bounded(5, 1)
+    max_frame_gap: float = bounded(10.0, 0.0, 1e9, low_open=True, high_open=True,
+                                   expected='a positive duration in seconds')
+    max_time_jump_back: float = bounded(1.0, 0.0, 1e9, high_open=True,
+                                        expected='a non-negative duration in seconds')
     output: typing.Literal['3d', 'flat'] = '3d'
-    flat_z_std: float = 0.05
-    flat_tilt_std: float = 0.02
-    lost_speed_std: float = 1.0
-    lost_turn_rate_std: float = 0.05
-    turn_rate_time_constant: float = 2.0
-
-    def validate(self) -> None:
-        self._require(self.min_correspondences >= 1, 'min_correspondences', 'at least 1')
-        self._require(self.min_contrast >= 0.0, 'min_contrast', 'a non-negative grey level')
-        self._require(self.max_lost_frames >= 1, 'max_lost_frames', 'at least 1')
-        self._require(0.0 < self.max_frame_gap < 1e9, 'max_frame_gap',
-                      'a positive duration in seconds')
-        self._require(0.0 <= self.max_time_jump_back < 1e9, 'max_time_jump_back',
-                      'a non-negative duration in seconds')
-        self._require(0.0 < self.flat_z_std < 1e6, 'flat_z_std', 'a positive length (m)')
-        self._require(0.0 < self.flat_tilt_std < 10.0, 'flat_tilt_std', 'a positive angle (rad)')
-        self._require(0.0 < self.lost_speed_std < 1e3, 'lost_speed_std', 'a positive speed (m/s)')
-        self._require(0.0 < self.lost_turn_rate_std < 10.0, 'lost_turn_rate_std',
-                      'a positive turn rate (rad/s)')
-        self._require(0.0 < self.turn_rate_time_constant < 1e4, 'turn_rate_time_constant',
-                      'a positive duration (s)')
+    flat_z_std: float = bounded(0.05, 0.0, 1e6, low_open=True, high_open=True,
+                                expected='a positive length (m)')
+    flat_tilt_std: float = bounded(0.02, 0.0, 10.0, low_open=True, high_open=True,
+                                   expected='a positive angle (rad)')
+    lost_speed_std: float = bounded(1.0, 0.0, 1e3, low_open=True, high_open=True,
+                                    expected='a positive speed (m/s)')
+    lost_turn_rate_std: float = bounded(0.05, 0.0, 10.0, low_open=True, high_open=True,
+                                        expected='a positive turn rate (rad/s)')
+    turn_rate_time_constant: float = bounded(2.0, 0.0, 1e4, low_open=True, high_open=True,
+                                             expected='a positive duration (s)')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -315,8 +272,16 @@ class RosConfig(Options):
         publish_tf: broadcast ``odom -> base_frame`` (needs ``tf2_ros``).
         image_transport: ``'raw'`` (``image``) or ``'compressed'`` (``image/compressed``).
         speed_topic_type: ``'twist'`` (``geometry_msgs/TwistStamped``) or ``'odometry'``.
-        path_max_length: poses kept in the published ``nav_msgs/Path`` (0: unlimited).
+        path_max_length: poses kept in the published ``nav_msgs/Path`` (the oldest are
+            dropped): bounds its memory and its publishing cost (about 10 us per pose).
+        path_spacing: a pose joins the path once it is this far (m) from the last one kept (0:
+            every odometry pose); the path always ends at the latest pose.
+        path_period: the path is published at most once per this many seconds of image time
+            (0: with every odometry message); with the two above this bounds its cost per
+            frame (500 poses once per second: about 0.5 ms per frame at 10 Hz).
         warn_period: seconds between repeats of the same warning.
+        diagnostics_period: seconds between ``/diagnostics`` messages.
+        image_timeout: warn when no image has arrived for this many seconds.
     """
 
     odom_frame: str = 'odom'
@@ -324,16 +289,20 @@ class RosConfig(Options):
     publish_tf: bool = True
     image_transport: typing.Literal['raw', 'compressed'] = 'raw'
     speed_topic_type: typing.Literal['twist', 'odometry'] = 'twist'
-    path_max_length: int = 10000
-    warn_period: float = 5.0
+    path_max_length: int = bounded(500, 1, 1_000_000)
+    path_spacing: float = bounded(1.0, 0.0, expected='a non-negative distance (m)')
+    path_period: float = bounded(1.0, 0.0, expected='a non-negative number of seconds')
+    warn_period: float = bounded(5.0, 0.0, expected='a non-negative number of seconds')
+    diagnostics_period: float = bounded(1.0, 0.0, low_open=True,
+                                        expected='a positive number of seconds')
+    image_timeout: float = bounded(5.0, 0.0, low_open=True,
+                                   expected='a positive number of seconds')
 
     def validate(self) -> None:
         self._require(bool(self.odom_frame.strip()), 'odom_frame', 'a non-empty frame id')
         self._require(bool(self.base_frame.strip()), 'base_frame', 'a non-empty frame id')
         self._require(self.odom_frame != self.base_frame, 'base_frame', 'a frame id other than '
                       'odom_frame')
-        self._require(self.path_max_length >= 0, 'path_max_length', 'a non-negative count')
-        self._require(self.warn_period >= 0.0, 'warn_period', 'a non-negative number of seconds')
 
 
 @dataclasses.dataclass(frozen=True)

@@ -33,6 +33,16 @@ __all__ = [
 ]
 
 DISTORTION_MODELS = {'none': 0, 'plumb_bob': 5, 'equidistant': 4}
+
+# Plausible fields of view of real lenses, for `CameraModel.check_plausible` (degrees, across
+# the image's width or height). The narrowest: a 3-degree view is a 700 mm lens on a full-frame
+# sensor (a 100x wrong focal length turns a 60-degree camera into one of 0.6 degrees); nothing
+# narrower is mounted on a vehicle, and no image of such a lens holds the road that planar
+# odometry needs. The widest: a rectilinear (pinhole, plumb_bob) lens cannot reach 180 degrees,
+# and the widest ones built cover about 130 (160 leaves room for calibrations of fisheye lenses
+# with plumb_bob); the widest fisheye lenses built cover about 220-280 degrees.
+MIN_FIELD_OF_VIEW_DEG = 3.0
+MAX_FIELD_OF_VIEW_DEG = {'none': 160.0, 'plumb_bob': 160.0, 'equidistant': 280.0}
 _UNDISTORT_ITERATIONS = 20
 
 
@@ -104,7 +114,8 @@ class CameraModel:
         """From a ``sensor_msgs/CameraInfo`` (rclpy or rosbags message; duck-typed).
 
         An empty distortion model with all-zero ``d`` is read as ``'none'``; ``rational_polynomial``
-        and other models are rejected with `CameraModelError`.
+        and other models are rejected with `CameraModelError`, and so are implausible intrinsics
+        (`check_plausible`).
         """
         try:
             k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
@@ -121,9 +132,41 @@ class CameraModel:
                 raise CameraModelError(f'camera_info: distortion coefficients {list(d)} given '
                                        f'without a distortion model')
             model, d = 'none', ()
-        return cls(width, height, k, model, d)
+        camera = cls(width, height, k, model, d)
+        camera.check_plausible()
+        return camera
+
+    def check_plausible(self) -> None:
+        """`CameraModelError` unless the intrinsics describe a real lens: the principal point
+        inside the image and fields of view (`field_of_view`) between `MIN_FIELD_OF_VIEW_DEG`
+        and the model's `MAX_FIELD_OF_VIEW_DEG` (a focal length off by a large factor, a
+        principal point given for another resolution)."""
+        if not (0.0 <= self.cx <= self.width and 0.0 <= self.cy <= self.height):
+            raise CameraModelError(f'camera_info: principal point ({self.cx:g}, {self.cy:g}) '
+                                   f'lies outside the {self.width}x{self.height} image')
+        widest = MAX_FIELD_OF_VIEW_DEG[self.distortion_model]
+        kind = 'fisheye' if self.distortion_model == 'equidistant' else 'rectilinear'
+        for axis, fov in zip(('horizontal', 'vertical'), np.degrees(self.field_of_view)):
+            if not MIN_FIELD_OF_VIEW_DEG <= fov <= widest:
+                raise CameraModelError(
+                    f'camera_info: {axis} field of view {fov:.3g} deg (fx {self.fx:g}, fy '
+                    f'{self.fy:g} px on {self.width}x{self.height}) is outside the '
+                    f'{MIN_FIELD_OF_VIEW_DEG:g}-{widest:g} deg of real {kind} lenses: is the '
+                    f'focal length in pixels of this resolution?')
 
     # -- properties --------------------------------------------------------------------------
+
+    @property
+    def field_of_view(self) -> tuple[float, float]:
+        """Horizontal and vertical field of view (radians) through the principal point, from
+        the focal lengths (pinhole: ``atan``; equidistant: the angle is ``r / f``), without the
+        distortion's higher-order terms."""
+        angles = []
+        for size, c, f in ((self.width, self.cx, self.fx), (self.height, self.cy, self.fy)):
+            extents = np.array([c, size - c]) / f
+            angles.append(float(np.sum(extents if self.distortion_model == 'equidistant'
+                                       else np.arctan(extents))))
+        return angles[0], angles[1]
 
     @property
     def fx(self) -> float:

@@ -16,24 +16,82 @@ from typing import Any, ClassVar
 
 from planar_vo.errors import ConfigError
 
-__all__ = ['Options', 'finite']
+__all__ = ['Options', 'Range', 'bounded', 'finite']
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """The interval a numeric option must lie in, declared once beside its field (`bounded`):
+    `Options` checks it, and the ROS node publishes it in the parameter descriptors.
+
+    Attributes:
+        low, high: bounds (None: unbounded on that side); the value must be finite.
+        low_open, high_open: the bound itself is excluded.
+        expected: how an error message describes the range (default: from the bounds).
+    """
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    expected: str = ''
+
+    def __contains__(self, value: float) -> bool:
+        if not math.isfinite(value):
+            return False
+        if self.low is not None and (value < self.low or (self.low_open and value == self.low)):
+            return False
+        return self.high is None or not (value > self.high or
+                                         (self.high_open and value == self.high))
+
+    def __str__(self) -> str:
+        if self.expected:
+            return self.expected
+        if self.low is not None and self.high is not None:
+            return (f'in {"(" if self.low_open else "["}{self.low:g}, {self.high:g}'
+                    f'{")" if self.high_open else "]"}')
+        if self.low is not None:
+            return f'{"more than" if self.low_open else "at least"} {self.low:g}'
+        if self.high is not None:
+            return f'{"less than" if self.high_open else "at most"} {self.high:g}'
+        return 'a finite number'
+
+
+def bounded(default: float, low: float | None = None, high: float | None = None, *,
+            low_open: bool = False, high_open: bool = False, expected: str = ''):
+    """A dataclass field with a default and its `Range` (checked by `Options`)."""
+    return dataclasses.field(default=default, metadata={
+        'range': Range(low, high, low_open, high_open, expected)})
 
 
 class Options:
     """Base of frozen options dataclasses: typed construction from dicts and validation.
 
-    Subclasses are ``@dataclass(frozen=True)`` with defaults for every field and override
-    `validate` to check ranges; `from_dict` checks names and types and reports the dotted path
-    of any bad value.
+    Subclasses are ``@dataclass(frozen=True)`` with defaults for every field; a numeric field
+    declares its range with `bounded` (checked here, shown by ``ros2 param describe``), and
+    `validate` checks relations between fields; `from_dict` checks names and types and reports
+    the dotted path of any bad value.
     """
 
     _section: ClassVar[str] = ''
 
     def __post_init__(self) -> None:
+        for name, allowed in self.ranges().items():
+            value = getattr(self, name)
+            if isinstance(value, (int, float)) and not isinstance(value, bool) \
+                    and value not in allowed:
+                raise ConfigError(f'{name}: expected {allowed}, got {value!r}')
         self.validate()
 
+    @classmethod
+    def ranges(cls) -> dict[str, Range]:
+        """Field name -> its `Range`, for the fields declared with `bounded`."""
+        return {f.name: f.metadata['range'] for f in dataclasses.fields(cls)
+                if 'range' in f.metadata}
+
     def validate(self) -> None:
-        """Check value ranges; raise `ConfigError` naming the field."""
+        """Check what the fields' `Range` s cannot say (relations between fields); raise
+        `ConfigError` naming the field."""
 
     # -- construction ------------------------------------------------------------------------
 

@@ -47,6 +47,7 @@ from planar_vo.core.conventions import rotation_y, so3_exp, so3_log, translation
 from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.core.robust import VotingConfig, vote_planar_motion
 from planar_vo.core.robust.general import (
+    CHI2_3_99,
     GATE,
     PlanarPrior,
     ac_design,
@@ -197,6 +198,29 @@ class MotionEstimator:
         vote = (motion.alpha, motion.beta, bool(vstats.reliable))
         if self.config.model == 'planar':
             return self._planar(acs, motion, vstats, vote)
+        limit = self.config.max_correspondences
+        if 0 < limit < len(acs):
+            # The vote saw every AC; the refinement needs only an even sample of them (its
+            # cost grows with the count, its accuracy hardly beyond a few hundred). The inliers
+            # are judged on every AC at the end.
+            pick = np.linspace(0, len(acs) - 1, limit).astype(np.intp)
+            result = self._refine(acs.subset(pick), level.subset(pick), motion, vstats, vote)
+            if result.reliable or np.isfinite(result.R).all():
+                chi2 = chi_square(ac_design(acs.p1, acs.p2, acs.A), acs.p1, acs.p2, acs.A,
+                                  result.R, result.t, *self.scales_of(result))
+                result.inliers = (chi2 <= CHI2_3_99) & (acs.weights > 0)
+            else:
+                result.inliers = np.zeros(len(acs), bool)
+            return result
+        return self._refine(acs, level, motion, vstats, vote)
+
+    @staticmethod
+    def scales_of(result: FrameEstimate) -> tuple[float, float]:
+        """The noise scales measured at an estimate (point, affine)."""
+        return result.stats.get('point_scale', 1e-3), result.stats.get('affine_scale', 2e-2)
+
+    def _refine(self, acs, level, motion, vstats, vote) -> FrameEstimate:
+        """Steps 2-7 of the module docstring on the given ACs."""
         q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
         n = len(acs)
         M = ac_design(q1, q2, A)

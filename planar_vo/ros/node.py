@@ -8,30 +8,41 @@ Topics (relative names, so that ``--ros-args -r image:=/camera/image_raw`` remap
   (``sensor_msgs/CompressedImage``, JPEG or PNG); ``camera_info`` (``sensor_msgs/CameraInfo``)
   unless ``camera.fx > 0`` gives the intrinsics; ``speed`` (``geometry_msgs/TwistStamped``, or
   ``nav_msgs/Odometry`` with ``ros.speed_topic_type: odometry``) when ``scale.source`` is
-  ``speed``. Sensor inputs use the sensor-data QoS profile.
+  ``speed``. Sensor inputs use the sensor-data QoS profile; the speed topic keeps
+  `SPEED_QUEUE_DEPTH` samples, so that none is lost while an image is being processed.
 - publishes ``odom`` (``nav_msgs/Odometry``, stamped with the image's header stamp, pose and
-  twist with covariance), ``path`` (``nav_msgs/Path``, the last ``ros.path_max_length`` poses),
-  ``status`` (``diagnostic_msgs/DiagnosticArray``, one per image: result, inliers, timings,
-  scale source, cumulative counters) and the TF ``odom -> base_link`` when ``tf2_ros`` is
-  installed and ``ros.publish_tf`` is set.
+  twist with covariance), ``path`` (``nav_msgs/Path``: decimated by ``ros.path_spacing``, at
+  most ``ros.path_max_length`` poses, at most once per ``ros.path_period``, so that its cost
+  per frame is bounded), ``status`` (``diagnostic_msgs/DiagnosticArray``, one per image:
+  result, tracking state, scale source, focal length, inliers, timings, counters), the
+  aggregated ``/diagnostics`` every ``ros.diagnostics_period`` seconds, and the TF
+  ``odom -> base_link`` when ``tf2_ros`` is installed and ``ros.publish_tf`` is set.
+- serves ``~/reset`` (``std_srvs/Trigger``): pose back to the origin, a new keyframe chain from
+  the next image, the counters kept.
 
 Every image yields either an odometry message or a counted `DropReason` (an image the node
 cannot decode counts as ``bad_image``); each reason is logged as a specific warning at most once
-per ``ros.warn_period`` seconds. Frames the transport lost never reach the node: they show up as
-gaps in the image stamps and are counted as ``missing_frames``.
+per ``ros.warn_period`` seconds, and every change of the tracking state is logged once. Frames
+the transport lost never reach the node: they show up as gaps in the image stamps and are counted
+as ``missing_frames``; a clock glitch or a jump back of the stamps (a looped bag) is not a gap.
 
 Parameters are the dotted keys of `planar_vo.config.PlanarVoConfig` (``voting.bins``, ...),
-declared with descriptions and validated through the same config object: an invalid value at
-start-up is one fatal log line and exit code 1; at run time it is rejected. Run-time changes are
-applied for ``ros.publish_tf``, ``ros.path_max_length``, ``ros.warn_period``; the others are read
-at start-up only.
+declared with descriptions, ranges and read-only flags, and validated through the same config
+object: an invalid value at start-up is one fatal log line and exit code 1; at run time it is
+rejected. `LIVE_PARAMETERS` may change at run time; the others are read at start-up only.
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import signal
+import sys
+import textwrap
 import time
 from collections import Counter, deque
+from collections.abc import Sequence
+from pathlib import Path as FilePath
 from typing import Any
 
 import numpy as np
@@ -51,18 +62,28 @@ from geometry_msgs.msg import (
     Vector3,
 )
 from nav_msgs.msg import Odometry, Path
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.executors import ExternalShutdownException
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
+from std_srvs.srv import Trigger
 
-from planar_vo.config import PlanarVoConfig, describe, flatten
+from planar_vo.config import PlanarVoConfig, describe, flatten, ranges
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import CameraModelError, ConfigError, ImageError, InputError
-from planar_vo.pipeline import DropReason, FrameResult, VisualOdometry
+from planar_vo.pipeline import DropReason, FrameResult, TrackingState, VisualOdometry
+from planar_vo.pipeline.clock import FrameClock, StampCheck
+from planar_vo.pipeline.threads import limit_blas_threads
 from planar_vo.ros.messages import (
     compressed_to_array,
     image_to_array,
@@ -76,10 +97,18 @@ try:  # tf2_ros comes with a ROS installation; it is not on PyPI.
 except ImportError:  # pragma: no cover - depends on the installation
     TransformBroadcaster = None
 
-__all__ = ['LIVE_PARAMETERS', 'PlanarVoNode', 'main']
+__all__ = ['LIVE_PARAMETERS', 'SPEED_QUEUE_DEPTH', 'PlanarVoNode', 'main', 'ros_arguments',
+           'usage']
 
-# Parameters that may change while the node runs; the others shape subscriptions and the pipeline.
-LIVE_PARAMETERS = frozenset({'ros.publish_tf', 'ros.path_max_length', 'ros.warn_period'})
+# Parameters that may change while the node runs; the others shape subscriptions and the pipeline
+# and are declared read-only.
+LIVE_PARAMETERS = frozenset({'ros.publish_tf', 'ros.path_max_length', 'ros.path_spacing',
+                             'ros.path_period', 'ros.warn_period', 'ros.image_timeout'})
+
+# Speed samples kept by the subscription while the single-threaded executor processes an image:
+# 5 s of a 100 Hz wheel-speed topic, far longer than any frame takes (16-65 ms with the default
+# front-end, about 2 s with asift). Only the queue's depth differs from the sensor-data profile.
+SPEED_QUEUE_DEPTH = 500
 
 # The rclpy classes of the message types `odometry_message` builds.
 _MESSAGE_TYPES = {
@@ -94,6 +123,11 @@ _MESSAGE_TYPES = {
 # A stamp interval this many times the nominal frame period is a gap (frames lost on the way).
 _GAP_FACTOR = 1.8
 _PERIOD_WINDOW = 20
+_INT64_MAX = 2 ** 63 - 1
+# The parameters `usage` lists (the parameter file has them all).
+_MAIN_PARAMETERS = ('scale.source', 'mount.height', 'mount.pitch', 'camera.fx',
+                    'camera.estimate_focal', 'ros.image_transport', 'ros.publish_tf',
+                    'ros.odom_frame', 'ros.base_frame')
 
 
 class WarningThrottle:
@@ -117,26 +151,35 @@ class WarningThrottle:
 
 
 class PlanarVoNode(Node):
-    """Planar monocular visual odometry: images in, ``odom``, ``path``, ``status`` and TF out.
+    """Planar monocular visual odometry: images in, ``odom``, ``path``, ``status``,
+    ``/diagnostics`` and TF out, ``~/reset`` served.
+
+    Args:
+        parameter_files: the ``--params-file`` files of the command line, to warn about a file
+            that set nothing for this node (keyed on another node name).
+        command_line_parameters: the names given with ``-p`` (they do not count as set by a
+            file).
+        **kwargs: `rclpy.node.Node` arguments (``context``, ``parameter_overrides``, ...).
 
     Attributes:
         config: the validated `PlanarVoConfig` the node runs with.
         outcomes: images received per outcome, ``'ok'`` or a `DropReason` value.
+        tracking: the tracking state after the last image (or the reset).
     """
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, *, parameter_files: Sequence[str] = (),
+                 command_line_parameters: Sequence[str] = (), **kwargs: Any) -> None:
         super().__init__('planar_vo', **kwargs)
-        descriptions = describe()
         self._defaults = flatten(PlanarVoConfig())
-        for name, default in self._defaults.items():
-            # Dynamic typing: `mount.height:=2` (an integer) and `camera.distortion:=[...]` (the
-            # default is an empty, untyped list) are allowed; the config object checks types.
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=descriptions[name], dynamic_typing=True))
         self._check_unknown_overrides()
-        self.config = self._read_config()
-        for name, value in flatten(self.config).items():
-            self.get_logger().info(f'{name} = {value!r}')
+        # Validated before declaring (the declared values are these), so that a bad value is
+        # reported in the config's words rather than as rclpy's range error.
+        self.config = self._checked_config({
+            name: param.value for name, param in self._parameter_overrides.items()
+            if name in self._defaults})
+        self._declare_parameters()
+        self._log_parameters()
+        self._check_parameter_files(parameter_files, set(command_line_parameters))
         ros = self.config.ros
 
         self._vo = VisualOdometry(self.config)
@@ -144,39 +187,62 @@ class PlanarVoNode(Node):
         self._throttle = WarningThrottle(ros.warn_period)
         self.outcomes: Counter[str] = Counter()
         self._counters: Counter[str] = Counter()   # camera_info_errors, speed_*, gaps, ...
+        self.tracking = self._vo.tracking
         self._node_time = 0.0
+        odometry = self.config.odometry
+        self._stamps = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
         self._last_stamp_ns: int | None = None
         self._intervals: deque[int] = deque(maxlen=_PERIOD_WINDOW)
-        self._path: deque[PoseStamped] = deque(maxlen=ros.path_max_length or None)
+        self._path: deque[PoseStamped] = deque(maxlen=ros.path_max_length)
+        self._path_tip: PoseStamped | None = None     # the latest pose, when not kept
+        self._path_published = -math.inf
+        self._path_header = None         # the header of a path not published yet
+        self._last_result: FrameResult | None = None
+        self._last_frame_id = ''
+        self._period: Counter[str] = Counter()           # outcomes since the last diagnostics
+        self._period_time: list[float] = []
+        self._started = self._last_image = time.monotonic()
 
         self._odom_pub = self.create_publisher(Odometry, 'odom', 10)
         self._path_pub = self.create_publisher(Path, 'path', 1)
         self._status_pub = self.create_publisher(DiagnosticArray, 'status', 10)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._tf = None
         self._set_tf(ros.publish_tf)
 
         # Sensor-data QoS (best effort) by default; `qos_overrides.<topic>.subscription.*`
         # parameters change it, e.g. to reliable for images too large for best-effort delivery.
-        sensor = {'qos_profile': qos_profile_sensor_data,
-                  'qos_overriding_options': QoSOverridingOptions.with_default_policies()}
+        overriding = QoSOverridingOptions.with_default_policies()
+        sensor = {'qos_profile': qos_profile_sensor_data, 'qos_overriding_options': overriding}
         if ros.image_transport == 'compressed':
-            self.create_subscription(CompressedImage, 'image/compressed', self._on_compressed,
-                                     **sensor)
+            self._image_sub = self.create_subscription(CompressedImage, 'image/compressed',
+                                                       self._on_compressed, **sensor)
         else:
-            self.create_subscription(Image, 'image', self._on_image, **sensor)
+            self._image_sub = self.create_subscription(Image, 'image', self._on_image, **sensor)
         self._pending: tuple | None = None
         # With estimate_focal the pipeline runs without CameraInfo: no image waits for one.
         camera = self.config.camera
         self._expects_camera_info = camera.fx <= 0 and not camera.estimate_focal
-        if not self._expects_camera_info:
-            self.get_logger().info('camera intrinsics from the camera.* parameters; not '
-                                   'subscribing to camera_info')
-        else:
-            self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info, **sensor)
+        self._camera_info_sub = None
+        if self._expects_camera_info:
+            self._camera_info_sub = self.create_subscription(
+                CameraInfo, 'camera_info', self._on_camera_info, **sensor)
+        self._speed_sub = None
         if self.config.scale.source == 'speed':
             speed_type = Odometry if ros.speed_topic_type == 'odometry' else TwistStamped
-            self.create_subscription(speed_type, 'speed', self._on_speed, **sensor)
+            speed_qos = QoSProfile(depth=SPEED_QUEUE_DEPTH,
+                                   history=qos_profile_sensor_data.history,
+                                   reliability=qos_profile_sensor_data.reliability,
+                                   durability=qos_profile_sensor_data.durability)
+            self._speed_sub = self.create_subscription(
+                speed_type, 'speed', self._on_speed, qos_profile=speed_qos,
+                qos_overriding_options=overriding)
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        # Steady time: diagnostics and the no-image warning go on when a simulated clock stops.
+        self.create_timer(ros.diagnostics_period, self._on_diagnostics_timer,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.get_logger().info(self._start_line())
 
     # -- parameters ----------------------------------------------------------------------------
 
@@ -184,8 +250,8 @@ class PlanarVoNode(Node):
         """A misspelt parameter (``voting.binz``) is an error, not silently ignored."""
         # rclpy keeps the command-line and parameter-file values it was given in this attribute;
         # names that no declaration claims are otherwise dropped without a word.
-        overrides = getattr(self, '_parameter_overrides', {})
-        unknown = sorted(n for n in overrides if not self.has_parameter(n)
+        unknown = sorted(n for n in self._parameter_overrides
+                         if n not in self._defaults and not self.has_parameter(n)
                          and not n.startswith('qos_overrides.'))
         if unknown:
             message = (f'unknown parameter(s) {", ".join(unknown)}: expected planar_vo '
@@ -194,6 +260,32 @@ class PlanarVoNode(Node):
             self.get_logger().fatal(f'invalid parameters: {message}')
             raise ConfigError(message)
 
+    def _declare_parameters(self) -> None:
+        """Every config key, with its description, range (`planar_vo.config.ranges`) and
+        read-only flag (all but `LIVE_PARAMETERS`)."""
+        descriptions, allowed = describe(), ranges()
+        for name, default in self._defaults.items():
+            descriptor = ParameterDescriptor(
+                description=descriptions[name], read_only=name not in LIVE_PARAMETERS,
+                # Dynamic typing: `mount.height:=2` (an integer) and `camera.distortion:=[...]`
+                # (the default is an empty, untyped list) are allowed; the config checks types.
+                dynamic_typing=True)
+            bounds = allowed.get(name)
+            if bounds is not None and (bounds.low is not None or bounds.high is not None):
+                # ROS ranges are closed: an open bound is shown closed and the config object
+                # refuses the bound itself with its own message.
+                if isinstance(default, int):
+                    descriptor.integer_range = [IntegerRange(
+                        from_value=int(bounds.low if bounds.low is not None else -_INT64_MAX),
+                        to_value=int(bounds.high if bounds.high is not None else _INT64_MAX),
+                        step=0)]
+                else:
+                    descriptor.floating_point_range = [FloatingPointRange(
+                        from_value=float(bounds.low if bounds.low is not None else -math.inf),
+                        to_value=float(bounds.high if bounds.high is not None else math.inf),
+                        step=0.0)]
+            self.declare_parameter(name, default, descriptor)
+
     def _config_value(self, name: str, value: Any) -> Any:
         """A parameter value in the form the config expects."""
         if isinstance(self._defaults[name], list):
@@ -201,39 +293,63 @@ class PlanarVoNode(Node):
             return [] if value is None else list(value)
         return value
 
-    def _flat_parameters(self) -> dict[str, Any]:
-        return {name: self._config_value(name, self.get_parameter(name).value)
-                for name in self._defaults}
+    def _parameter_values(self) -> dict[str, Any]:
+        return {name: self.get_parameter(name).value for name in self._defaults}
 
-    def _read_config(self) -> PlanarVoConfig:
+    def _checked_config(self, values: dict[str, Any]) -> PlanarVoConfig:
+        """The config of the defaults updated with ``values``; one fatal line if invalid."""
+        flat = dict(self._defaults)
+        flat.update({name: self._config_value(name, value) for name, value in values.items()})
         try:
-            return PlanarVoConfig.from_flat(self._flat_parameters())
+            return PlanarVoConfig.from_flat(flat)
         except ConfigError as err:
             self.get_logger().fatal(f'invalid parameters: {err}')
             raise
 
+    def _log_parameters(self) -> None:
+        """Every parameter at DEBUG; the INFO start line names the ones that differ."""
+        for name, value in flatten(self.config).items():
+            self.get_logger().debug(f'{name} = {value!r}')
+
+    def _start_line(self) -> str:
+        """One INFO line: topics, scale source, and the parameters set away from the defaults."""
+        changed = {k: v for k, v in flatten(self.config).items() if v != self._defaults[k]}
+        settings = ', '.join(f'{k} = {v!r}' for k, v in changed.items()) or 'all defaults'
+        camera = (self._camera_info_sub.topic_name if self._camera_info_sub is not None else
+                  'camera.* parameters' if self.config.camera.fx > 0 else 'self-calibration')
+        return (f'listening on {self._image_sub.topic_name} (intrinsics from {camera}); scale '
+                f'from {self.config.scale.source}; {len(self._defaults)} parameters, '
+                f'{len(changed)} set: {settings} (the others: ros2 param dump, or DEBUG logs)')
+
+    def _check_parameter_files(self, files: Sequence[str], given: set[str]) -> None:
+        """Warn about a parameter file that set nothing for this node: rcl silently skips a
+        file keyed on another node name (``planar_vo:`` for a node renamed ``front_vo``)."""
+        applied = set(self._parameter_overrides) - given
+        for path in files:
+            keys, names = _parameter_file_entries(path)
+            if names and not names & applied:
+                self.get_logger().warning(
+                    f'parameter file {path} set nothing for this node '
+                    f'{self.get_fully_qualified_name()}: its parameters are keyed on '
+                    f'{", ".join(keys)}; key them on /** (any node) or on '
+                    f'{self.get_fully_qualified_name()}')
+
     def _on_set_parameters(self, params: list) -> SetParametersResult:
-        """Validate a run-time change through the config object; apply the live ones."""
+        """Validate a run-time change through the config object; apply the live ones (rclpy has
+        already refused read-only parameters and values outside the declared ranges)."""
         ours = [p for p in params if p.name in self._defaults]   # not e.g. use_sim_time
         if not ours:
             return SetParametersResult(successful=True)
-        flat = self._flat_parameters()
-        flat.update({p.name: self._config_value(p.name, p.value) for p in ours})
+        flat = self._parameter_values()
+        flat.update({p.name: p.value for p in ours})
+        flat = {name: self._config_value(name, value) for name, value in flat.items()}
         try:
             config = PlanarVoConfig.from_flat(flat)
         except ConfigError as err:
             return SetParametersResult(successful=False, reason=str(err))
-        before, after = flatten(self.config), flatten(config)
-        fixed = sorted(p.name for p in ours
-                       if p.name not in LIVE_PARAMETERS and after[p.name] != before[p.name])
-        if fixed:
-            return SetParametersResult(
-                successful=False,
-                reason=f'{", ".join(fixed)}: read at start-up only (restart the node to change '
-                       f'it); run-time changes: {", ".join(sorted(LIVE_PARAMETERS))}')
         ros = config.ros
         if ros.path_max_length != self.config.ros.path_max_length:
-            self._path = deque(self._path, maxlen=ros.path_max_length or None)
+            self._path = deque(self._path, maxlen=ros.path_max_length)
         self._throttle.period = ros.warn_period
         if ros.publish_tf != self.config.ros.publish_tf:
             self._set_tf(ros.publish_tf)
@@ -263,6 +379,7 @@ class PlanarVoNode(Node):
         publishes both with the same stamp but DDS does not order two topics, so the first image
         may arrive first. It runs when the CameraInfo comes, or as soon as another image does
         (then counted ``no_camera_info``, like every image that finds no camera model)."""
+        self._last_image = time.monotonic()
         if self._camera is None and self._expects_camera_info:
             self.flush_pending()
             self._pending = (msg, decode)
@@ -278,7 +395,7 @@ class PlanarVoNode(Node):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            camera = CameraModel.from_camera_info(msg)
+            camera = CameraModel.from_camera_info(msg)   # plausible intrinsics only
         except CameraModelError as err:
             self._counters['camera_info_errors'] += 1
             kept = 'keeping the last valid one' if self._camera is not None else \
@@ -300,10 +417,25 @@ class PlanarVoNode(Node):
             return
         self._counters['speed_messages'] += 1
 
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        """``~/reset``: pose back to the origin, a new keyframe chain, the counters kept."""
+        self._vo.reset()
+        self._clear_path()
+        self._counters['resets'] += 1
+        before, self.tracking = self.tracking, self._vo.tracking
+        response.success = True
+        response.message = ('pose reset to the origin; the next image starts a new keyframe '
+                            'chain; counters kept')
+        self.get_logger().info(f'reset by ~/reset: {response.message} (tracking state '
+                               f'{before.value} -> {self.tracking.value})')
+        return response
+
     def _frame(self, msg: Image | CompressedImage, decode) -> None:
         """One image: decode, run the pipeline, publish odometry (or count why not), status."""
         start = time.perf_counter()
         stamp_ns = stamp_to_ns(msg.header.stamp)
+        self._last_frame_id = msg.header.frame_id
         self._note_gap(stamp_ns)
         odom = None
         try:
@@ -315,28 +447,40 @@ class PlanarVoNode(Node):
         except Exception as err:  # noqa: BLE001 - a bug in the pipeline must not stop the node
             result = self._dropped(stamp_ns, DropReason.PIPELINE_ERROR,
                                    f'{type(err).__name__}: {err}')
-        self.outcomes['ok' if result.ok else result.reason.value] += 1
+        key = 'ok' if result.ok else result.reason.value
+        self.outcomes[key] += 1
+        self._period[key] += 1
+        self._note_tracking(stamp_ns, result)
+        path_time = 0.0
         if result.ok:
-            self._publish(odom)
+            path_time = self._publish(odom)
         else:
             self._report_drop(stamp_ns, result)
         node_time = time.perf_counter() - start
         self._node_time += node_time
-        self._publish_status(msg.header, result, node_time)
+        self._period_time.append(node_time)
+        self._last_result = result
+        self._publish_status(msg.header, result, node_time, path_time)
 
     def _dropped(self, stamp_ns: int, reason: DropReason, message: str) -> FrameResult:
         """A frame the node drops before or after the pipeline (no pose to report)."""
         return FrameResult(stamp=stamp_ns / 1e9, ok=False, pose=self._vo.pose.copy(),
                            pose_covariance=np.full((6, 6), np.nan), reason=reason,
-                           message=message)
+                           message=message, tracking=self._vo.tracking)
 
     def _note_gap(self, stamp_ns: int) -> None:
-        """Count frames lost before reaching the node (an interval far above the usual one)."""
-        last = self._last_stamp_ns
-        if last is not None and stamp_ns <= last:
-            return                  # duplicated or out of order: the pipeline counts it
-        self._last_stamp_ns = stamp_ns
-        if last is None:
+        """Count frames lost before reaching the node (an interval far above the usual one).
+
+        The stamps are judged by the pipeline's rules (`FrameClock`, the same limits): a
+        duplicate, a frame out of order or a single stamp far ahead (a clock glitch) leave the
+        time base alone, and a jump back (a looped bag) or a confirmed jump ahead starts a new
+        one: none of them is a gap of lost frames."""
+        check = self._stamps.check(stamp_ns / 1e9)
+        if check in (StampCheck.DUPLICATE, StampCheck.OUT_OF_ORDER, StampCheck.JUMP_AHEAD):
+            return
+        last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
+        if check in (StampCheck.JUMP_BACK, StampCheck.NEW_TIME_BASE) or last is None:
+            self._intervals.clear()
             return
         dt = stamp_ns - last
         if len(self._intervals) >= 3:
@@ -351,6 +495,24 @@ class PlanarVoNode(Node):
                 return          # the gap does not update the nominal period
         self._intervals.append(dt)
 
+    def _note_tracking(self, stamp_ns: int, result: FrameResult) -> None:
+        """One log line per change of the tracking state (warnings for lost and reinitialised);
+        a reset of the pipeline (time jumped back) also restarts the path."""
+        state = result.tracking
+        if state is self.tracking:
+            return
+        before, self.tracking = self.tracking, state
+        self._counters['tracking_changes'] += 1
+        if result.reason is DropReason.TIME_JUMP_BACK:
+            self._clear_path()
+        why = 'ok' if result.ok else f'{result.reason.value}: {result.message}'
+        line = (f'tracking state {before.value} -> {state.value} at '
+                f'{_format_stamp(stamp_ns)} ({why})')
+        if state in (TrackingState.LOST, TrackingState.REINITIALISED):
+            self.get_logger().warning(line)
+        else:
+            self.get_logger().info(line)
+
     # -- outputs -------------------------------------------------------------------------------
 
     def _odometry(self, header, result: FrameResult) -> Odometry:
@@ -361,18 +523,17 @@ class PlanarVoNode(Node):
                                 pose_covariance=result.pose_covariance, twist=result.twist,
                                 twist_covariance=result.twist_covariance)
 
-    def _publish(self, odom: Odometry) -> None:
-        """Odometry, the path (when someone listens) and the TF."""
+    def _publish(self, odom: Odometry) -> float:
+        """Odometry, the path (when due and someone listens) and the TF; returns the seconds
+        spent on the path."""
         self._odom_pub.publish(odom)
+        start = time.perf_counter()
         pose = PoseStamped()
         pose.header = odom.header
         pose.pose = odom.pose.pose
-        self._path.append(pose)
-        if self._path_pub.get_subscription_count() > 0:   # a long path is costly to build
-            path = Path()
-            path.header = odom.header
-            path.poses = list(self._path)
-            self._path_pub.publish(path)
+        self._add_to_path(pose)
+        self.publish_path(odom.header)
+        path_time = time.perf_counter() - start
         if self._tf is not None:
             tf = TransformStamped()
             tf.header = odom.header
@@ -381,6 +542,50 @@ class PlanarVoNode(Node):
             t.x, t.y, t.z = p.x, p.y, p.z
             tf.transform.rotation = odom.pose.pose.orientation
             self._tf.sendTransform(tf)
+        return path_time
+
+    def _add_to_path(self, pose: PoseStamped) -> None:
+        """Keep ``pose`` when it lies ``ros.path_spacing`` from the last pose kept; else it
+        becomes the path's tip (the path always ends at the latest pose)."""
+        spacing = self.config.ros.path_spacing
+        if self._path and spacing > 0.0:
+            a, b = self._path[-1].pose.position, pose.pose.position
+            if math.hypot(b.x - a.x, b.y - a.y) < spacing:
+                self._path_tip = pose
+                return
+        self._path.append(pose)
+        self._path_tip = None
+
+    def _clear_path(self) -> None:
+        self._path.clear()
+        self._path_tip = None
+        self._path_published = -math.inf
+        self._path_header = None
+
+    def path_poses(self) -> list[PoseStamped]:
+        """The poses the next ``path`` message carries."""
+        return list(self._path) + ([self._path_tip] if self._path_tip is not None else [])
+
+    def publish_path(self, header, *, force: bool = False) -> bool:
+        """Publish the path if someone listens and ``ros.path_period`` seconds of image time
+        have passed since the last one (or ``force``); returns whether it was published.
+
+        Image time rather than wall time: the cost per frame is then the same live and in a
+        bag played fast. A message costs about 10 us per pose, so with at most
+        ``ros.path_max_length`` poses (500: about 5 ms) once per second (every 10 frames at
+        10 Hz) the path costs about 0.5 ms per frame however long the drive."""
+        stamp = stamp_to_ns(header.stamp) / 1e9
+        self._path_header = header
+        if self._path_pub.get_subscription_count() == 0 or (
+                not force and abs(stamp - self._path_published) < self.config.ros.path_period):
+            return False
+        path = Path()
+        path.header = header
+        path.poses = self.path_poses()
+        self._path_pub.publish(path)
+        self._path_published = stamp
+        self._path_header = None
+        return True
 
     def _report_drop(self, stamp_ns: int, result: FrameResult) -> None:
         if result.reason is DropReason.FIRST_FRAME:
@@ -390,7 +595,26 @@ class PlanarVoNode(Node):
         self._warn(result.reason.value, f'frame {_format_stamp(stamp_ns)} dropped, '
                                         f'{result.reason.value}: {result.message}')
 
-    def _publish_status(self, header, result: FrameResult, node_time: float) -> None:
+    def _focal(self) -> float:
+        camera = self._vo.camera or self._camera
+        return camera.fx if camera is not None else float('nan')
+
+    def _counts(self) -> dict[str, Any]:
+        """The running totals, shared by ``status`` and ``/diagnostics``."""
+        values: dict[str, Any] = {
+            'frames': sum(self.outcomes.values()),
+            'odometry_out': self.outcomes['ok'],
+            'dropped': sum(v for k, v in self.outcomes.items() if k != 'ok'),
+        }
+        for reason in DropReason:
+            values[f'dropped.{reason.value}'] = self.outcomes[reason.value]
+        for name in ('camera_info_errors', 'speed_messages', 'speed_errors', 'gaps',
+                     'missing_frames', 'resets', 'tracking_changes'):
+            values[name] = self._counters[name]
+        return values
+
+    def _publish_status(self, header, result: FrameResult, node_time: float,
+                        path_time: float) -> None:
         """One `DiagnosticStatus` per image: this frame's outcome and the running counters."""
         status = DiagnosticStatus()
         status.name = f'{self.get_name()}: visual odometry'
@@ -406,23 +630,20 @@ class PlanarVoNode(Node):
         values = {
             'stamp_ns': stamp_to_ns(header.stamp),
             'result': key,
+            'tracking': result.tracking.value,
             'keyframe': result.keyframe,
-            'scale_source': result.scale_source if result.ok else '',
+            # Every frame names its scale source: 'none' when it produced no step.
+            'scale_source': result.scale_source if result.ok else 'none',
+            'focal_px': self._focal(),
             'correspondences': result.num_correspondences,
             'inliers': result.num_inliers,
             'alpha_rad': result.alpha,
             'beta_rad': result.beta,
-            'frames': sum(self.outcomes.values()),
-            'odometry_out': self.outcomes['ok'],
-            'dropped': sum(v for k, v in self.outcomes.items() if k != 'ok'),
+            **self._counts(),
         }
-        for reason in DropReason:
-            values[f'dropped.{reason.value}'] = self.outcomes[reason.value]
-        for name in ('camera_info_errors', 'speed_messages', 'speed_errors', 'gaps',
-                     'missing_frames'):
-            values[name] = self._counters[name]
         for stage, seconds in result.timings.items():
             values[f'time_ms.{stage}'] = round(seconds * 1e3, 3)
+        values['time_ms.path'] = round(path_time * 1e3, 3)
         values['time_ms.node'] = round(node_time * 1e3, 3)
         status.values = [KeyValue(key=k, value=_format_value(v)) for k, v in values.items()]
         array = DiagnosticArray()
@@ -430,6 +651,67 @@ class PlanarVoNode(Node):
         array.header.frame_id = header.frame_id
         array.status = [status]
         self._status_pub.publish(array)
+
+    def listened_topics(self) -> list[str]:
+        """The resolved (remapped) names of the input topics."""
+        return [sub.topic_name for sub in (self._image_sub, self._camera_info_sub,
+                                           self._speed_sub) if sub is not None]
+
+    def _on_diagnostics_timer(self) -> None:
+        """``/diagnostics``: the state and rates since the last message, for
+        ``diagnostic_aggregator`` (its analyzers group by the status name, e.g. ``startswith:
+        ['planar_vo']`` or ``contains: ['visual odometry']``); warns when images stop."""
+        now = time.monotonic()
+        silent = now - self._last_image
+        timeout = self.config.ros.image_timeout
+        image_topic = self._image_sub.topic_name
+        if silent >= timeout:
+            publishers = self.count_publishers(image_topic)
+            self._warn('no_image', f'no image for {silent:.0f} s on {image_topic} '
+                                   f'({publishers} publisher(s)); listening on '
+                                   f'{", ".join(self.listened_topics())}; check the remapping '
+                                   f'(-r image:=...) and the QoS')
+        if self._path_header is not None:
+            self.publish_path(self._path_header, force=True)   # the end of a stopped stream
+        frames = sum(self._period.values())
+        period = self.config.ros.diagnostics_period
+        status = DiagnosticStatus()
+        status.name = f'{self.get_name()}: visual odometry'
+        status.hardware_id = self.get_fully_qualified_name()
+        state = self.tracking
+        if silent >= timeout:
+            status.level = DiagnosticStatus.WARN
+            status.message = f'no image for {silent:.0f} s on {image_topic}'
+        elif self._period[DropReason.PIPELINE_ERROR.value]:
+            status.level = DiagnosticStatus.ERROR
+            status.message = f'{state.value}; pipeline errors'
+        else:
+            status.level = (DiagnosticStatus.OK if state is TrackingState.TRACKING
+                            else DiagnosticStatus.WARN)
+            status.message = f'{state.value}; {frames / period:.1f} images/s'
+        last = self._last_result
+        values = {
+            'tracking': state.value,
+            'images_per_s': frames / period,
+            'odometry_per_s': self._period['ok'] / period,
+            'mean_time_ms': 1e3 * float(np.mean(self._period_time)) if frames else float('nan'),
+            'max_time_ms': 1e3 * max(self._period_time) if frames else float('nan'),
+            'seconds_since_image': silent,
+            'image_topic': image_topic,
+            'listening_on': ' '.join(self.listened_topics()),
+            'scale_source': (last.scale_source if last.ok else 'none') if last else 'none',
+            'focal_px': self._focal(),
+            'path_poses': len(self._path) + (self._path_tip is not None),
+            **{f'period.{k}': v for k, v in sorted(self._period.items())},
+            **self._counts(),
+        }
+        status.values = [KeyValue(key=k, value=_format_value(v)) for k, v in values.items()]
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [status]
+        self._diagnostics_pub.publish(array)
+        self._period.clear()
+        self._period_time.clear()
 
     def _warn(self, key: str, message: str) -> None:
         held = self._throttle.admit(key)
@@ -451,7 +733,41 @@ class PlanarVoNode(Node):
                 f'{self._counters["missing_frames"]} frames missing in '
                 f'{self._counters["gaps"]} gaps; '
                 f'{self._counters["camera_info_errors"]} camera_info errors; '
-                f'{self._counters["speed_messages"]} speed messages; mean {mean} per frame')
+                f'{self._counters["speed_messages"]} speed messages; '
+                f'{self._counters["resets"]} resets; mean {mean} per frame')
+
+
+def _parameter_file_entries(path: str) -> tuple[list[str], set[str]]:
+    """The node keys of a ROS parameter file and the dotted names of all its parameters (empty
+    when it cannot be read: rcl has reported that already)."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(FilePath(path).read_text(encoding='utf-8'))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError):
+        return [], set()
+    keys: list[str] = []
+    names: set[str] = set()
+
+    def flat(prefix: str, value: Any) -> None:
+        if isinstance(value, dict):
+            for k, v in value.items():
+                flat(f'{prefix}.{k}' if prefix else str(k), v)
+        else:
+            names.add(prefix)
+
+    def walk(prefix: str, value: Any) -> None:
+        if not isinstance(value, dict):
+            return
+        for k, v in value.items():
+            if k == 'ros__parameters':
+                keys.append(prefix or '/')
+                flat('', v)
+            else:
+                walk(f'{prefix}/{k}'.replace('//', '/') if prefix else str(k), v)
+
+    walk('', data)
+    return keys, names
 
 
 def _format_stamp(stamp_ns: int) -> str:
@@ -467,38 +783,165 @@ def _format_value(value: Any) -> str:
     return str(value)
 
 
-def main(args: list[str] | None = None) -> int:
-    """Entry point (Jazzy idiom: init, spin in try, try_shutdown in finally).
+def ros_arguments(argv: Sequence[str]) -> tuple[list[str], set[str]]:
+    """The ``--params-file`` files and the names set with ``-p NAME:=VALUE`` inside the
+    ``--ros-args`` sections of ``argv``."""
+    files, names, ros, items = [], set(), False, iter(argv)
+    for arg in items:
+        if arg == '--ros-args':
+            ros = True
+        elif arg == '--':
+            ros = False
+        elif ros and arg == '--params-file':
+            files.append(next(items, ''))
+        elif ros and arg in ('-p', '--param'):
+            names.add(next(items, '').partition(':=')[0].rpartition(':')[2])
+    return files, names
 
-    Returns 0 after SIGINT or SIGTERM (rclpy.init installs handlers for both), 1 when the
-    parameters are invalid.
-    """
-    rclpy.init(args=args)
-    node = None
+
+def _installed_parameter_file() -> str:
     try:
-        node = PlanarVoNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        from ament_index_python.packages import get_package_share_directory
+
+        share = FilePath(get_package_share_directory('planar_vo'))
+    except Exception:  # noqa: BLE001 - no ament index (a plain pip install): the venv's share
+        share = FilePath(sys.prefix) / 'share' / 'planar_vo'
+    return str(share / 'config' / 'planar_vo.yaml')
+
+
+def usage() -> str:
+    """``planar_vo_node --help``: remaps, the parameter file, the main parameters."""
+    defaults, descriptions = flatten(PlanarVoConfig()), describe()
+    lines = [
+        'usage: ros2 run planar_vo planar_vo_node [--help] [--ros-args [-r FROM:=TO ...]',
+        '           [--params-file FILE] [-p NAME:=VALUE ...] [--log-level LEVEL]]',
+        '',
+        'Planar monocular visual odometry (Hajder and Barath 1AC + voting): images in, odometry '
+        'out.',
+        '',
+        'topics and services (relative names: remap them with -r):',
+        '  image              sensor_msgs/Image in; -r image:=/camera/image_raw',
+        '  image/compressed   sensor_msgs/CompressedImage in (-p ros.image_transport:=compressed);',
+        '                     -r image/compressed:=/camera/image_raw/compressed',
+        '  camera_info        sensor_msgs/CameraInfo in (not with camera.fx > 0 or '
+        'camera.estimate_focal)',
+        '  speed              geometry_msgs/TwistStamped or nav_msgs/Odometry in '
+        '(scale.source: speed)',
+        '  odom, path         nav_msgs/Odometry, nav_msgs/Path out; TF odom -> base_link',
+        '  status             diagnostic_msgs/DiagnosticArray out, one per image',
+        '  /diagnostics       diagnostic_msgs/DiagnosticArray out, every '
+        'ros.diagnostics_period s',
+        '  ~/reset            std_srvs/srv/Trigger: pose back to the origin, counters kept',
+        '',
+        f'parameter file (every parameter, its default and description):\n  '
+        f'{_installed_parameter_file()}',
+        '',
+        'main parameters (ros2 param describe shows every one with its range):',
+    ]
+    for name in _MAIN_PARAMETERS:
+        lines += textwrap.wrap(f'{name} (default {defaults[name]!r}): {descriptions[name]}', 96,
+                               initial_indent='  ', subsequent_indent='      ')
+    lines += [
+        '',
+        'example:',
+        '  ros2 run planar_vo planar_vo_node --ros-args -r image:=/camera/image_raw \\',
+        '      -r camera_info:=/camera/camera_info -p mount.height:=1.65 \\',
+        f'      --params-file {_installed_parameter_file()}',
+    ]
+    return '\n'.join(lines)
+
+
+class _StopRequest:
+    """SIGINT and SIGTERM only set a flag, which the spin loop checks between callbacks.
+
+    rclpy's own handlers (``SignalHandlerOptions.ALL``) stop a node in two racing ways: they
+    shut the context down from a signal-handling thread and wake the executor once, and the
+    chained Python handler raises ``KeyboardInterrupt`` wherever the main thread happens to be.
+    When the wake-up lands before the shutdown, the executor finds nothing to do and waits
+    again, now without a deadline: the node keeps running until a second signal. Here nothing
+    is asynchronous: the executor waits at most `POLL` seconds, and the loop ends after the
+    callback in progress.
+    """
+
+    POLL = 0.1
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+        self._previous = {sig: signal.signal(sig, self._handle)
+                          for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.signal = signum
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+class _RosLogHandler(logging.Handler):
+    """Forwards the library's `logging` records (tilt calibration, time jumps, ...) to the
+    node's logger, so that they reach the console and ``/rosout`` like the node's own lines."""
+
+    def __init__(self, logger) -> None:
+        super().__init__()
+        self._logger = logger
+
+    def emit(self, record: logging.LogRecord) -> None:
+        message = f'{record.name}: {record.getMessage()}'
+        if record.levelno >= logging.ERROR:
+            self._logger.error(message)
+        elif record.levelno >= logging.WARNING:
+            self._logger.warning(message)
+        elif record.levelno >= logging.INFO:
+            self._logger.info(message)
+        else:
+            self._logger.debug(message)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point: ``--help`` prints `usage`; otherwise init, spin until SIGINT or SIGTERM,
+    clean up (Jazzy idiom: try_shutdown in finally).
+
+    Returns 0 after SIGINT or SIGTERM, 1 when the parameters are invalid.
+    """
+    argv = sys.argv if args is None else args
+    ros_start = argv.index('--ros-args') if '--ros-args' in argv else len(argv)
+    if {'-h', '--help'} & set(argv[1:ros_start]):
+        print(usage())
+        return 0
+    stop = _StopRequest()
+    limit_blas_threads()        # idle OpenBLAS workers busy-wait: one thread is faster here
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    library_log = logging.getLogger('planar_vo')
+    node = executor = handler = None
+    try:
+        files, names = ros_arguments(argv)
+        node = PlanarVoNode(parameter_files=files, command_line_parameters=names)
+        handler = _RosLogHandler(node.get_logger())
+        library_log.addHandler(handler)
+        library_log.setLevel(logging.INFO)
+        library_log.propagate = False
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while stop.signal is None and rclpy.ok():
+            executor.spin_once(timeout_sec=_StopRequest.POLL)
+    except ExternalShutdownException:
         pass
-    except RuntimeError:
-        # rclpy's signal handler shuts the context down from outside the executor. When that
-        # lands while the executor builds its wait set, rclpy raises RCLError (a RuntimeError)
-        # rather than ExternalShutdownException, a known race: after a shutdown it is the same
-        # clean stop; with the context still valid it is a real error.
-        if rclpy.ok():
-            raise
     except ConfigError:
         return 1            # the fatal line naming the parameter is already logged
     finally:
+        stop.restore()
+        if handler is not None:
+            library_log.removeHandler(handler)
+            library_log.propagate = True
+        if executor is not None:
+            executor.shutdown()
         if node is not None:
             try:
                 node.flush_pending()            # counted like any frame; publishing may fail
             except Exception:  # noqa: BLE001 - shutting down: the count matters, not the publish
                 pass
-            name, summary = node.get_name(), node.summary()
+            node.get_logger().info(node.summary())
             node.destroy_node()
-            # Logged after the node is gone: a signal has already shut the context down, and
-            # the node's logger would then fail to forward the line to /rosout.
-            rclpy.logging.get_logger(name).info(summary)
         rclpy.try_shutdown()
     return 0

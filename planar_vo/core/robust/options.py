@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import typing
 
-from planar_vo.core.options import Options
+from planar_vo.core.options import Options, bounded
 
 __all__ = ['EstimatorConfig', 'VotingConfig']
 
@@ -41,35 +41,22 @@ class VotingConfig(Options):
     """
 
     method: typing.Literal['histogram', 'ransac'] = 'histogram'
-    bins: int = 720
-    kernel_bins: float = 1.5
+    # Bounds beyond any use keep memory bounded (a histogram, a grid of cells, RANSAC batches).
+    bins: int = bounded(720, 36, 100000)
+    kernel_bins: float = bounded(1.5, 0.0, 1000.0, low_open=True)
     refine_candidates: bool = False
-    inlier_chi2: float = 11.34
-    min_inliers: int = 20
-    ambiguity_ratio: float = 0.8
-    min_sharpness: float = 0.05
+    inlier_chi2: float = bounded(11.34, 0.0, 1e6, low_open=True)
+    min_inliers: int = bounded(20, 1, 1000000)
+    ambiguity_ratio: float = bounded(0.8, 0.0, 1.0, low_open=True)
+    min_sharpness: float = bounded(0.05, 0.0, 1.0, high_open=True)
     refine: bool = True
-    point_noise: float = 1e-3
-    affine_noise: float = 0.02
-    max_noise_factor: float = 5.0
-    covariance_grid: int = 6
-    ransac_iterations: int = 500
-    ransac_confidence: float = 0.999
-    seed: int = 0
-
-    def validate(self) -> None:
-        self._require(self.bins >= 36, 'bins', 'at least 36')
-        self._require(self.kernel_bins > 0.0, 'kernel_bins', 'a positive width in bins')
-        self._require(self.inlier_chi2 > 0.0, 'inlier_chi2', 'a positive number')
-        self._require(self.min_inliers >= 1, 'min_inliers', 'at least 1')
-        self._require(0.0 < self.ambiguity_ratio <= 1.0, 'ambiguity_ratio', 'in (0, 1]')
-        self._require(0.0 <= self.min_sharpness < 1.0, 'min_sharpness', 'in [0, 1)')
-        self._require(self.point_noise > 0.0, 'point_noise', 'a positive number')
-        self._require(self.affine_noise > 0.0, 'affine_noise', 'a positive number')
-        self._require(self.max_noise_factor >= 1.0, 'max_noise_factor', 'at least 1')
-        self._require(self.covariance_grid >= 1, 'covariance_grid', 'at least 1')
-        self._require(self.ransac_iterations >= 1, 'ransac_iterations', 'at least 1')
-        self._require(0.0 < self.ransac_confidence < 1.0, 'ransac_confidence', 'in (0, 1)')
+    point_noise: float = bounded(1e-3, 0.0, 1.0, low_open=True)
+    affine_noise: float = bounded(0.02, 0.0, 10.0, low_open=True)
+    max_noise_factor: float = bounded(5.0, 1.0, 1e6)
+    covariance_grid: int = bounded(6, 1, 1000)
+    ransac_iterations: int = bounded(500, 1, 10000000)
+    ransac_confidence: float = bounded(0.999, 0.0, 1.0, low_open=True, high_open=True)
+    seed: int = bounded(0, 0, 2 ** 32 - 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,22 +85,15 @@ class EstimatorConfig(Options):
 
     model: typing.Literal['general', 'planar'] = 'general'
     use_prior: bool = True
-    cauchy: float = 2.5
-    rounds: int = 8
-    min_inliers: int = 30
-    min_inlier_share: float = 0.1
-    max_yaw_std: float = 0.0035
-    ambiguity_ratio: float = 0.8
-    history: int = 100
-    max_correspondences: int = 0
+    cauchy: float = bounded(2.5, 0.0, 1e3, low_open=True)
+    rounds: int = bounded(8, 1, 100)
+    min_inliers: int = bounded(30, 5, 1000000)
+    min_inlier_share: float = bounded(0.1, 0.0, 1.0, high_open=True)
+    max_yaw_std: float = bounded(0.0035, 0.0, 3.2, low_open=True, expected='a positive angle (rad)')
+    ambiguity_ratio: float = bounded(0.8, 0.0, 1.0, low_open=True)
+    history: int = bounded(100, 10, 100000, expected='between 10 and 100000 frames')
+    max_correspondences: int = bounded(0, 0, 1000000)
 
     def validate(self) -> None:
-        self._require(self.cauchy > 0.0, 'cauchy', 'a positive number')
-        self._require(1 <= self.rounds <= 100, 'rounds', 'between 1 and 100')
-        self._require(self.min_inliers >= 5, 'min_inliers', 'at least 5')
-        self._require(0.0 <= self.min_inlier_share < 1.0, 'min_inlier_share', 'in [0, 1)')
-        self._require(self.max_yaw_std > 0.0, 'max_yaw_std', 'a positive angle (rad)')
-        self._require(0.0 < self.ambiguity_ratio <= 1.0, 'ambiguity_ratio', 'in (0, 1]')
-        self._require(10 <= self.history <= 100000, 'history', 'between 10 and 100000 frames')
         self._require(self.max_correspondences == 0 or self.max_correspondences >= 50,
                       'max_correspondences', '0 (all) or at least 50')
