@@ -417,8 +417,10 @@ def refine_general_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, weights
     active = active0 & (weights > 0)
     iterations, rounds, converged, round_moved = 0, 0, False, math.inf
     annealing = shrink > 0.0 and target is not None
+    g, h = residual_variances(essential(R, t), q1, q2, A)
     for rounds in range(1, cfg.rounds + extra_rounds + 1):
-        g, h = residual_variances(essential(R, t), q1, q2, A)
+        # Whitening at the round's starting motion (g, h: computed there, at the end of the
+        # previous round or before the first).
         idx = np.flatnonzero(active)
         Ma = (M[idx] / np.sqrt(sp * sp * g[idx] + sa * sa * h[idx] + 1e-300)[:, :, None]
               ).reshape(-1, 9)
@@ -503,8 +505,8 @@ def _finish(q1, q2, A, weights, M, R, t, active, sp, sa, prior, cfg, iterations,
         J = (Mf @ D).reshape(n, 3, 5)
         scores = np.einsum('nki,nk->ni', J, W * r)
         cells = spatial_clusters(q1, _COVARIANCE_GRID)
-        per = np.zeros((_COVARIANCE_GRID * _COVARIANCE_GRID, 5))
-        np.add.at(per, cells, scores)
+        per = np.stack([np.bincount(cells, weights=scores[:, k],
+                                    minlength=_COVARIANCE_GRID ** 2) for k in range(5)], 1)
         robust = cov @ (per.T @ per) @ cov
         if np.all(np.isfinite(robust)) and np.trace(robust) > np.trace(cov):
             cov = robust
