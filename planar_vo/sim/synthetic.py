@@ -21,7 +21,14 @@ from functools import cached_property
 import numpy as np
 
 from planar_vo.core.camera import CameraModel, intrinsic_matrix, normalize_points
-from planar_vo.core.conventions import rotation_y, translation_direction
+from planar_vo.core.conventions import (
+    R_BASE_OPTICAL,
+    planar_motion_from_pose,
+    rotation_rpy,
+    rotation_y,
+    so3_exp,
+    translation_direction,
+)
 from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.core.homography import fit_homography, homography_jacobian
 from planar_vo.errors import InputError
@@ -35,6 +42,7 @@ __all__ = [
     'random_exact_acs',
     'random_planar_motion',
     'shared_motion_acs',
+    'street_pair',
 ]
 
 PAPER_FOCAL = 600.0
@@ -58,6 +66,8 @@ class SyntheticACs:
         outliers: bool mask ``(N,)`` of the mismatches (`shared_motion_acs`; else all False).
         planes: the scene plane of each AC ``(N,)``: ACs of one plane share the error of its
             fitted homography (`shared_motion_acs`; else zeros).
+        level: the rotation camera -> level camera of the scene's mount (`street_pair`; else
+            the identity).
     """
 
     acs: AffineCorrespondences
@@ -69,9 +79,12 @@ class SyntheticACs:
     t: np.ndarray
     outliers: np.ndarray | None = None
     planes: np.ndarray | None = None
+    level: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.acs)
+        if self.level is None:
+            object.__setattr__(self, 'level', np.eye(3))
         if self.outliers is None:
             object.__setattr__(self, 'outliers', np.zeros(n, bool))
         if self.planes is None:
@@ -353,3 +366,106 @@ def shared_motion_acs(rng: np.random.Generator, n: int, sigma: float, *,
 class _FixedMotion:
     alpha: float
     beta: float
+
+
+# ------------------------------------------------------------------------------------------------
+# A car's general (non-planar) motion in a street
+# ------------------------------------------------------------------------------------------------
+
+STREET_CAMERA = (1241, 376, 707.0912)       # width, height, focal: a KITTI-like camera
+
+
+def street_pair(rng: np.random.Generator, n: int = 1000, *, outlier_ratio: float = 0.0,
+                sigma_px: float = 0.3, sigma_affine: float = 0.01, max_yaw_deg: float = 5.0,
+                tilt_deg: float = 0.1, heading_deg: float = 1.0, mount_pitch_deg: float = 1.0,
+                step: float = 1.0, outlier_px: float = 60.0) -> SyntheticACs:
+    """ACs of one frame pair of a car driving a street, in GENERAL (not planar) motion.
+
+    Camera: KITTI-like (`STREET_CAMERA`, principal point at the centre), pitched down by
+    ``mount_pitch_deg`` relative to the plane of motion (``level`` is its levelling rotation).
+    Motion (level frame, y down): yaw uniform in ``+-max_yaw_deg``; the relative rotation's
+    pitch and roll and the elevation of travel ``N(0, tilt_deg^2)`` (a car on its suspension
+    and an uneven road); heading ``N(0, heading_deg^2)`` plus half the yaw; ``step`` metres.
+    Scene: points on the road (1.65 m below the camera), on facades 4-8 m to each side and on
+    random far planes (15-80 m); each AC is exact (its plane's homography Jacobian) plus
+    Gaussian noise on the points (``sigma_px``) and the affine elements (``sigma_affine``).
+    Outliers (``outlier_ratio``): ``p2 = p1 + U(-outlier_px, outlier_px)^2`` and
+    ``A = I + N(0, 0.3^2)`` per element.
+
+    Returns:
+        A `SyntheticACs` with the true camera-frame ``R``, unit ``t`` and ``level``; ``alpha``
+        and ``beta`` are the planar projection of the level-frame motion.
+    """
+    if n < 1 or not 0.0 <= outlier_ratio < 1.0:
+        raise InputError(f'n >= 1 and 0 <= outlier_ratio < 1 expected, got n={n}, '
+                         f'outlier_ratio={outlier_ratio}')
+    width, height, f = STREET_CAMERA
+    K = intrinsic_matrix(f, f, width / 2.0, height / 2.0)
+    R_lc = rotation_rpy(0.0, np.deg2rad(mount_pitch_deg), 0.0)
+    R_lc = R_BASE_OPTICAL.T @ R_lc @ R_BASE_OPTICAL           # camera -> level (pitched down)
+    yaw = np.deg2rad(rng.uniform(-max_yaw_deg, max_yaw_deg))
+    tilt = np.deg2rad(tilt_deg)
+    wobble = so3_exp(np.array([rng.normal(0.0, tilt), 0.0, rng.normal(0.0, tilt)]))
+    R_l = rotation_y(yaw) @ wobble
+    heading = np.deg2rad(rng.normal(0.0, heading_deg)) + 0.5 * yaw
+    elevation = rng.normal(0.0, tilt)
+    c_l = step * np.array([np.sin(heading) * np.cos(elevation), np.sin(elevation),
+                           np.cos(heading) * np.cos(elevation)])
+    R = R_lc.T @ R_l @ R_lc
+    t = -R @ (R_lc.T @ c_l)                                    # X2 = R X1 + t, metric
+    # Surfaces n . X = d (camera-1 frame): road, left and right facades, far planes.
+    kind = rng.choice(4, size=n, p=[0.35, 0.2, 0.2, 0.25])
+    pix = np.column_stack([rng.uniform(20, width - 20, n), rng.uniform(20, height - 20, n)])
+    rays = np.column_stack([normalize_points(K, pix), np.ones(n)])
+    normal = np.empty((n, 3))
+    dist = np.empty(n)
+    normal[kind == 0] = R_lc.T @ np.array([0.0, 1.0, 0.0])
+    dist[kind == 0] = 1.65
+    for k, side in ((1, -1.0), (2, 1.0)):
+        normal[kind == k] = R_lc.T @ np.array([side, 0.0, 0.0])
+        dist[kind == k] = rng.uniform(4.0, 8.0, np.count_nonzero(kind == k))
+    far = kind == 3
+    nf = np.count_nonzero(far)
+    nrm = rng.normal(size=(nf, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    nrm[nrm[:, 2] > 0] *= -1.0
+    depth = rng.uniform(15.0, 80.0, nf)
+    normal[far] = nrm
+    dist[far] = -np.einsum('ni,ni->n', nrm, rays[far] / rays[far, 2:3] * depth[:, None])
+    flip = far & (dist <= 0.5)
+    normal[flip] *= -1.0
+    dist[flip] *= -1.0
+    with np.errstate(divide='ignore', invalid='ignore'):
+        lam = dist / np.einsum('ni,ni->n', normal, rays)
+    bad = ~((lam * rays[:, 2] > 0.5) & (lam * rays[:, 2] < 150.0))
+    # Rays that miss their surface see a fronto-parallel plane 15-80 m away instead.
+    normal[bad] = (0.0, 0.0, 1.0)
+    dist[bad] = rng.uniform(15.0, 80.0, np.count_nonzero(bad))
+    lam[bad] = dist[bad] / rays[bad, 2]
+    X1 = lam[:, None] * rays
+    X2 = X1 @ R.T + t
+    with np.errstate(divide='ignore', invalid='ignore'):
+        p2 = _project(K, X2)
+        H = K @ (R[None] + t[None, :, None] * normal[:, None, :] / dist[:, None, None]) \
+            @ np.linalg.inv(K)
+        hp = np.einsum('nij,nj->ni', H, np.column_stack([pix, np.ones(n)]))
+        A = (H[:, :2, :2] - (hp[:, :2] / hp[:, 2:3])[:, :, None] * H[:, 2:3, :2]) \
+            / hp[:, 2, None, None]
+    keep = ((X2[:, 2] > 0.5) & (p2[:, 0] > 0) & (p2[:, 0] < width) & (p2[:, 1] > 0)
+            & (p2[:, 1] < height))
+    p1_true, p2_true, A_true = pix[keep], p2[keep], A[keep]
+    m = len(p1_true)
+    p1 = p1_true + rng.normal(0.0, sigma_px, (m, 2))
+    p2n = p2_true + rng.normal(0.0, sigma_px, (m, 2))
+    An = A_true + rng.normal(0.0, sigma_affine, (m, 2, 2))
+    outliers = np.zeros(m, bool)
+    outliers[rng.permutation(m)[:int(round(outlier_ratio * m))]] = True
+    k = int(outliers.sum())
+    p2n[outliers] = p1[outliers] + rng.uniform(-outlier_px, outlier_px, (k, 2))
+    An[outliers] = np.eye(2) + rng.normal(0.0, 0.3, (k, 2, 2))
+    alpha, beta = planar_motion_from_pose(R_l, R_lc @ t)
+    camera = CameraModel(width, height, K)
+    return SyntheticACs(AffineCorrespondences(p1, p2n, An),
+                        AffineCorrespondences(p1_true, p2_true, A_true), camera,
+                        np.asarray(alpha), np.asarray(beta), R, t / np.linalg.norm(t),
+                        outliers, kind[keep], R_lc)
