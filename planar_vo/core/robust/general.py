@@ -420,18 +420,17 @@ def refine_general_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, weights
     g, h = residual_variances(essential(R, t), q1, q2, A)
     for rounds in range(1, cfg.rounds + extra_rounds + 1):
         # Whitening at the round's starting motion (g, h: computed there, at the end of the
-        # previous round or before the first).
-        idx = np.flatnonzero(active)
-        Ma = (M[idx] / np.sqrt(sp * sp * g[idx] + sa * sa * h[idx] + 1e-300)[:, :, None]
-              ).reshape(-1, 9)
-        wa = weights[idx]
+        # previous round or before the first), held fixed for the round: ``inv_var`` the
+        # inverse variances, ``base`` the AC weights over them (zero off the active set).
+        inv_var = 1.0 / (sp * sp * g + sa * sa * h + 1e-300)
+        base = (weights * active)[:, None] * inv_var
         R_round, t_round = R, t
         H_gn = np.zeros((5, 5))
         for _ in range(_IRLS_ITERATIONS):
             iterations += 1
-            ew = (Ma @ essential(R, t).ravel()).reshape(-1, 3)
-            W = (wa[:, None] * _robust_weights(ew * ew, cfg.cauchy)).ravel()
-            G = (Ma * W[:, None]).T @ Ma
+            r = (Mf @ essential(R, t).ravel()).reshape(n, 3)
+            W = (base * _robust_weights(r * r * inv_var, cfg.cauchy)).reshape(-1, 1)
+            G = Mf.T @ (Mf * W)
             Rn, tn, H_gn = _minimize_form(G, R, t, prior)
             moved = max(float(np.abs(so3_log(Rn @ R.T)).max()), float(np.abs(tn - t).max()))
             R, t = Rn, tn
@@ -487,7 +486,7 @@ def _finish(q1, q2, A, weights, M, R, t, active, sp, sa, prior, cfg, iterations,
     D = _essential_jacobian(R, t, B)
     wac = weights * active
     W = wac[:, None] * _robust_weights(ew2, cfg.cauchy) / var
-    H = D.T @ ((Mf * W.reshape(-1, 1)).T @ Mf) @ D
+    H = D.T @ (Mf.T @ (Mf * W.reshape(-1, 1))) @ D
     prior_chi2 = 0.0
     if prior is not None:
         p, Jp = prior.residuals(R, t, B)
@@ -502,11 +501,13 @@ def _finish(q1, q2, A, weights, M, R, t, active, sp, sa, prior, cfg, iterations,
         # Cluster-robust sandwich (Liang and Zeger 1986), as for the planar estimate:
         # neighbouring ACs share errors (one surface, overlapping patches), which H^-1 ignores.
         # Scores s_i = J_i^T W_i r_i per AC, summed per cell of a grid over image 1.
-        J = (Mf @ D).reshape(n, 3, 5)
-        scores = np.einsum('nki,nk->ni', J, W * r)
+        # J_i = M_i D, so s_i = D^T (M_i^T W_i r_i): the 9-vectors first, D once.
+        wr = W * r
+        scores = np.einsum('nk,nkj->nj', wr, M) @ D
         cells = spatial_clusters(q1, _COVARIANCE_GRID)
-        per = np.stack([np.bincount(cells, weights=scores[:, k],
-                                    minlength=_COVARIANCE_GRID ** 2) for k in range(5)], 1)
+        slots = (cells[:, None] * 5 + np.arange(5)).ravel()
+        per = np.bincount(slots, weights=scores.ravel(),
+                          minlength=5 * _COVARIANCE_GRID ** 2).reshape(-1, 5)
         robust = cov @ (per.T @ per) @ cov
         if np.all(np.isfinite(robust)) and np.trace(robust) > np.trace(cov):
             cov = robust
