@@ -50,6 +50,20 @@ class CameraConfig(Options):
             principal point is assumed at ``(cx, cy)``, or the image centre when those are 0).
         focal_tolerance: the calibration is used once its relative standard deviation is below
             this; until then a provisional focal length is used.
+        focal_budget: share of the average per-frame processing time that the focal
+            self-calibration may add on average (its per-pair profiles, about 100 ms each, are
+            queued and worked off in steps of 10-15 ms within this budget).
+        focal_max_acs: ACs per turning pair kept for its focal profile (evenly picked; a memory
+            bound: fewer cost less but lose information, 800 instead of 1,300 widened the
+            KITTI 05 standard deviation by a third).
+        focal_queue: turning pairs waiting for their profile at most (memory bound; further
+            pairs are dropped and counted while it is full).
+        focal_block_frames: frames per block of the focal calibration (pairs within about one
+            second share scenery and pitch wobble: one cluster of its variance); about the
+            frame rate.
+        focal_min_blocks: blocks (clusters) needed before a self-calibrated focal length may
+            be adopted (fewer make the variance itself unreliable).
+        focal_max_blocks: blocks kept (memory bound; the least informative is dropped).
     """
 
     fx: float = 0.0
@@ -60,12 +74,25 @@ class CameraConfig(Options):
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
     focal_tolerance: float = 0.02
+    focal_budget: float = 0.1
+    focal_max_acs: int = 2000
+    focal_queue: int = 16
+    focal_block_frames: int = 10
+    focal_min_blocks: int = 4
+    focal_max_blocks: int = 32
 
     def validate(self) -> None:
         self._require(finite(self.fx, self.fy, self.cx, self.cy), 'fx', 'finite intrinsics')
         self._require(self.fx >= 0.0 and self.fy >= 0.0, 'fx', 'fx, fy >= 0 (0 = from CameraInfo)')
         self._require(finite(*self.distortion), 'distortion', 'finite coefficients')
         self._require(0.0 < self.focal_tolerance < 1.0, 'focal_tolerance', 'in (0, 1)')
+        self._require(0.0 < self.focal_budget <= 1.0, 'focal_budget', 'a share in (0, 1]')
+        self._require(self.focal_max_acs >= 50, 'focal_max_acs', 'at least 50')
+        self._require(self.focal_queue >= 1, 'focal_queue', 'at least 1')
+        self._require(self.focal_block_frames >= 1, 'focal_block_frames', 'at least 1')
+        self._require(self.focal_min_blocks >= 2, 'focal_min_blocks', 'at least 2')
+        self._require(self.focal_max_blocks >= self.focal_min_blocks, 'focal_max_blocks',
+                      'at least focal_min_blocks')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +113,12 @@ class MountConfig(Options):
             below this (radians).
         tilt_max_pairs: frame pairs used for the tilt estimate (the five-point solver runs on
             each, so this bounds the extra cost).
+        tilt_wobble_std: initial standard deviation (rad) of a pair's rotation about axes other
+            than the motion-plane normal (the car's pitch and roll on its suspension; KITTI:
+            0.04-0.11 deg per frame pair); only rotations above 3 times this inform the tilt,
+            and the odometry replaces it by the non-planarity it measures.
+        tilt_window: frame pairs the tilt estimator keeps (the most recent; memory bound).
+        tilt_refit: the tilt is refitted after this many new pairs (cost bound).
     """
 
     x: float = 0.0
@@ -97,6 +130,9 @@ class MountConfig(Options):
     estimate_tilt: bool = False
     tilt_tolerance: float = 0.002
     tilt_max_pairs: int = 100
+    tilt_wobble_std: float = 0.001745
+    tilt_window: int = 1000
+    tilt_refit: int = 10
 
     def validate(self) -> None:
         self._require(finite(self.x, self.y, self.height, self.roll, self.pitch, self.yaw),
@@ -106,6 +142,10 @@ class MountConfig(Options):
             self._require(abs(getattr(self, name)) <= math.pi, name, 'an angle in [-pi, pi] rad')
         self._require(self.tilt_tolerance > 0.0, 'tilt_tolerance', 'a positive angle (rad)')
         self._require(self.tilt_max_pairs >= 10, 'tilt_max_pairs', 'at least 10')
+        self._require(0.0 <= self.tilt_wobble_std < 0.1 and finite(self.tilt_wobble_std),
+                      'tilt_wobble_std', 'an angle in [0, 0.1) rad')
+        self._require(self.tilt_window >= 10, 'tilt_window', 'at least 10 pairs')
+        self._require(self.tilt_refit >= 1, 'tilt_refit', 'at least 1 pair')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -217,21 +257,43 @@ class ScaleConfig(Options):
             ``'fixed'``, ``'unit'``.
         hold_seconds: how long ``'hold'`` may keep the last metric speed.
         speed_std: standard deviation of the speed source (m/s).
+        speed_max_gap: longest interval (s) without speed samples that is bridged by
+            interpolation; set it above the speed source's sample period (1.5 for 1 Hz).
         fixed_speed: metres per second for ``'fixed'``.
         fixed_speed_std: its assumed standard deviation (m/s).
         ground_affine_tolerance: a road AC's affine must match the ground homography within
             this relative Frobenius distance.
         ground_min_correspondences: fewer road ACs give no ground scale.
+        ground_max_depth: road points farther than this (m) are not used for the scale: their
+            parallax (about h s / Z^2) is small against the rotation noise.
+        ground_point_std: point noise (pixels) of the road test (the front-end's accuracy).
+        ground_affine_std: affine noise (unitless) of the road test.
+        ground_gate: whitened RMS residual (points and affine) above which an AC is not road.
+        ground_normal_std: standard deviation (rad) of the road ahead's normal against the
+            calibrated one in a single frame (car pitch on its suspension, slope changes;
+            measured on KITTI about 0.2 deg); added to the calibration's own.
+        ground_normal_frames: frame pairs of road ACs kept by the road-normal calibration.
+        ground_normal_acs: road ACs kept per frame pair for it (evenly picked).
+        ground_normal_refit: the road normal is refitted after this many new frame pairs.
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
     fallback: typing.Literal['hold', 'ground', 'fixed', 'unit'] = 'hold'
     hold_seconds: float = 2.0
     speed_std: float = 0.1
+    speed_max_gap: float = 0.5
     fixed_speed: float = 10.0
     fixed_speed_std: float = 3.0
     ground_affine_tolerance: float = 0.05
     ground_min_correspondences: int = 10
+    ground_max_depth: float = 30.0
+    ground_point_std: float = 1.0
+    ground_affine_std: float = 0.03
+    ground_gate: float = 3.0
+    ground_normal_std: float = 0.00349
+    ground_normal_frames: int = 200
+    ground_normal_acs: int = 60
+    ground_normal_refit: int = 20
 
     def validate(self) -> None:
         self._require(self.hold_seconds >= 0.0, 'hold_seconds', 'a non-negative duration (s)')
@@ -244,6 +306,16 @@ class ScaleConfig(Options):
                       'a positive number')
         self._require(self.ground_min_correspondences >= 1, 'ground_min_correspondences',
                       'at least 1')
+        self._require(0.0 < self.speed_max_gap < 1e6, 'speed_max_gap',
+                      'a positive duration in seconds')
+        for name in ('ground_max_depth', 'ground_point_std', 'ground_affine_std', 'ground_gate'):
+            value = getattr(self, name)
+            self._require(value > 0.0 and finite(value), name, 'a positive number')
+        self._require(0.0 <= self.ground_normal_std < 0.1 and finite(self.ground_normal_std),
+                      'ground_normal_std', 'an angle in [0, 0.1) rad')
+        self._require(self.ground_normal_frames >= 2, 'ground_normal_frames', 'at least 2')
+        self._require(self.ground_normal_acs >= 10, 'ground_normal_acs', 'at least 10')
+        self._require(self.ground_normal_refit >= 1, 'ground_normal_refit', 'at least 1')
 
 
 @dataclasses.dataclass(frozen=True)
