@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -19,13 +20,7 @@ PITCH, ROLL = np.deg2rad(1.2), np.deg2rad(-0.7)     # the camera against the roa
 
 def _small_rotation(wx: float, wy: float, wz: float) -> np.ndarray:
     """``exp([w]x)`` (Rodrigues)."""
-    w = np.array([wx, wy, wz])
-    angle = float(np.linalg.norm(w))
-    if angle == 0.0:
-        return np.eye(3)
-    k = w / angle
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
+    return cv2.Rodrigues(np.array([wx, wy, wz], dtype=np.float64))[0]
 
 
 def _motion(yaw: float = 0.02, wobble=(0.0015, -0.001)) -> tuple[np.ndarray, np.ndarray]:

@@ -326,22 +326,23 @@ class OnlineFocalCalibrator:
                 pipeline's average per-frame cost); credit does not accumulate beyond one
                 budget, an overrun is paid back by the following calls.
             frame: the current frame (`adopted_at` names it); default: the pair's frame.
-            max_steps: run exactly up to this many steps regardless of time (tests).
+            max_steps: run up to this many steps regardless of the time and the budget
+                (tests; the budget's account is left alone).
         """
         if not (math.isfinite(budget_s) and budget_s >= 0):
             raise InputError(f'budget_s: expected a non-negative duration, got {budget_s}')
-        self._credit = min(self._credit + budget_s, budget_s)
         done = 0
-        while self._job is not None or self._queue:
-            if max_steps is not None:
-                if done >= max_steps:
-                    break
-            elif self._credit <= 0:
-                break
-            start = time.perf_counter()
-            self._step(frame)
-            self._credit -= time.perf_counter() - start
-            done += 1
+        if max_steps is not None:               # forced work: outside the budget
+            while (self._job is not None or self._queue) and done < max_steps:
+                self._step(frame)
+                done += 1
+        else:
+            self._credit = min(self._credit + budget_s, budget_s)
+            while (self._job is not None or self._queue) and self._credit > 0:
+                start = time.perf_counter()
+                self._step(frame)
+                self._credit -= time.perf_counter() - start
+                done += 1
         self.steps += done
         return done
 
