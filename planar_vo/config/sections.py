@@ -293,7 +293,7 @@ class ScaleConfig(Options):
     ground_normal_std: float = 0.00349
     ground_normal_frames: int = 200
     ground_normal_acs: int = 60
-    ground_normal_refit: int = 20
+    ground_normal_refit: int = 10
 
     def validate(self) -> None:
         self._require(self.hold_seconds >= 0.0, 'hold_seconds', 'a non-negative duration (s)')

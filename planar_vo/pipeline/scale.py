@@ -33,7 +33,14 @@ from planar_vo.core.robust.stats import MAD_TO_SIGMA, median, weighted_median
 from planar_vo.core.robust.types import check_clusters
 from planar_vo.errors import ConfigError, InputError
 
-__all__ = ['GroundScale', 'RoadScale', 'SpeedIntegrator', 'ground_plane_scale', 'road_scale']
+__all__ = [
+    'GroundScale',
+    'RoadScale',
+    'SpeedIntegrator',
+    'ground_plane_scale',
+    'road_scale',
+    'step_factors',
+]
 
 
 class SpeedIntegrator:
@@ -371,6 +378,46 @@ def _unit(name: str, x) -> np.ndarray:
     return x / norm
 
 
+def _step_terms(u1, v1, u2, v2, R: np.ndarray, t: np.ndarray):
+    """Per AC: ``R Q1`` (three ``(N,)`` arrays), ``b = Q2 x t`` (three arrays), ``|b|^2`` and
+    ``c = -((Q2 x R Q1) . b) / |b|^2`` (NaN where ``b = 0``), for ``Q = [u, v, 1]``."""
+    rx = R[0, 0] * u1 + R[0, 1] * v1 + R[0, 2]
+    ry = R[1, 0] * u1 + R[1, 1] * v1 + R[1, 2]
+    rz = R[2, 0] * u1 + R[2, 1] * v1 + R[2, 2]
+    bx, by, bz = v2 * t[2] - t[1], t[0] - u2 * t[2], u2 * t[1] - v2 * t[0]
+    bb = bx * bx + by * by + bz * bz
+    ab = (v2 * rz - ry) * bx + (rx - u2 * rz) * by + (u2 * ry - v2 * rx) * bz
+    with np.errstate(divide='ignore', invalid='ignore'):
+        c = -ab / np.where(bb > 0.0, bb, np.nan)
+    return (rx, ry, rz), (bx, by, bz), bb, c
+
+
+def step_factors(q1: np.ndarray, q2: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``c_i`` ``(N,)`` with ``s_i = h c_i / (n . Q1_i)``: the step of `road_scale` without the
+    road normal and the height (``q1, q2`` normalised ``(N, 2)``, ``R, t`` as there, ``t``
+    unit); NaN where ``Q2 x t = 0``. `RoadNormalCalibrator` fits the normal to these."""
+    return _step_terms(q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1], R, t)[3]
+
+
+def _sensitivities(wn, lam, r, b, bb, u2, v2, s_i, q1, dn, n):
+    """Exact derivatives of the weighted mean ``sum wn_i s_i`` (normalised weights) over the
+    given road ACs: ds/d(omega) ``(3,)`` for ``R -> exp([omega]x) R`` and ds/d(pitch, roll)
+    ``(2,)`` of the normal. ``ds_i/domega = -((Q2 x (e x R X1)) . b) / |b|^2`` with
+    ``R X1 = lam R Q1``; ``ds_i/dtheta = -s_i (dn/dtheta . Q1) / (n . Q1)``."""
+    Yx, Yy, Yz = lam * r[0], lam * r[1], lam * r[2]                # R X1
+    bx, by, bz = b
+    zero = np.zeros_like(Yx)
+    d_rot = np.empty(3)
+    # e x Y for e = x, y, z: (0, -Yz, Yy), (Yz, 0, -Yx), (-Yy, Yx, 0); then Q2 x (e x Y).
+    for k, (ex, ey, ez) in enumerate(((zero, -Yz, Yy), (Yz, zero, -Yx), (-Yy, Yx, zero))):
+        da_b = (v2 * ez - ey) * bx + (ex - u2 * ez) * by + (u2 * ey - v2 * ex) * bz
+        d_rot[k] = -float(np.sum(wn * da_b / bb))
+    J = normal_tilt_jacobian(*tilt_from_normal(n))
+    Q1 = np.column_stack([q1, np.ones(len(q1))])
+    d_normal = -(wn * s_i / dn) @ (Q1 @ J)
+    return d_rot, np.asarray(d_normal, dtype=np.float64)
+
+
 def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: np.ndarray,
                n: np.ndarray, height: float, *, point_sigma: float,
                weights: np.ndarray | None = None, clusters: np.ndarray | None = None,
@@ -488,16 +535,9 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
         return failed
     dn = dn_all[below]
     u1, v1, u2, v2 = q1[below, 0], q1[below, 1], q2[below, 0], q2[below, 1]
-    # R Q1 (X1 = h Q1 / dn, so R X1 = (h / dn) R Q1), a = Q2 x R Q1, b = Q2 x t.
-    rx = R[0, 0] * u1 + R[0, 1] * v1 + R[0, 2]
-    ry = R[1, 0] * u1 + R[1, 1] * v1 + R[1, 2]
-    rz = R[2, 0] * u1 + R[2, 1] * v1 + R[2, 2]
-    bx, by, bz = v2 * t[2] - t[1], t[0] - u2 * t[2], u2 * t[1] - v2 * t[0]
-    bb = bx * bx + by * by + bz * bz
-    ab = (v2 * rz - ry) * bx + (rx - u2 * rz) * by + (u2 * ry - v2 * rx) * bz
+    r, b, bb, c = _step_terms(u1, v1, u2, v2, R, t)
     lam = h / dn                                                # depth along Q1 (z of X1)
-    with np.errstate(divide='ignore', invalid='ignore'):
-        s_i = -lam * ab / np.where(bb > 0.0, bb, np.nan)
+    s_i = lam * c
     depth = lam * np.sqrt(1.0 + u1 * u1 + v1 * v1)
     idx = np.flatnonzero((depth <= max_depth) & (s_i > 0))
     if idx.size < min_count:
@@ -528,22 +568,11 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
     sel = sel[keep]
     mask = np.zeros(count, bool)
     mask[below[sel]] = True
-    # Sensitivities of the weighted mean over the same ACs (exact derivatives).
-    wn = ws[sel] / float(np.sum(ws[sel]))
-    ls, bxs, bys, bzs, bbs = lam[sel], bx[sel], by[sel], bz[sel], bb[sel]
-    us, vs = u2[sel], v2[sel]
-    Yx, Yy, Yz = ls * rx[sel], ls * ry[sel], ls * rz[sel]       # R X1
-    d_rot = np.empty(3)
-    # e x Y for e = x, y, z: (0, -Yz, Yy), (Yz, 0, -Yx), (-Yy, Yx, 0); then Q2 x (e x Y).
-    for k, (ex, ey, ez) in enumerate(((0.0 * Yx, -Yz, Yy), (Yz, 0.0 * Yx, -Yx),
-                                      (-Yy, Yx, 0.0 * Yx))):
-        da_b = (vs * ez - ey) * bxs + (ex - us * ez) * bys + (us * ey - vs * ex) * bzs
-        d_rot[k] = float(np.sum(wn * (-da_b / bbs)))
-    J = normal_tilt_jacobian(*tilt_from_normal(n))
-    ss, qs, ds = s_i[sel], np.column_stack([u1[sel], v1[sel], np.ones(sel.size)]), dn[sel]
-    d_normal = -(wn * ss / ds) @ (qs @ J)
+    d_rot, d_normal = _sensitivities(ws[sel] / float(np.sum(ws[sel])), lam[sel],
+                                     [x[sel] for x in r], [x[sel] for x in b], bb[sel],
+                                     u2[sel], v2[sel], s_i[sel], q1[below[sel]], dn[sel], n)
     std_rot = sigma_rot * math.hypot(d_rot[0], d_rot[2])
     std_normal = sigma_normal * math.hypot(d_normal[0], d_normal[1])
     std = math.sqrt(std_stat ** 2 + std_rot ** 2 + std_normal ** 2)
     return RoadScale(scale, std, std_stat, std_rot, std_normal, int(sel.size), mask, d_rot,
-                     np.asarray(d_normal, dtype=np.float64))
+                     d_normal)

@@ -1,7 +1,7 @@
 """The road normal in the camera frame, from the road itself: its ACs must agree on one step.
 
 For a road AC ``i`` of a frame pair with relative motion ``(R, t)`` (`planar_vo.pipeline.scale`),
-the step length is ``s_i = h c_i / (n . Q1_i)`` with
+the step length is ``s_i = h c_i / (n . Q1_i)`` with (`step_factors`)
 
     c_i = -((Q2 x R Q1) . (Q2 x t)) / |Q2 x t|^2,
 
@@ -38,26 +38,12 @@ from planar_vo.core.conventions import normal_from_tilt, normal_tilt_jacobian
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, few_cluster_factor, median
 from planar_vo.errors import ConfigError, InputError
 from planar_vo.pipeline.calibration.tilt import TiltEstimate
+from planar_vo.pipeline.scale import step_factors
 
-__all__ = ['RoadNormalCalibrator', 'log_step_factor']
+__all__ = ['RoadNormalCalibrator']
 
 _CAUCHY_SCALE = 2.5       # residuals (in robust spreads) at which the IRLS weight is 1/2
 _MIN_ROAD = 10            # road ACs a frame pair needs to be stored (a within-frame spread)
-
-
-def log_step_factor(q1: np.ndarray, q2: np.ndarray, R: np.ndarray, t: np.ndarray
-                    ) -> np.ndarray:
-    """``log c_i`` ``(N,)`` of the module docstring (``s_i = h c_i / (n . Q1_i)``); NaN where
-    ``c_i <= 0`` (the point cannot be on a road in front). ``q1, q2``: normalised ``(N, 2)``."""
-    u1, v1, u2, v2 = q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1]
-    rx = R[0, 0] * u1 + R[0, 1] * v1 + R[0, 2]
-    ry = R[1, 0] * u1 + R[1, 1] * v1 + R[1, 2]
-    rz = R[2, 0] * u1 + R[2, 1] * v1 + R[2, 2]
-    bx, by, bz = v2 * t[2] - t[1], t[0] - u2 * t[2], u2 * t[1] - v2 * t[0]
-    ab = (v2 * rz - ry) * bx + (rx - u2 * rz) * by + (u2 * ry - v2 * rx) * bz
-    with np.errstate(invalid='ignore', divide='ignore'):
-        c = -ab / (bx * bx + by * by + bz * bz)
-        return np.where(c > 0, np.log(c), np.nan)
 
 
 class RoadNormalCalibrator:
@@ -146,8 +132,9 @@ class RoadNormalCalibrator:
         idx = np.flatnonzero(road & (w > 0))
         if idx.size > self.per_frame:
             idx = idx[np.linspace(0, idx.size - 1, self.per_frame).astype(int)]
-        lc = log_step_factor(q1[idx], q2[idx], R, t / np.linalg.norm(t))
-        idx, lc = idx[np.isfinite(lc)], lc[np.isfinite(lc)]
+        c = step_factors(q1[idx], q2[idx], R, t / np.linalg.norm(t))
+        front = c > 0                           # NaN or <= 0: not a road point in front
+        idx, lc = idx[front], np.log(c[front])
         if idx.size < _MIN_ROAD:
             return False
         k, m = self._next, idx.size

@@ -40,7 +40,7 @@ import numpy as np
 
 from planar_vo.config.sections import MountConfig
 from planar_vo.core.checks import as_array, as_rotation
-from planar_vo.core.conventions import normal_tilt_jacobian
+from planar_vo.core.conventions import normal_tilt_jacobian, tilt_from_normal
 from planar_vo.core.robust.stats import MAD_TO_SIGMA
 from planar_vo.errors import ConfigError, InputError
 
@@ -278,8 +278,7 @@ class MountTiltEstimator:
             spread = max(MAD_TO_SIGMA * float(np.median(np.abs(res))) if res.size else 1.0, 1.0)
             wt = wt0 / (1.0 + (rt / (_CAUCHY_SCALE * spread)) ** 2)
             wr = wr0 / (1.0 + (rr / (_CAUCHY_SCALE * spread)) ** 2)
-        pitch = float(np.arcsin(np.clip(n[2], -1.0, 1.0)))
-        roll = float(np.arctan2(n[0], n[1]))
+        pitch, roll = tilt_from_normal(n)
         Jn = normal_tilt_jacobian(pitch, roll)
         # Fisher information of the data in (pitch, roll).
         jt = C @ Jn                                             # (N, 2)
