@@ -53,7 +53,7 @@ class RoadNormalCalibrator:
     once per frame; use `latest` (a `TiltEstimate`) for the road normal of the next step.
 
     Memory: at most ``per_frame`` road ACs per frame pair (evenly picked) for the last
-    ``max_frames`` pairs (a ring buffer): ``4 x per_frame x max_frames`` floats (200 KB by
+    ``max_frames`` pairs (a ring buffer): ``4 x per_frame x max_frames`` floats (384 KB by
     default). Cost: a fit is a few passes over the stored ACs (about 12,000); `update` refits
     only after ``refit_every`` new pairs once the buffer is full, and proportionally more often
     while it fills (after ``max(1, stored x refit_every / max_frames)`` new pairs), so the
@@ -167,7 +167,7 @@ class RoadNormalCalibrator:
                  ) -> TiltEstimate | None:
         """Fit now from ``(pitch0, roll0)`` (radians): Gauss-Newton with Cauchy IRLS weights
         (see the module docstring), at most ``iterations`` steps, stopping once a step is below
-        5 % of the model-based standard deviation (IRLS converges linearly; from the previous
+        1 % of the model-based standard deviation (IRLS converges linearly; from the previous
         estimate that takes 2-4 steps). Returns None with fewer than ``min_frames`` pairs or a
         degenerate fit (e.g. all road ACs of every pair on one image row)."""
         if self._stored < self.min_frames:
