@@ -52,7 +52,7 @@ class CameraConfig(Options):
             this; until then a provisional focal length is used.
         focal_budget: share of the average per-frame processing time that the focal
             self-calibration may add on average (its per-pair profiles, about 100 ms each, are
-            queued and worked off in steps of 10-15 ms within this budget).
+            queued and worked off in steps of about 10 ms within this budget).
         focal_max_acs: ACs per turning pair kept for its focal profile (evenly picked), a
             memory bound; fewer cost less but lose information (800 instead of 1,300 widened
             the KITTI 05 standard deviation by a third).

@@ -113,7 +113,8 @@ _PRIOR_SIGMA = 0.45
 # of cx, measured), so each pair's profile is also computed with cx shifted by this share of
 # the width, and |df/dcx| pp_std enters the standard deviation.
 _PP_STEP = 0.01
-# Grid points per work step (one step costs about 10-15 ms at 800 ACs).
+# Grid points per work step (measured on KITTI 05 pairs of 1,100-1,350 ACs: steps of 9 ms
+# median, 16 ms at most; a pair is 14 steps).
 _CHUNK = 8
 
 
