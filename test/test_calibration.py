@@ -257,7 +257,10 @@ def test_pair_profile_of_straight_driving_does_not_pin_the_focal(rng):
     assert np.ptp(prof.cost) < 0.05 * prof.cost.mean()
 
 
-def _calibrate(rng, sigma, *, pairs_per_block=2, blocks=4, pp_std=1.0, yaw=(5.0, 8.0)):
+def _calibrate(rng, sigma, *, pairs_per_block=2, blocks=4, pp_std=1.0, yaw=(5.0, 8.0),
+               drain_at=None):
+    """Turning pairs in ``blocks`` blocks, each worked off at once (or all at frame
+    ``drain_at``)."""
     cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, pp_std=pp_std)
     frame = 0
     for b in range(blocks):
@@ -265,7 +268,10 @@ def _calibrate(rng, sigma, *, pairs_per_block=2, blocks=4, pp_std=1.0, yaw=(5.0,
             frame = 10 * b + 3 * k + 1
             assert cal.offer(frame, *_pair(rng, rng.uniform(*yaw) * rng.choice([-1, 1]),
                                            sigma=sigma))
-            cal.work(0.0, frame, max_steps=1000)
+            if drain_at is None:
+                cal.work(0.0, frame, max_steps=1000)
+    if drain_at is not None:
+        cal.work(0.0, drain_at, max_steps=1000)
     return cal
 
 
@@ -277,6 +283,9 @@ def test_focal_calibration_adopts_an_accurate_focal_from_exact_turning_pairs(rng
     assert cal.adopted == f and cal.adopted_at == 31 and cal.provisional == f
     assert cal.relative_std == pytest.approx(std / f)
     assert cal.status() == f'focal length {f:.1f} +- {std:.1f} px (self-calibrated at frame 31)'
+    # Adopted when the work that finishes the profiles runs: its frame is named.
+    late = _calibrate(np.random.default_rng(20240607), 0.0, drain_at=99)
+    assert late.adopted == pytest.approx(f) and late.adopted_at == 99
 
 
 def test_focal_calibration_uncertainty_is_honest_on_noisy_pairs():
@@ -311,8 +320,8 @@ def test_focal_work_is_stepwise_bounded_and_within_budget(rng, monkeypatch):
     assert cal.work(0.0) == 0 and cal.pending == 3
     # One pair is 14 steps: a vote and 6 chunks of grid focal lengths, twice (the principal
     # point shifted for the second profile).
-    assert cal.work(0.0, max_steps=13) == 13 and cal.pairs == 0
-    assert cal.work(0.0, max_steps=1) == 1 and cal.pairs == 1 and cal.pending == 2
+    assert cal.work(0.0, 7, max_steps=13) == 13 and cal.pairs == 0
+    assert cal.work(0.0, 8, max_steps=1) == 1 and cal.pairs == 1 and cal.pending == 2
     # The time budget: each step costs 3 units on a fake clock, 1 unit per frame is granted, so
     # one frame in three runs a step and the average stays at the budget (units of 2**-10 s:
     # exact in binary).

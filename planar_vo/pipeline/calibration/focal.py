@@ -267,6 +267,7 @@ class OnlineFocalCalibrator:
         self.config = VotingConfig() if config is None else config
         self._queue: collections.deque[_Pair] = collections.deque()
         self._job = None                    # the pair in progress: a generator of steps
+        self._frame: int | None = None      # the frame of the current `work` call
         self._credit = 0.0                  # time budget (s) left; negative: overspent
         self._blocks: dict[int, np.ndarray] = {}
         self._shifted: dict[int, np.ndarray] = {}
@@ -333,31 +334,32 @@ class OnlineFocalCalibrator:
         if not (math.isfinite(budget_s) and budget_s >= 0):
             raise InputError(f'budget_s: expected a non-negative duration, got {budget_s}')
         done = 0
+        self._frame = frame
         if max_steps is not None:               # forced work: outside the budget
             while (self._job is not None or self._queue) and done < max_steps:
-                self._step(frame)
+                self._step()
                 done += 1
         else:
             self._credit = min(self._credit + budget_s, budget_s)
             while (self._job is not None or self._queue) and self._credit > 0:
                 start = time.perf_counter()
-                self._step(frame)
+                self._step()
                 self._credit -= time.perf_counter() - start
                 done += 1
         self.steps += done
         return done
 
-    def _step(self, frame: int | None) -> None:
+    def _step(self) -> None:
         if self._job is None:
-            self._job = self._pair_job(self._queue.popleft(), frame)
+            self._job = self._pair_job(self._queue.popleft())
         try:
             next(self._job)
         except StopIteration:
             self._job = None
 
-    def _pair_job(self, pair: _Pair, frame: int | None):
+    def _pair_job(self, pair: _Pair):
         """The steps of one pair: its profile, the principal-point-shifted one, then the
-        blocks and the adoption."""
+        blocks and the adoption (at the frame of the `work` call that finishes it)."""
         f_ref = self.provisional
         prof = yield from profile_steps(pair.p1, pair.p2, pair.A, pair.w, self.log_grid, f_ref,
                                         self.config, chunk=_CHUNK)
@@ -375,7 +377,7 @@ class OnlineFocalCalibrator:
                 self.rejected += 1
                 return
         self._add(pair.frame, prof.cost, None if shifted is None else shifted.cost)
-        self.update_adoption(pair.frame if frame is None else frame)
+        self.update_adoption(pair.frame if self._frame is None else self._frame)
 
     def _add(self, frame: int, cost: np.ndarray, shifted: np.ndarray | None) -> None:
         b = frame // self.block_frames
