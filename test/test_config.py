@@ -78,6 +78,12 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
     ({'voting': {'bins': 2**64}}, r'voting.bins: expected int, got one of 65 bits \(at most 64\)'),
     ({'camera': {'distortion': [0.1, -10**400]}},
      r'camera.distortion\[1\]: expected float, got an int of 1329 bits'),
+    ({'scale': {'speed_max_gap': 0.0}}, r'scale.speed_max_gap: expected a positive duration'),
+    ({'scale': {'ground_point_std': -1.0}}, r'scale.ground_point_std: expected a positive'),
+    ({'mount': {'tilt_wobble_std': 0.5}}, r'mount.tilt_wobble_std: expected an angle in'),
+    ({'camera': {'focal_min_blocks': 8, 'focal_max_blocks': 4}},
+     r'camera.focal_max_blocks: expected at least focal_min_blocks'),
+    ({'camera': {'focal_budget': 0.0}}, r'camera.focal_budget: expected a share in \(0, 1\]'),
 ])
 def test_invalid_values_are_reported_with_their_key(data, match):
     with pytest.raises(ConfigError, match=match):

@@ -513,18 +513,17 @@ def test_tilt_estimator_with_noisy_poses_and_outliers(tilted_drive):
 def test_tilt_estimator_reports_an_unobservable_roll_when_driving_straight():
     cams = planar_pose(np.arange(11.0), 0.0, 0.0) @ mount_transform(pitch=0.03, roll=0.02)
     est = MountTiltEstimator(prior_sigma=None)
+    est_prior = MountTiltEstimator()
     for k in range(10):
         M = invert(cams[k + 1]) @ cams[k]
         est.add_motion(M[:3, :3], M[:3, 3])
+        est_prior.add_motion(M[:3, :3], M[:3, 3])
     tilt = est.estimate()
     # Only n . forward = 0 is known: n may turn about the forward axis, which to first order
     # is a roll.
     assert tilt.roll_std == np.inf
     assert abs(tilt.normal @ (-cams[0][:3, :3].T @ (cams[1][:3, 3] - cams[0][:3, 3]))) < 1e-9
     # With the default level prior the roll stays near 0, with about the prior's uncertainty.
-    est_prior = MountTiltEstimator()
-    for R, t in zip(est._rotations, est._directions):
-        est_prior.add_motion(R, -R @ t)
     tilt = est_prior.estimate()
     assert abs(tilt.pitch - 0.03) < 1e-3 and abs(tilt.roll) < 1e-3
     assert np.deg2rad(1.0) < tilt.roll_std < np.deg2rad(10.0)

@@ -52,6 +52,20 @@ class CameraConfig(Options):
             principal point is assumed at ``(cx, cy)``, or the image centre when those are 0).
         focal_tolerance: the calibration is used once its relative standard deviation is below
             this; until then a provisional focal length is used.
+        focal_budget: share of the average per-frame processing time that the focal
+            self-calibration may add on average (its per-pair profiles, about 100 ms each, are
+            queued and worked off in steps of about 10 ms within this budget).
+        focal_max_acs: ACs per turning pair kept for its focal profile (evenly picked), a
+            memory bound; fewer cost less but lose information (800 instead of 1,300 widened
+            the KITTI 05 standard deviation by a third).
+        focal_queue: turning pairs waiting for their profile at most (memory bound; further
+            pairs are dropped and counted while it is full).
+        focal_block_frames: frames per block of the focal calibration (pairs within about one
+            second share scenery and pitch wobble: one cluster of its variance); about the
+            frame rate.
+        focal_min_blocks: blocks (clusters) needed before a self-calibrated focal length may
+            be adopted (fewer make the variance itself unreliable).
+        focal_max_blocks: blocks kept (memory bound; the least informative is dropped).
     """
 
     fx: float = bounded(0.0, 0.0, expected='fx, fy >= 0 (0 = from CameraInfo)')
@@ -62,9 +76,17 @@ class CameraConfig(Options):
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
     focal_tolerance: float = bounded(0.02, 0.0, 1.0, low_open=True, high_open=True)
+    focal_budget: float = bounded(0.1, 0.0, 1.0, low_open=True, expected='a share in (0, 1]')
+    focal_max_acs: int = bounded(2000, 50)
+    focal_queue: int = bounded(16, 1)
+    focal_block_frames: int = bounded(10, 1)
+    focal_min_blocks: int = bounded(4, 2)
+    focal_max_blocks: int = bounded(32, 2)
 
     def validate(self) -> None:
         self._require(finite(*self.distortion), 'distortion', 'finite coefficients')
+        self._require(self.focal_max_blocks >= self.focal_min_blocks, 'focal_max_blocks',
+                      'at least focal_min_blocks')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,6 +107,12 @@ class MountConfig(Options):
             below this (radians).
         tilt_max_pairs: frame pairs used for the tilt estimate (the five-point solver runs on
             each, so this bounds the extra cost).
+        tilt_wobble_std: initial standard deviation (rad) of a pair's rotation about axes other
+            than the motion-plane normal (the car's pitch and roll on its suspension; KITTI:
+            0.04-0.11 deg per frame pair); only rotations above 3 times this inform the tilt,
+            and the odometry replaces it by the non-planarity it measures.
+        tilt_window: frame pairs the tilt estimator keeps (the most recent; memory bound).
+        tilt_refit: the tilt is refitted after this many new pairs (cost bound).
     """
 
     x: float = bounded(0.0, expected='a finite offset (m)')
@@ -97,6 +125,10 @@ class MountConfig(Options):
     estimate_tilt: bool = False
     tilt_tolerance: float = bounded(0.002, 0.0, low_open=True, expected='a positive angle (rad)')
     tilt_max_pairs: int = bounded(100, 10)
+    tilt_wobble_std: float = bounded(0.001745, 0.0, 0.1, high_open=True,
+                                     expected='an angle in [0, 0.1) rad')
+    tilt_window: int = bounded(1000, 10, expected='at least 10 pairs')
+    tilt_refit: int = bounded(10, 1, expected='at least 1 pair')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,11 +230,24 @@ class ScaleConfig(Options):
         hold_acceleration_std: how fast the speed may change while ``'hold'`` keeps it
             (m/s per second): its standard deviation grows by this every second.
         speed_std: standard deviation of the speed source (m/s).
+        speed_max_gap: longest interval (s) without speed samples that is bridged by
+            interpolation; set it above the speed source's sample period (1.5 for 1 Hz).
         fixed_speed: metres per second for ``'fixed'``.
         fixed_speed_std: its assumed standard deviation (m/s).
         ground_affine_tolerance: a road AC's affine must match the ground homography within
             this relative Frobenius distance.
         ground_min_correspondences: fewer road ACs give no ground scale.
+        ground_max_depth: road points farther than this (m) are not used for the scale: their
+            parallax (about h s / Z^2) is small against the rotation noise.
+        ground_point_std: point noise (pixels) of the road test (the front-end's accuracy).
+        ground_affine_std: affine noise (unitless) of the road test.
+        ground_gate: whitened RMS residual (points and affine) above which an AC is not road.
+        ground_normal_std: standard deviation (rad) of the road ahead's normal against the
+            calibrated one in a single frame (car pitch on its suspension, slope changes;
+            measured on KITTI about 0.2 deg); added to the calibration's own.
+        ground_normal_frames: frame pairs of road ACs kept by the road-normal calibration.
+        ground_normal_acs: road ACs kept per frame pair for it (evenly picked).
+        ground_normal_refit: the road normal is refitted after this many new frame pairs.
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
@@ -210,11 +255,22 @@ class ScaleConfig(Options):
     hold_acceleration_std: float = bounded(1.0, 0.0, 1e3, low_open=True, high_open=True,
                                            expected='a positive rate of change of speed (m/s^2)')
     speed_std: float = bounded(0.1, 0.0, low_open=True, expected='a positive speed in m/s')
+    speed_max_gap: float = bounded(0.5, 0.0, 1e6, low_open=True, high_open=True,
+                                   expected='a positive duration in seconds')
     fixed_speed: float = bounded(10.0, 0.0, expected='a non-negative speed in m/s')
     fixed_speed_std: float = bounded(3.0, 0.0, low_open=True, expected='a positive speed in m/s')
     ground_affine_tolerance: float = bounded(0.05, 0.0, low_open=True,
                                              expected='a positive number')
     ground_min_correspondences: int = bounded(10, 1)
+    ground_max_depth: float = bounded(30.0, 0.0, low_open=True, expected='a positive number')
+    ground_point_std: float = bounded(1.0, 0.0, low_open=True, expected='a positive number')
+    ground_affine_std: float = bounded(0.03, 0.0, low_open=True, expected='a positive number')
+    ground_gate: float = bounded(3.0, 0.0, low_open=True, expected='a positive number')
+    ground_normal_std: float = bounded(0.00349, 0.0, 0.1, high_open=True,
+                                       expected='an angle in [0, 0.1) rad')
+    ground_normal_frames: int = bounded(200, 2)
+    ground_normal_acs: int = bounded(60, 10)
+    ground_normal_refit: int = bounded(10, 1)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,7 +12,7 @@ import numpy as np
 
 from planar_vo.errors import InputError
 
-__all__ = ['as_array', 'same_length', 'shape_str']
+__all__ = ['as_array', 'as_rotation', 'same_length', 'shape_str']
 
 # Array kinds accepted as real numbers: bool, integers, floats, and objects (Python ints,
 # Decimals) converted one by one. Complex, strings, dates are refused, not silently cast.
@@ -81,3 +81,12 @@ def same_length(**arrays: np.ndarray) -> int:
         desc = ', '.join(f'{k} has {n}' for k, n in lengths.items())
         raise InputError(f'arguments must have the same number of items: {desc}')
     return next(iter(lengths.values()))
+
+
+def as_rotation(name: str, value: Any, tolerance: float = 1e-6) -> np.ndarray:
+    """Return `value` as a 3x3 rotation matrix (orthonormal within ``tolerance``, determinant
+    +1), or raise `InputError` naming `name`."""
+    R = as_array(name, value, (3, 3))
+    if not np.abs(R @ R.T - np.eye(3)).max() <= tolerance or np.linalg.det(R) <= 0:
+        raise InputError(f'{name}: expected a rotation matrix, got {R.tolist()}')
+    return R

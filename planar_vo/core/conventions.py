@@ -38,6 +38,8 @@ __all__ = [
     'camera_motion_to_base',
     'invert',
     'mount_transform',
+    'normal_from_tilt',
+    'normal_tilt_jacobian',
     'planar_essential',
     'planar_motion_from_pose',
     'planar_pose',
@@ -51,6 +53,7 @@ __all__ = [
     'skew',
     'so3_exp',
     'so3_log',
+    'tilt_from_normal',
     'translation_direction',
     'wrap_angle',
     'yaw_of',
@@ -307,3 +310,32 @@ def planar_motion_from_pose(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, n
     alpha = np.arctan2(R[..., 0, 2] - R[..., 2, 0], R[..., 0, 0] + R[..., 2, 2])
     beta = np.arctan2(t[..., 2], t[..., 0])
     return alpha, beta
+
+
+# --------------------------------------------------------------------------------------------
+# Tilt of a camera against a plane (the motion plane, the road)
+# --------------------------------------------------------------------------------------------
+
+
+def normal_from_tilt(pitch: float, roll: float) -> np.ndarray:
+    """Unit normal ``(3,)`` (pointing down) of the plane under a camera pitched down by ``pitch``
+    and rolled by ``roll`` (radians, the `MountConfig` sense), in camera-optical coordinates:
+
+        n = [sin(roll) cos(pitch), cos(roll) cos(pitch), sin(pitch)],
+
+    the level camera's y axis seen from the tilted camera (``R_lc^T [0, 1, 0]`` with the
+    levelling rotation ``R_lc`` of `planar_vo.frontend.correction.leveling_rotation`).
+    """
+    sp, cp, sr, cr = np.sin(pitch), np.cos(pitch), np.sin(roll), np.cos(roll)
+    return np.array([sr * cp, cr * cp, sp])
+
+
+def normal_tilt_jacobian(pitch: float, roll: float) -> np.ndarray:
+    """Jacobian ``(3, 2)`` of `normal_from_tilt` with respect to ``(pitch, roll)``."""
+    sp, cp, sr, cr = np.sin(pitch), np.cos(pitch), np.sin(roll), np.cos(roll)
+    return np.array([[-sr * sp, cr * cp], [-cr * sp, -sr * cp], [cp, 0.0]])
+
+
+def tilt_from_normal(n: np.ndarray) -> tuple[float, float]:
+    """``(pitch, roll)`` (radians) of a unit normal; the inverse of `normal_from_tilt`."""
+    return float(np.arcsin(np.clip(n[2], -1.0, 1.0))), float(np.arctan2(n[0], n[1]))

@@ -1,9 +1,16 @@
-"""Planar motion and the common focal length from many ACs: 1ACf candidates voted in log-focal
-space, the calibrated estimator at the voted focal length, and a joint refinement."""
+"""Planar motion and the common focal length from many ACs.
+
+- `vote_planar_motion_focal`: 1ACf candidates voted in log-focal space, the calibrated estimator
+  at the voted focal length, and a joint refinement (one frame pair);
+- `pair_profile` / `combine_profiles`: the profile cost of a pair's focal length on a grid, and
+  the minimiser of many pairs' summed profiles with a cluster-robust standard deviation
+  (self-calibration over a drive without the low bias of per-AC focal lengths).
+"""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,7 +29,13 @@ from planar_vo.core.robust.vote import vote_planar_motion
 from planar_vo.core.solvers import _ac_matrix, solve_1acf
 from planar_vo.errors import ConfigError
 
-__all__ = ['vote_planar_motion_focal']
+__all__ = [
+    'PairProfile',
+    'combine_profiles',
+    'pair_profile',
+    'profile_steps',
+    'vote_planar_motion_focal',
+]
 
 
 def _log_focal_modes(log_f: np.ndarray, weights: np.ndarray, lo: float, hi: float, bins: int,
@@ -203,3 +216,278 @@ def _focal_jacobian(residuals, theta: float, beta: float, log_f: float, eps: flo
         residuals(theta, beta + eps, log_f) - residuals(theta, beta - eps, log_f),
         residuals(theta, beta, log_f + eps) - residuals(theta, beta, log_f - eps),
     ], axis=1) / (2.0 * eps)
+
+
+# --------------------------------------------------------------------------------------------
+# Profile likelihood of the focal length (self-calibration without a per-AC focal)
+# --------------------------------------------------------------------------------------------
+#
+# The per-AC 1ACf closed form f^2 = (n3^2 - n1^2) / (n2^2 - n4^2) divides two second-order small
+# quantities (for a car both are ~alpha^2, the denominator a difference of two nearly equal O(1)
+# numbers), so zero-mean noise inflates it and the per-AC focal lengths are biased low (measured
+# on KITTI 05 turn pairs with the true principal point, levelled, on ground-truth inliers: per-AC
+# median 93-351 px, truth 707). The calibrated 1AC machinery is unbiased at any trial focal, so
+# a pair's information on f is its profile cost on a grid of focal lengths instead.
+
+# Cauchy scale of the profile cost: the chi-square(3) 99 % quantile, the voting's inlier gate.
+CHI2_3_99 = 11.34
+
+
+@dataclass(frozen=True)
+class PairProfile:
+    """One frame pair's profile cost on a log-focal grid (`pair_profile`).
+
+    Attributes:
+        cost: ``(G,)`` robust cost at each grid focal (lower is better).
+        alpha, beta: ``(G,)`` the planar motion (radians) minimising it at each grid focal.
+        yaw: ``|alpha|`` at the pair's own best grid focal (radians).
+        point_std: point noise (pixels) and affine_std: affine noise (unitless) used.
+    """
+
+    cost: np.ndarray
+    alpha: np.ndarray
+    beta: np.ndarray
+    yaw: float
+    point_std: float
+    affine_std: float
+
+
+class _ProfileData:
+    """What every trial focal shares for one pair: ``B(f) = B0 + B1 / f + B2 / f^2`` of the AC
+    matrix of ``q = p / f`` (`planar_vo.core.solvers.planar_ac_matrix`; pixel affines do not
+    change with a common focal) as rows ``(3N, 4)`` (row kind major: all epipolar rows, then the
+    two affine rows), and the outer products of its parts grouped by the power of ``1 / f``
+    they carry, ``(5, 3N, 16)``: the weighted normal matrix at any focal is then a few small
+    matrix products instead of a pass over ``B``."""
+
+    def __init__(self, p1: np.ndarray, p2: np.ndarray, A: np.ndarray, w: np.ndarray) -> None:
+        U1, V1, U2, V2 = p1[:, 0], p1[:, 1], p2[:, 0], p2[:, 1]
+        a1, a2, a3, a4 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
+        z = np.zeros_like(U1)
+        B0 = np.stack([np.stack([z, z, z, z], -1), np.stack([-a3, z, z, z], -1),
+                       np.stack([-a4, z, z + 1.0, z], -1)])
+        B1 = np.stack([np.stack([-V2, z, V1, z], -1),
+                       np.stack([z, V2 + a3 * U1, z, -a1 * V1], -1),
+                       np.stack([z, a4 * U1, z, -U2 - a2 * V1], -1)])
+        B2 = np.stack([np.stack([z, U1 * V2, z, -U2 * V1], -1), np.stack([z, z, z, z], -1),
+                       np.stack([z, z, z, z], -1)])
+        parts = [B.reshape(-1, 4) for B in (B0, B1, B2)]
+        self.parts_t = [np.ascontiguousarray(P.T) for P in parts]               # (4, 3N)
+        outer = [[np.einsum('ri,rj->rij', Ba, Bb).reshape(-1, 16) for Bb in parts]
+                 for Ba in parts]
+        self.products = np.concatenate([outer[0][0], outer[0][1] + outer[1][0],
+                                        outer[1][1] + outer[0][2] + outer[2][0],
+                                        outer[1][2] + outer[2][1], outer[2][2]], 1)  # (3N, 80)
+        self.U1, self.V1, self.U2 = U1, V1, U2
+        self.sq = dict(V1=V1 * V1, V2=V2 * V2, a1=a1 * a1, a2=a2 * a2, a3=a3 * a3, a4=a4 * a4)
+        self.w = w
+        self.n = len(w)
+
+    def whitened_chi2(self, k: np.ndarray, theta: np.ndarray, beta: np.ndarray,
+                      point_std: float, affine_std: float) -> tuple[np.ndarray, np.ndarray]:
+        """Sum over the three rows of the squared residuals (`refine.residual_terms`) over
+        their first-order variances ``point_std^2 k^2 g + affine_std^2 h``, ``(G, N)``, and the
+        variances ``(3, G, N)``, at ``G`` trial focal lengths ``1 / k`` with angles
+        ``theta, beta`` (each ``(G,)``)."""
+        x = np.stack([np.cos(theta), np.sin(theta), np.cos(beta), np.sin(beta)], 1)  # (G, 4)
+        kk = k[:, None]
+        r0, r1, r2 = (x @ part for part in self.parts_t)                            # (G, 3N)
+        r = (r0 + r1 * kk + r2 * (kk * kk)).reshape(-1, 3, self.n)
+        ct, st = x[:, 0:1], x[:, 1:2]
+        cb, sb = x[:, 2:3], x[:, 3:4]
+        st2, sb2, kk2 = st * st, sb * sb, kk * kk
+        sq = self.sq
+        e = kk * self.U1 * st - ct
+        g0 = kk2 * (sq['V2'] * st2 + sq['V1'] * sb2) + (cb - kk * self.U2 * sb) ** 2 + e * e
+        h1 = kk2 * sq['V1'] * sb2 + e * e
+        g1 = (sq['a3'] + 1.0) * st2 + sq['a1'] * sb2
+        g2 = sq['a4'] * st2 + (sq['a2'] + 1.0) * sb2
+        sp2 = (point_std * k)[:, None] ** 2
+        sa2h = affine_std * affine_std * h1
+        var = np.stack([sp2 * g0 + 1e-300, sp2 * g1 + sa2h + 1e-300, sp2 * g2 + sa2h + 1e-300])
+        chi2 = r[:, 0] ** 2 / var[0] + r[:, 1] ** 2 / var[1] + r[:, 2] ** 2 / var[2]
+        return chi2, var
+
+    def normal_matrices(self, k: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """``M_g = sum_rows c_row B_row(f_g) B_row(f_g)^T`` ``(G, 4, 4)`` for row weights ``c``
+        ``(3, G, N)``."""
+        c = c.transpose(1, 0, 2).reshape(k.size, -1)
+        powers = k[:, None] ** np.arange(5)                                       # (G, 5)
+        M = np.einsum('gp,gpm->gm', powers, (c @ self.products).reshape(k.size, 5, 16))
+        return M.reshape(-1, 4, 4)
+
+
+def _minimize_forms(M: np.ndarray, theta: np.ndarray, beta: np.ndarray, iterations: int = 20
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """`refine.minimize_form` for ``(G, 4, 4)`` forms at once (each stops on its own: on a
+    degenerate Hessian, unchanged from there, or after a step below 1e-12)."""
+    theta, beta = theta.copy(), beta.copy()
+    active = np.ones(theta.shape, bool)
+    m = [[M[:, i, j] for j in range(4)] for i in range(4)]
+    for _ in range(iterations):
+        if not active.any():
+            break
+        ct, st, cb, sb = np.cos(theta), np.sin(theta), np.cos(beta), np.sin(beta)
+        y = [m[i][0] * ct + m[i][1] * st + m[i][2] * cb + m[i][3] * sb for i in range(4)]
+        g0 = -st * y[0] + ct * y[1]
+        g1 = -sb * y[2] + cb * y[3]
+        h00 = st * st * m[0][0] - 2.0 * st * ct * m[0][1] + ct * ct * m[1][1]
+        h11 = sb * sb * m[2][2] - 2.0 * sb * cb * m[2][3] + cb * cb * m[3][3]
+        h01 = st * sb * m[0][2] - st * cb * m[0][3] - ct * sb * m[1][2] + ct * cb * m[1][3]
+        det = h00 * h11 - h01 * h01
+        with np.errstate(invalid='ignore'):
+            active &= det > 1e-300 * np.maximum(h00 * h11, 1e-300)
+        safe = np.where(active, det, 1.0)
+        d_t = np.where(active, (h11 * g0 - h01 * g1) / safe, 0.0)
+        d_b = np.where(active, (h00 * g1 - h01 * g0) / safe, 0.0)
+        theta -= d_t
+        beta -= d_b
+        active &= np.abs(d_t) + np.abs(d_b) >= 1e-12
+    return theta, beta
+
+
+def _profile_costs(data: _ProfileData, focals: np.ndarray, point_std: float, affine_std: float,
+                   theta: np.ndarray, beta: np.ndarray, iterations: int = 8
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Robust cost, alpha and beta ``(G,)`` at ``G`` trial focal lengths (all at once).
+
+    At each focal ``f``: ``q = p / f``, the residuals of the three AC rows whitened by their
+    first-order standard deviations with the point noise fixed in pixels (``point_std / f``
+    normalised) and the affine noise unitless, so costs compare across ``f``; the cost is
+    ``sum_i w_i c log(1 + chi2_i / c)`` (Cauchy, ``c`` = `CHI2_3_99`: smooth in the motion, an
+    outlier costs about the same at every ``f``), minimised over ``(theta, beta)`` by
+    ``iterations`` IRLS steps from the given start (each a Gauss-Newton solve of the weighted
+    form, `refine.minimize_form`; a grid point stops on its own when its motion stops moving).
+    """
+    inv = 1.0 / focals
+    theta, beta = theta.copy(), beta.copy()
+    active = np.arange(focals.size)
+    for _ in range(iterations):
+        if active.size == 0:
+            break
+        k = inv[active]
+        chi2, var = data.whitened_chi2(k, theta[active], beta[active], point_std, affine_std)
+        irls = data.w[None] / (1.0 + chi2 / CHI2_3_99)
+        M = data.normal_matrices(k, irls[None] / var)
+        t2, b2 = _minimize_forms(M, theta[active], beta[active])
+        ok = np.isfinite(t2) & np.isfinite(b2)
+        moved = np.abs(t2 - theta[active]) + np.abs(b2 - beta[active])
+        theta[active] = np.where(ok, t2, theta[active])
+        beta[active] = np.where(ok, b2, beta[active])
+        active = active[ok & (moved >= 1e-9)]
+    chi2, _ = data.whitened_chi2(inv, theta, beta, point_std, affine_std)
+    cost = np.sum(data.w[None] * CHI2_3_99 * np.log1p(chi2 / CHI2_3_99), axis=1)
+    return cost, theta - beta, beta
+
+
+def profile_steps(p1: np.ndarray, p2: np.ndarray, A: np.ndarray, w: np.ndarray,
+                  log_f_grid: np.ndarray, f_ref: float, config: VotingConfig | None = None,
+                  noise: tuple[float, float] | None = None, chunk: int = 8):
+    """`pair_profile` as a generator of small steps (the vote, then ``chunk`` grid points at a
+    time): ``yield`` after each step, the `PairProfile` (or None) as its return value. A caller
+    with a time budget advances it with ``next`` (`OnlineFocalCalibrator.work`)."""
+    config = VotingConfig() if config is None else config
+    motion, stats = vote_planar_motion(p1 / f_ref, p2 / f_ref, A, w, config)
+    if not stats.reliable:
+        return None
+    sp_px, sa = (stats.point_scale * f_ref, stats.affine_scale) if noise is None else noise
+    yield
+    focals = np.exp(log_f_grid)
+    # Start at every grid focal from the voted motion mapped along the data's valley: the image
+    # pins down the pixel rotation f tan(alpha) and the epipole f cot(beta), not alpha and f
+    # separately, so alpha(f) = atan(f_ref tan(alpha_ref) / f) and
+    # beta(f) = atan2(sin beta_ref, cos beta_ref f_ref / f). (Continuation from neighbour to
+    # neighbour instead drifts into another basin when f_ref is far off; measured.)
+    a0 = np.arctan(f_ref * math.tan(motion.alpha) / focals)
+    b0 = np.arctan2(math.sin(motion.beta), math.cos(motion.beta) * f_ref / focals)
+    data = _ProfileData(p1, p2, A, w)
+    G = focals.size
+    cost, alpha, beta = np.empty(G), np.empty(G), np.empty(G)
+    for lo in range(0, G, chunk):
+        sl = slice(lo, min(lo + chunk, G))
+        cost[sl], alpha[sl], beta[sl] = _profile_costs(data, focals[sl], sp_px, sa,
+                                                       a0[sl] + b0[sl], b0[sl])
+        if sl.stop < G:
+            yield
+    bad = ~np.isfinite(cost)
+    if bad.any():
+        cost[bad] = cost[~bad].max() if (~bad).any() else 0.0
+    best = int(np.argmin(cost))
+    return PairProfile(cost, alpha, beta, abs(float(alpha[best])), float(sp_px), float(sa))
+
+
+def pair_profile(p1: np.ndarray, p2: np.ndarray, A: np.ndarray, weights: np.ndarray | None,
+                 log_f_grid: np.ndarray, f_ref: float, config: VotingConfig | None = None,
+                 noise: tuple[float, float] | None = None) -> PairProfile | None:
+    """Profile cost of one frame pair's focal length on a log-focal grid:
+
+        C(f) = min_{alpha, beta} sum_i w_i c log(1 + chi2_i(f, alpha, beta) / c),
+
+    ``chi2_i`` the whitened residual of AC i's three rows on ``q = p / f`` (`_profile_costs`).
+    The calibrated vote at ``f_ref`` gives the motion (mapped along the data's valley to every
+    grid focal as the start) and, unless ``noise`` is given, the noise scales; an unreliable
+    vote gives None. Exact ACs of a turning pair have their minimum at the true focal (up to
+    the grid step); straight driving gives a flat profile.
+
+    Args:
+        p1, p2: pixels relative to the principal point (levelled), ``(N, 2)``.
+        A: pixel affines ``(N, 2, 2)``. weights: ``(N,)`` non-negative, or None.
+        log_f_grid: ``(G,)`` log focal lengths (pixels), increasing.
+        f_ref: focal length (pixels) of the vote (the provisional or current estimate).
+        config: the vote's options.
+        noise: ``(point std in pixels, affine std)`` instead of the vote's robust scales.
+
+    Returns:
+        A `PairProfile`, or None when the vote at ``f_ref`` is unreliable.
+    """
+    p1, p2, A, w, config = check_inputs(p1, p2, A, weights, config)
+    grid = np.asarray(log_f_grid, dtype=np.float64)
+    if grid.ndim != 1 or grid.size < 3 or not np.all(np.diff(grid) > 0):
+        raise ConfigError(f'log_f_grid: expected at least 3 increasing values, got {grid}')
+    if not (math.isfinite(f_ref) and f_ref > 0):
+        raise ConfigError(f'f_ref: expected a positive focal length in pixels, got {f_ref}')
+    steps = profile_steps(p1, p2, A, w, grid, f_ref, config, noise)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def combine_profiles(profiles: list[np.ndarray] | np.ndarray, log_f_grid: np.ndarray,
+                     min_pairs: int = 3) -> tuple[float, float, dict]:
+    """Minimiser of the summed profiles and its sandwich standard deviation (log focal).
+
+    The profiles (one per cluster: a pair, or a block of pairs sharing scenery and wobble) are
+    summed; the minimum is refined by a parabola through the grid neighbours, and
+
+        var(log f) = sum_k C_k'(x)^2 / C''(x)^2 * K / (K - 1),
+
+    never below the curvature-only ``2 / C''`` of a chi-square cost (a sandwich with the
+    profiles as clusters: the spread of their own minima enters through the slopes).
+
+    Returns:
+        ``(log_f, std, info)``; ``std`` is inf with fewer than ``min_pairs`` (or 2) profiles, a
+        minimum on the grid's edge, or a non-positive curvature. ``info``: ``pairs``, ``edge``,
+        ``curvature``, ``slopes``.
+    """
+    P = np.atleast_2d(np.asarray(profiles, dtype=np.float64))
+    grid = np.asarray(log_f_grid, dtype=np.float64)
+    C = P.sum(axis=0)
+    k = int(np.argmin(C))
+    info = dict(pairs=len(P), edge=k in (0, len(C) - 1))
+    if info['edge']:
+        return float(grid[k]), float('inf'), info
+    x0, x1 = grid[k - 1], grid[k]
+    c0, c1, c2 = C[k - 1:k + 2]
+    step = x1 - x0
+    curv = (c0 - 2 * c1 + c2) / step ** 2
+    shift = -(c2 - c0) / (2 * step) / curv if curv > 0 else 0.0
+    x = x1 + float(np.clip(shift, -step, step))
+    d = np.gradient(P, grid, axis=1)
+    slopes = np.array([np.interp(x, grid, dk) for dk in d])
+    info.update(curvature=float(curv), slopes=slopes)
+    if not curv > 0 or len(P) < max(min_pairs, 2):
+        return x, float('inf'), info
+    var = float(np.sum((slopes / curv) ** 2)) * len(P) / (len(P) - 1)
+    return x, math.sqrt(max(var, 2.0 / curv)), info

@@ -2,9 +2,21 @@
 
 from __future__ import annotations
 
+import functools
+import math
+
 import numpy as np
 
-__all__ = ['MAD_TO_SIGMA', 'HALF_NORMAL_Q25', 'lower_quantile', 'thin', 'weighted_median']
+__all__ = [
+    'HALF_NORMAL_Q25',
+    'MAD_TO_SIGMA',
+    'few_cluster_factor',
+    'lower_quantile',
+    'median',
+    'student_t_quantile',
+    'thin',
+    'weighted_median',
+]
 
 MAD_TO_SIGMA = 1.4826             # sigma / median|x| for a normal
 HALF_NORMAL_Q25 = 0.31864         # lower quartile of |N(0, 1)|
@@ -21,6 +33,16 @@ def lower_quantile(x: np.ndarray, q: float) -> float:
     return float(np.partition(x, k)[k])
 
 
+def median(x: np.ndarray) -> float:
+    """``np.median`` of a 1-D array by partial sorting (np.median's overhead costs several times
+    the selection at the sizes used here)."""
+    k = x.size // 2
+    if x.size % 2:
+        return float(np.partition(x, k)[k])
+    part = np.partition(x, (k - 1, k))
+    return 0.5 * float(part[k - 1] + part[k])
+
+
 def thin(idx: np.ndarray, limit: int = STAT_SAMPLE) -> np.ndarray:
     """Every k-th entry of ``idx`` so that at most about ``limit`` remain (deterministic)."""
     step = -(-idx.size // limit)
@@ -33,3 +55,49 @@ def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
     order = np.argsort(x)
     c = np.cumsum(w[order])
     return float(x[order][np.searchsorted(c, 0.5 * c[-1])])
+
+
+def _student_t_mass(theta: float, nu: int) -> float:
+    """``P(|T| <= sqrt(nu) tan(theta))`` for Student's t with integer ``nu`` degrees of freedom:
+    the finite series of Abramowitz and Stegun 26.7.3 (odd ``nu``) and 26.7.4 (even ``nu``)."""
+    c2 = math.cos(theta) ** 2
+    if nu % 2:
+        total, term = 0.0, math.cos(theta)
+        for k in range(1, (nu - 1) // 2 + 1):          # cos + 2/3 cos^3 + (2 4)/(3 5) cos^5 ...
+            total += term
+            term *= c2 * (2 * k) / (2 * k + 1)
+        return 2.0 / math.pi * (theta + math.sin(theta) * total)
+    total, term = 0.0, 1.0
+    for k in range(1, nu // 2 + 1):                     # 1 + 1/2 cos^2 + (1 3)/(2 4) cos^4 ...
+        total += term
+        term *= c2 * (2 * k - 1) / (2 * k)
+    return math.sin(theta) * total
+
+
+@functools.lru_cache(maxsize=256)
+def student_t_quantile(p: float, nu: int) -> float:
+    """Quantile of Student's t with ``nu`` (integer >= 1) degrees of freedom at ``p`` in
+    ``(0, 1)``, by bisection on the closed-form CDF (`_student_t_mass`; no scipy). Cached."""
+    if not (0.0 < p < 1.0) or nu < 1:
+        raise ValueError(f'student_t_quantile: expected 0 < p < 1 and nu >= 1, got {p}, {nu}')
+    if p < 0.5:
+        return -student_t_quantile(1.0 - p, nu)
+    target, lo, hi = 2.0 * p - 1.0, 0.0, 0.5 * math.pi
+    for _ in range(60):                                   # theta to ~1e-18 rad
+        mid = 0.5 * (lo + hi)
+        if _student_t_mass(mid, nu) < target:
+            lo = mid
+        else:
+            hi = mid
+    return math.sqrt(nu) * math.tan(0.5 * (lo + hi))
+
+
+def few_cluster_factor(clusters: int, sigmas: float = 3.0) -> float:
+    """Widening of a cluster-robust standard deviation from ``clusters`` clusters, so that
+    ``sigmas`` of it cover what ``sigmas`` normal deviations would: ``t_q(G - 1) / z_q`` with
+    ``q = Phi(sigmas)`` (the sandwich's variance has about ``G - 1`` degrees of freedom);
+    inf below 2 clusters."""
+    if clusters < 2:
+        return float('inf')
+    q = 0.5 * (1.0 + math.erf(sigmas / math.sqrt(2.0)))
+    return student_t_quantile(q, int(clusters) - 1) / sigmas

@@ -1,9 +1,22 @@
 """Online calibration of what a user may not know: the camera's tilt on the vehicle (pitch and
-roll relative to the plane of motion) and the focal length (1ACf self-calibration)."""
+roll relative to the plane of motion), the road's normal in the camera frame (for the
+ground-plane scale), and the focal length (1ACf self-calibration)."""
 
 from __future__ import annotations
 
-from planar_vo.pipeline.calibration.focal import FocalCalibrator
+from planar_vo.pipeline.calibration.focal import (
+    FocalCalibrator,
+    OnlineFocalCalibrator,
+    TurnPairSelector,
+)
+from planar_vo.pipeline.calibration.road import RoadNormalCalibrator
 from planar_vo.pipeline.calibration.tilt import MountTiltEstimator, TiltEstimate
 
-__all__ = ['FocalCalibrator', 'MountTiltEstimator', 'TiltEstimate']
+__all__ = [
+    'FocalCalibrator',
+    'MountTiltEstimator',
+    'OnlineFocalCalibrator',
+    'RoadNormalCalibrator',
+    'TiltEstimate',
+    'TurnPairSelector',
+]

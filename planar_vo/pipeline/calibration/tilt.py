@@ -23,18 +23,26 @@ pitch (``n`` is then only known to be perpendicular to the forward direction); t
 from turns (rotation axes, sideways displacements). The reported standard deviations come from
 the Fisher information of the fit, scaled by its residuals, so an unobservable roll shows as a
 large ``roll_std``.
+
+Real roads add a wobble to every relative rotation (the car's pitch and roll, 0.04-0.11 deg per
+KITTI frame pair): rotations not clearly larger than it inform nothing about the axis
+(`MountTiltEstimator`, ``wobble_sigma``), else straight driving locks the normal onto the
+camera's x axis (a reported roll of 85-88 deg).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from planar_vo.core.checks import as_array
+from planar_vo.config.sections import MountConfig
+from planar_vo.core.checks import as_array, as_rotation
+from planar_vo.core.conventions import normal_tilt_jacobian, tilt_from_normal
 from planar_vo.core.robust.stats import MAD_TO_SIGMA
-from planar_vo.errors import InputError
+from planar_vo.errors import ConfigError, InputError
 
 __all__ = ['MountTiltEstimator', 'TiltEstimate', 'five_point_pose']
 
@@ -70,14 +78,6 @@ class TiltEstimate:
                 self.roll if self.roll_std <= max_std else 0.0)
 
 
-def _normal_from_angles(pitch: float, roll: float) -> tuple[np.ndarray, np.ndarray]:
-    """``n(pitch, roll)`` and its Jacobian ``(3, 2)`` with respect to ``(pitch, roll)``."""
-    sp, cp, sr, cr = np.sin(pitch), np.cos(pitch), np.sin(roll), np.cos(roll)
-    n = np.array([sr * cp, cr * cp, sp])
-    J = np.array([[-sr * sp, cr * cp], [-cr * sp, -sr * cp], [cp, 0.0]])
-    return n, J
-
-
 def _rotation_axis_angle(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit axes ``(N, 3)`` and angles ``(N,)`` of rotations ``(N, 3, 3)`` (axis 0 when angle 0)."""
     w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
@@ -93,26 +93,51 @@ class MountTiltEstimator:
     """Accumulates relative camera poses; reports pitch and roll of the camera w.r.t. the plane
     of motion (`TiltEstimate`).
 
+    Pitch wobble. A car's relative rotation is a yaw about the normal plus a wobble: its pitch
+    and roll on the suspension and the road's unevenness (KITTI: 0.04-0.11 deg per frame pair,
+    DESIGN.md section 6). When the rotation angle is comparable to the wobble, its axis is the
+    wobble's, not the normal: fitted as an axis, straight driving turned the normal towards the
+    camera's x axis (KITTI 05 pairs 0-99: roll 85-88 deg, pitch 0.15-0.40 deg, with
+    ground-truth and five-point poses alike). So a rotation informs the axis only if its angle
+    exceeds ``gate`` times ``wobble_sigma``, with the axis noise ``hypot(rotation_sigma,
+    wobble_sigma) / angle``. The wobble is settable at any time (`wobble_sigma`): the odometry
+    measures the real non-planarity of the drive; the default is only the start. With
+    ``wobble_sigma = 0`` every rotation informs the axis (the model before the wobble).
+
+    Bounded memory and cost: the last ``max_pairs`` pairs are kept (8 floats each); `update`
+    refits after ``refit_every`` new pairs (or a new wobble) and returns the cached estimate
+    otherwise, so its amortised cost is ``1 / refit_every`` of a fit over ``max_pairs``.
+
     Args:
         translation_sigma: expected angular error of a pair's translation direction (radians).
-        rotation_sigma: expected error of a pair's rotation (radians); the axis of a rotation by
-            ``theta`` is known to about ``rotation_sigma / theta``.
+        rotation_sigma: expected error of a pair's rotation estimate (radians); the axis of a
+            rotation by ``theta`` is known to about ``rotation_sigma / theta``.
         min_translation: pairs whose translation norm is below this (in the units passed to
             `add_motion`) contribute only their rotation; 0 uses every direction.
         prior_sigma: standard deviation (radians) of a prior that the camera is level; keeps
             the roll defined (near 0, with about this uncertainty) while the vehicle only drives
             straight. None: no prior (unobservable angles then report ``inf``).
+        wobble_sigma: standard deviation (radians) of a pair's rotation about axes other than
+            the normal (``mount.tilt_wobble_std``).
+        gate: a rotation informs the axis only above ``gate * wobble_sigma`` (3: 99.7 % of the
+            pure-wobble rotations about one axis fall below).
+        max_pairs: pairs kept (the most recent; ``mount.tilt_window``).
+        refit_every: new pairs between refits in `update` (``mount.tilt_refit``).
 
     Example:
         >>> est = MountTiltEstimator()
         >>> for R, t in poses:            # X2 = R X1 + t, camera frame
         ...     est.add_motion(R, t)
-        >>> tilt = est.estimate()         # tilt.pitch, tilt.roll, tilt.pitch_std, tilt.frames
+        ...     tilt = est.update()       # None before 2 pairs; refitted every 10 pairs
+        >>> est.wobble_sigma = measured   # the odometry's non-planarity (rad), any time
     """
 
     def __init__(self, translation_sigma: float = np.deg2rad(1.0),
                  rotation_sigma: float = np.deg2rad(0.05), min_translation: float = 0.0,
-                 prior_sigma: float | None = np.deg2rad(5.0)) -> None:
+                 prior_sigma: float | None = np.deg2rad(5.0), *,
+                 wobble_sigma: float = MountConfig.tilt_wobble_std, gate: float = 3.0,
+                 max_pairs: int = MountConfig.tilt_window,
+                 refit_every: int = MountConfig.tilt_refit) -> None:
         if not (translation_sigma > 0 and rotation_sigma > 0):
             raise InputError(f'translation_sigma, rotation_sigma: expected positive angles, got '
                              f'{translation_sigma}, {rotation_sigma}')
@@ -122,12 +147,39 @@ class MountTiltEstimator:
         if prior_sigma is not None and not prior_sigma > 0:
             raise InputError(f'prior_sigma: expected a positive angle or None, got {prior_sigma}')
         self.prior_sigma = prior_sigma
-        self._directions: list[np.ndarray] = []
-        self._rotations: list[np.ndarray] = []
-        self._weights: list[float] = []
+        if not (gate > 0 and max_pairs >= 2 and refit_every >= 1):
+            raise ConfigError(f'gate, max_pairs, refit_every: expected > 0, >= 2, >= 1, got '
+                              f'{gate}, {max_pairs}, {refit_every}')
+        self.gate = float(gate)
+        self.max_pairs = int(max_pairs)
+        self.refit_every = int(refit_every)
+        self.wobble_sigma = wobble_sigma
+        cap = self.max_pairs
+        self._directions = np.zeros((cap, 3))   # unit displacement directions (0: none)
+        self._axes = np.zeros((cap, 3))         # rotation axes
+        self._angles = np.zeros(cap)            # rotation angles (rad)
+        self._weights = np.zeros(cap)
+        self._next = 0
+        self._count = 0
+        self._since_fit = 0
+        self.fits = 0                           # fits run so far (cost accounting)
+        self.latest: TiltEstimate | None = None
+
+    @property
+    def wobble_sigma(self) -> float:
+        """Standard deviation (rad) of the per-pair rotation about axes other than the normal;
+        setting it makes the next `update` refit."""
+        return self._wobble
+
+    @wobble_sigma.setter
+    def wobble_sigma(self, value: float) -> None:
+        if not (math.isfinite(value) and value >= 0.0):
+            raise InputError(f'wobble_sigma: expected a non-negative angle (rad), got {value}')
+        self._wobble = float(value)
+        self._since_fit = self.refit_every      # the gate changed: refit at the next update
 
     def __len__(self) -> int:
-        return len(self._rotations)
+        return self._count
 
     def add_motion(self, R: np.ndarray, t: np.ndarray, weight: float = 1.0) -> None:
         """Add one relative camera pose ``X2 = R X1 + t`` (camera optical frame).
@@ -136,16 +188,27 @@ class MountTiltEstimator:
             R: rotation (3x3). t: translation (3,), any scale (its norm only gates
                 ``min_translation``). weight: relative confidence of this pair.
         """
-        R = as_array('R', R, (3, 3))
+        R = as_rotation('R', R)
         t = as_array('t', t, (3,))
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
-            raise InputError(f'R: expected a rotation matrix, got {R.tolist()}')
+        if not (math.isfinite(weight) and weight >= 0.0):
+            raise InputError(f'weight: expected a non-negative number, got {weight}')
         c = -R.T @ t
         norm = float(np.linalg.norm(c))
-        direction = c / norm if norm > self.min_translation and norm > 0 else np.zeros(3)
-        self._directions.append(direction)
-        self._rotations.append(R)
-        self._weights.append(float(weight))
+        k = self._next
+        self._directions[k] = c / norm if norm > self.min_translation and norm > 0 else 0.0
+        axis, angle = _rotation_axis_angle(R[None])
+        self._axes[k], self._angles[k] = axis[0], angle[0]
+        self._weights[k] = float(weight)
+        self._next = (k + 1) % self.max_pairs
+        self._count = min(self._count + 1, self.max_pairs)
+        self._since_fit += 1
+
+    def update(self) -> TiltEstimate | None:
+        """The estimate, refitted when ``refit_every`` pairs were added (or the wobble set)
+        since the last fit; None before two pairs."""
+        if self._count >= 2 and (self.latest is None or self._since_fit >= self.refit_every):
+            self.latest = self.estimate()
+        return self.latest
 
     def add_acs(self, q1: np.ndarray, q2: np.ndarray, weight: float = 1.0,
                 threshold: float = 1e-3, max_points: int = 2000) -> bool:
@@ -184,12 +247,16 @@ class MountTiltEstimator:
         if len(self) < 2:
             raise InputError(f'MountTiltEstimator: expected at least 2 frame pairs, got '
                              f'{len(self)}')
-        C = np.array(self._directions)
-        axis, angle = _rotation_axis_angle(np.array(self._rotations))
-        base = np.array(self._weights)
+        self._since_fit = 0
+        self.fits += 1
+        m = self._count
+        C, axis, angle = self._directions[:m], self._axes[:m], self._angles[:m]
+        base = self._weights[:m]
         wt0 = base * np.any(C != 0, axis=1) / self.translation_sigma ** 2
-        # The axis error is ~rotation_sigma / angle: the information grows with angle^2.
-        wr0 = base * angle ** 2 / self.rotation_sigma ** 2
+        # The axis error is ~hypot(rotation_sigma, wobble) / angle: the information grows with
+        # angle^2; rotations within the wobble carry the wobble's axis, not the normal.
+        informs = angle > self.gate * self._wobble
+        wr0 = base * informs * angle ** 2 / (self.rotation_sigma ** 2 + self._wobble ** 2)
         wt, wr = wt0.copy(), wr0.copy()
         eye = np.eye(3)
         down = np.array([0.0, 1.0, 0.0])
@@ -198,9 +265,8 @@ class MountTiltEstimator:
         prior_M = prior * (eye - np.outer(down, down))
         n = down
         for _ in range(_IRLS_ITERATIONS):
-            M = np.einsum('i,ij,ik->jk', wt, C, C) + np.einsum(
-                'i,jk->jk', wr, eye) - np.einsum('i,ij,ik->jk', wr, axis, axis)
-            M = M + prior_M
+            M = (C * wt[:, None]).T @ C + wr.sum() * eye - (axis * wr[:, None]).T @ axis \
+                + prior_M
             vals, vecs = np.linalg.eigh(M)
             n = vecs[:, 0] * (1.0 if vecs[1, 0] >= 0 else -1.0)
             # Normalised residuals: translation-direction elevation and axis deviation.
@@ -212,14 +278,12 @@ class MountTiltEstimator:
             spread = max(MAD_TO_SIGMA * float(np.median(np.abs(res))) if res.size else 1.0, 1.0)
             wt = wt0 / (1.0 + (rt / (_CAUCHY_SCALE * spread)) ** 2)
             wr = wr0 / (1.0 + (rr / (_CAUCHY_SCALE * spread)) ** 2)
-        pitch = float(np.arcsin(np.clip(n[2], -1.0, 1.0)))
-        roll = float(np.arctan2(n[0], n[1]))
-        _, Jn = _normal_from_angles(pitch, roll)
+        pitch, roll = tilt_from_normal(n)
+        Jn = normal_tilt_jacobian(pitch, roll)
         # Fisher information of the data in (pitch, roll).
         jt = C @ Jn                                             # (N, 2)
-        proj = eye[None] - axis[:, :, None] * axis[:, None, :]  # (N, 3, 3)
-        info = np.einsum('i,ia,ib->ab', wt, jt, jt) + np.einsum(
-            'i,ja,ijk,kb->ab', wr, Jn, proj, Jn)
+        axes_info = wr.sum() * eye - (axis * wr[:, None]).T @ axis   # sum wr (I - a a^T)
+        info = (jt * wt[:, None]).T @ jt + Jn.T @ axes_info @ Jn
         chi2 = float(np.sum(wt * (C @ n) ** 2) + np.sum(wr * np.linalg.norm(
             np.cross(axis, n), axis=1) ** 2))
         used = int(np.count_nonzero((wt > 0) | (wr > 0)))

@@ -1,0 +1,371 @@
+"""Online calibration: the road normal from the road's own consistency, the mount tilt without
+the pitch-wobble lock, and the focal length from turning pairs (profiles, honest adoption,
+bounded and amortised cost)."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from planar_vo.core.conventions import normal_from_tilt, rotation_y
+from planar_vo.core.homography import apply_homography
+from planar_vo.core.robust import combine_profiles, pair_profile
+from planar_vo.core.robust.stats import few_cluster_factor, student_t_quantile
+from planar_vo.errors import ConfigError, InputError
+from planar_vo.frontend import leveling_rotation
+from planar_vo.pipeline.calibration import (
+    MountTiltEstimator,
+    OnlineFocalCalibrator,
+    RoadNormalCalibrator,
+    TurnPairSelector,
+)
+from planar_vo.pipeline.calibration import focal as focal_module
+from planar_vo.sim.synthetic import PAPER_PRINCIPAL_POINT, shared_motion_acs
+
+HEIGHT = 1.65
+PITCH, ROLL = np.deg2rad(1.2), np.deg2rad(-0.6)
+
+
+def _rotation(w) -> np.ndarray:
+    """``exp([w]x)`` (Rodrigues)."""
+    return cv2.Rodrigues(np.asarray(w, dtype=np.float64))[0]
+
+
+def _camera_motion(pitch, roll, yaw, wobble, step=1.0, heading=0.0):
+    """Camera-frame ``(R, t)`` (``X2 = R X1 + t``) of a car mounted camera: in the level frame
+    a yaw about the vertical, a wobble rotation ``(wx, wz)`` and a forward step (heading
+    ``heading`` off the optical axis); mapped by the mount tilt."""
+    R_lc = leveling_rotation(pitch, roll)                   # camera -> level
+    R_level = _rotation([wobble[0], 0.0, wobble[1]]) @ rotation_y(yaw)
+    c_level = step * np.array([math.sin(heading), 0.0, math.cos(heading)])   # centre 2 in 1
+    R = R_lc.T @ R_level @ R_lc
+    t = -R @ (R_lc.T @ c_level)
+    return R, t
+
+
+# --------------------------------------------------------------------------------------------
+# Student t and the few-cluster factor
+# --------------------------------------------------------------------------------------------
+
+def test_student_t_quantiles_match_tables():
+    assert student_t_quantile(0.975, 1) == pytest.approx(12.7062047, rel=1e-7)
+    assert student_t_quantile(0.975, 10) == pytest.approx(2.2281389, rel=1e-7)
+    assert student_t_quantile(0.995, 30) == pytest.approx(2.7499957, rel=1e-7)
+    assert student_t_quantile(0.025, 4) == pytest.approx(-2.7764451, rel=1e-7)
+    # Cauchy (nu = 1) in closed form; towards the normal for many degrees of freedom.
+    q = 0.5 * (1.0 + math.erf(3.0 / math.sqrt(2.0)))
+    assert few_cluster_factor(2, 3.0) == pytest.approx(math.tan(math.pi * (q - 0.5)) / 3.0)
+    assert few_cluster_factor(1000, 3.0) == pytest.approx(1.0, abs=0.01)
+    assert few_cluster_factor(1) == math.inf
+    with pytest.raises(ValueError, match=r'expected 0 < p < 1 and nu >= 1'):
+        student_t_quantile(1.0, 3)
+
+
+# --------------------------------------------------------------------------------------------
+# Road normal
+# --------------------------------------------------------------------------------------------
+
+def _road_frame(rng, normal, *, count=80, noise=0.0, yaw=None):
+    """Exact (or noisy) road ACs of one frame pair for a general motion: normalised points."""
+    R, t = _camera_motion(PITCH, ROLL, rng.uniform(-0.03, 0.03) if yaw is None else yaw,
+                          rng.normal(0.0, 0.002, 2), step=rng.uniform(0.5, 1.5))
+    q1 = np.column_stack([rng.uniform(-0.6, 0.6, count), rng.uniform(0.08, 0.3, count)])
+    H = R + np.outer(t, normal) / HEIGHT
+    q2 = apply_homography(H, q1) + rng.normal(0.0, noise, (count, 2))
+    return q1, q2, R, t
+
+
+def test_road_normal_is_recovered_exactly_from_exact_road_acs(rng):
+    normal = normal_from_tilt(PITCH, ROLL)
+    cal = RoadNormalCalibrator()
+    for _ in range(15):
+        q1, q2, R, t = _road_frame(rng, normal)
+        assert cal.add(q1, q2, R, t, np.ones(len(q1), bool))
+    est = cal.estimate(0.0, 0.0)                            # from the level guess
+    assert abs(est.pitch - PITCH) < 1e-9 and abs(est.roll - ROLL) < 1e-9
+    assert est.frames == 15 and est.pitch_std < 1e-6 and est.roll_std < 1e-6
+    np.testing.assert_allclose(est.normal, normal, atol=1e-9)
+
+
+def test_road_normal_std_is_honest_on_noisy_road_acs():
+    rng = np.random.default_rng(11)
+    normal = normal_from_tilt(PITCH, ROLL)
+    z = []
+    for _ in range(40):
+        cal = RoadNormalCalibrator()
+        for _ in range(30):
+            cal.add(*_road_frame(rng, normal, noise=1e-3), np.ones(80, bool))
+        est = cal.estimate(0.0, 0.0)
+        assert abs(est.pitch - PITCH) < np.deg2rad(0.1) and abs(est.roll - ROLL) < np.deg2rad(0.5)
+        z += [(est.pitch - PITCH) / est.pitch_std, (est.roll - ROLL) / est.roll_std]
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.6 < rms < 1.3, rms
+
+
+def test_road_normal_memory_and_refits_are_bounded(rng):
+    normal = normal_from_tilt(PITCH, ROLL)
+    cal = RoadNormalCalibrator(per_frame=40, max_frames=50, refit_every=10)
+    frames = [_road_frame(rng, normal, count=120) for _ in range(5)]
+    fits = []
+    for k in range(400):
+        q1, q2, R, t = frames[k % 5]
+        assert cal.add(q1, q2, R, t, np.ones(120, bool))
+        est = cal.update()
+        fits.append(cal.fits)
+    assert len(cal) == 50 and cal._q.shape == (50, 40, 2)   # a ring of 50 x 40 road ACs
+    # Once full, one refit per 10 new pairs; while filling, proportionally more often.
+    assert fits[399] - fits[99] == 30
+    assert fits[49] <= 50 and est is cal.latest
+    assert abs(est.pitch - PITCH) < 1e-6 and abs(est.roll - ROLL) < 1e-6
+
+
+def test_road_normal_input_errors(rng):
+    cal = RoadNormalCalibrator()
+    q1, q2, R, t = _road_frame(rng, normal_from_tilt(PITCH, ROLL), count=30)
+    with pytest.raises(InputError, match=r'road: expected a bool mask of shape \(30,\)'):
+        cal.add(q1, q2, R, t, np.ones(30))
+    with pytest.raises(InputError, match=r'R: expected a rotation matrix'):
+        cal.add(q1, q2, 3.0 * R, t, np.ones(30, bool))
+    with pytest.raises(InputError, match=r't: expected a non-zero direction'):
+        cal.add(q1, q2, R, np.zeros(3), np.ones(30, bool))
+    with pytest.raises(ConfigError, match=r'expected per_frame >= 10'):
+        RoadNormalCalibrator(per_frame=5)
+    # Fewer than 10 road ACs: nothing stored, no estimate.
+    assert not cal.add(q1, q2, R, t, np.arange(30) < 9)
+    assert len(cal) == 0 and cal.update() is None and cal.estimate() is None
+
+
+# --------------------------------------------------------------------------------------------
+# Mount tilt: no lock onto the pitch wobble
+# --------------------------------------------------------------------------------------------
+
+def _drive(rng, pairs, *, turn_every=None, wobble=np.deg2rad(0.1), dir_noise=np.deg2rad(0.3),
+           pitch=PITCH, roll=0.0):
+    """Relative camera motions of a car with pitch wobble; straight, or with turns."""
+    motions = []
+    for k in range(pairs):
+        yaw = np.deg2rad(4.0) if turn_every and k % turn_every < 5 else 0.0
+        R, t = _camera_motion(pitch, roll, yaw, (rng.normal(0.0, wobble), 0.0),
+                              heading=rng.normal(0.0, dir_noise))
+        motions.append((R, t + rng.normal(0.0, dir_noise, 3)))
+    return motions
+
+
+def test_tilt_does_not_lock_onto_the_pitch_wobble_when_driving_straight():
+    rng = np.random.default_rng(2)
+    motions = _drive(rng, 100)
+    locked = MountTiltEstimator(wobble_sigma=0.0)          # every rotation informs the axis
+    fixed = MountTiltEstimator()                            # wobble 0.1 deg (the default)
+    for R, t in motions:
+        locked.add_motion(R, t)
+        fixed.add_motion(R, t)
+    # The model without the wobble turns the normal towards the camera's x axis (KITTI 05:
+    # roll 85-88 deg); the wobble-aware one keeps it, and says the roll is not observed.
+    assert abs(locked.estimate().roll) > np.deg2rad(45.0)
+    tilt = fixed.estimate()
+    assert abs(tilt.pitch - PITCH) < np.deg2rad(0.1)
+    assert tilt.roll_std > np.deg2rad(1.0) and abs(tilt.roll) < 3.0 * tilt.roll_std
+    # Without the level prior only the translation directions' noise speaks to the roll of
+    # straight driving: a large standard deviation, honest about the error.
+    blind = MountTiltEstimator(prior_sigma=None)
+    for R, t in motions:
+        blind.add_motion(R, t)
+    tilt = blind.estimate()
+    assert tilt.roll_std > np.deg2rad(2.0) and abs(tilt.roll) < 3.0 * tilt.roll_std
+
+
+def test_tilt_with_turns_and_wobble_recovers_pitch_and_roll():
+    rng = np.random.default_rng(4)
+    roll = np.deg2rad(-1.5)
+    est = MountTiltEstimator()
+    for R, t in _drive(rng, 200, turn_every=20, roll=roll):
+        est.add_motion(R, t)
+    tilt = est.estimate()
+    assert abs(tilt.pitch - PITCH) < np.deg2rad(0.1) and abs(tilt.roll - roll) < np.deg2rad(0.3)
+    assert abs(tilt.pitch - PITCH) < 3 * tilt.pitch_std
+    assert abs(tilt.roll - roll) < 3 * tilt.roll_std
+    # Exact motions with turns: exact recovery whatever the wobble setting.
+    exact = MountTiltEstimator(prior_sigma=None)
+    for k in range(30):
+        exact.add_motion(*_camera_motion(PITCH, roll, np.deg2rad(3.0 * (k % 3)), (0.0, 0.0)))
+    tilt = exact.estimate()
+    assert abs(tilt.pitch - PITCH) < 1e-9 and abs(tilt.roll - roll) < 1e-9
+
+
+def test_tilt_wobble_is_settable_online_and_refits_are_bounded():
+    rng = np.random.default_rng(5)
+    est = MountTiltEstimator(max_pairs=50, refit_every=10)
+    assert est.update() is None                             # fewer than two pairs
+    for k, (R, t) in enumerate(_drive(rng, 500)):
+        est.add_motion(R, t)
+        est.update()
+    assert len(est) == 50 and est._angles.shape == (50,)
+    assert est.fits == 1 + (500 - 2) // 10                  # first at 2 pairs, then every 10
+    good = est.update()
+    assert est.fits == 50 and abs(good.roll) < np.deg2rad(10.0)
+    est.wobble_sigma = 0.0                                  # the odometry measured no wobble
+    locked = est.update()
+    assert est.fits == 51 and abs(locked.roll) > np.deg2rad(45.0)
+    est.wobble_sigma = np.deg2rad(0.1)
+    assert abs(est.update().roll) < np.deg2rad(10.0)
+    with pytest.raises(InputError, match=r'wobble_sigma: expected a non-negative angle'):
+        est.wobble_sigma = -1.0
+    with pytest.raises(InputError, match=r'weight: expected a non-negative number'):
+        est.add_motion(np.eye(3), np.array([0.0, 0.0, -1.0]), -1.0)
+    with pytest.raises(ConfigError, match=r'gate, max_pairs, refit_every'):
+        MountTiltEstimator(max_pairs=1)
+
+
+# --------------------------------------------------------------------------------------------
+# Focal length
+# --------------------------------------------------------------------------------------------
+
+FOCAL = 600.0
+WIDTH = HEIGHT_PX = 600
+
+
+def _pair(rng, yaw_deg, *, n=300, sigma=0.0):
+    """ACs of one turning pair in pixels from the principal point (the paper's camera)."""
+    syn = shared_motion_acs(rng, n, sigma, alpha=np.deg2rad(yaw_deg),
+                            beta=-np.pi / 2 + np.deg2rad(3.0), window=200.0)
+    pp = np.asarray(PAPER_PRINCIPAL_POINT)
+    return syn.acs.p1 - pp, syn.acs.p2 - pp, syn.acs.A
+
+
+def test_pair_profile_is_minimal_at_the_true_focal_on_exact_acs(rng):
+    p1, p2, A = _pair(rng, 6.0)
+    grid = np.log(FOCAL) + np.linspace(-0.5, 0.5, 21)       # the true focal is a grid point
+    prof = pair_profile(p1, p2, A, None, grid, 900.0, noise=(0.5, 0.01))
+    assert int(np.argmin(prof.cost)) == 10 and prof.cost[10] < 1e-12
+    assert abs(prof.alpha[10] - np.deg2rad(6.0)) < 1e-9 and prof.yaw == prof.alpha[10]
+    # The valley in between: the parabola of the combined profiles lands within 1 %.
+    log_f, std, info = combine_profiles([prof.cost, prof.cost, prof.cost], grid + 0.01)
+    assert abs(log_f - (np.log(FOCAL) + 0.01)) < 0.01 and not info['edge']
+    with pytest.raises(ConfigError, match=r'log_f_grid: expected at least 3 increasing'):
+        pair_profile(p1, p2, A, None, grid[::-1], 900.0)
+
+
+def test_pair_profile_of_straight_driving_does_not_pin_the_focal(rng):
+    syn = shared_motion_acs(rng, 300, 0.3, alpha=0.0, beta=-np.pi / 2)
+    pp = np.asarray(PAPER_PRINCIPAL_POINT)
+    grid = np.linspace(np.log(150.0), np.log(1500.0), 41)
+    prof = pair_profile(syn.acs.p1 - pp, syn.acs.p2 - pp, syn.acs.A, None, grid, 900.0)
+    # Flat within the noise: no grid focal is preferred by more than a few chi-square units.
+    assert np.ptp(prof.cost) < 0.05 * prof.cost.mean()
+
+
+def _calibrate(rng, sigma, *, pairs_per_block=2, blocks=4, pp_std=1.0, yaw=(5.0, 8.0),
+               drain_at=None):
+    """Turning pairs in ``blocks`` blocks, each worked off at once (or all at frame
+    ``drain_at``)."""
+    cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, pp_std=pp_std)
+    frame = 0
+    for b in range(blocks):
+        for k in range(pairs_per_block):
+            frame = 10 * b + 3 * k + 1
+            assert cal.offer(frame, *_pair(rng, rng.uniform(*yaw) * rng.choice([-1, 1]),
+                                           sigma=sigma))
+            if drain_at is None:
+                cal.work(0.0, frame, max_steps=1000)
+    if drain_at is not None:
+        cal.work(0.0, drain_at, max_steps=1000)
+    return cal
+
+
+def test_focal_calibration_adopts_an_accurate_focal_from_exact_turning_pairs(rng):
+    cal = _calibrate(rng, 0.0)
+    f, std, info = cal.estimate()
+    assert info['blocks'] == 4 and cal.pairs == 8 and cal.pending == 0
+    assert abs(f / FOCAL - 1.0) < 0.01 and std < 0.02 * f
+    assert cal.adopted == f and cal.adopted_at == 31 and cal.provisional == f
+    assert cal.relative_std == pytest.approx(std / f)
+    assert cal.status() == f'focal length {f:.1f} +- {std:.1f} px (self-calibrated at frame 31)'
+    # Adopted when the work that finishes the profiles runs: its frame is named.
+    late = _calibrate(np.random.default_rng(20240607), 0.0, drain_at=99)
+    assert late.adopted == pytest.approx(f) and late.adopted_at == 99
+
+
+def test_focal_calibration_uncertainty_is_honest_on_noisy_pairs():
+    rng = np.random.default_rng(8)
+    for _ in range(4):
+        cal = _calibrate(rng, 0.7, pp_std=None)             # principal point assumed: 6 px
+        f, std, info = cal.estimate()
+        assert abs(f - FOCAL) <= 3.0 * std, (f, std)
+        if cal.adopted is not None:
+            assert abs(cal.adopted - FOCAL) <= 3.0 * cal.adopted_std
+
+
+def test_focal_calibration_stays_provisional_without_turns(rng):
+    cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX)
+    assert cal.provisional == 600.0 and cal.relative_std == pytest.approx(math.exp(0.45) - 1)
+    assert cal.status() == 'focal length 600.0 +- 341.0 px (provisional, 0 of 4 blocks)'
+    for b in range(5):
+        syn = shared_motion_acs(rng, 300, 0.5, alpha=0.0, beta=-np.pi / 2)
+        pp = np.asarray(PAPER_PRINCIPAL_POINT)
+        cal.offer(10 * b, syn.acs.p1 - pp, syn.acs.p2 - pp, syn.acs.A)
+        cal.work(0.0, 10 * b, max_steps=1000)
+    assert cal.adopted is None and '(provisional' in cal.status()
+    assert cal.relative_std > 0.2                           # the odometry knows it is unsure
+
+
+def test_focal_work_is_stepwise_bounded_and_within_budget(rng, monkeypatch):
+    cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, max_queue=3)
+    pairs = [_pair(rng, 6.0, n=60) for _ in range(4)]
+    assert all(cal.offer(5, *p) for p in pairs[:3])
+    assert not cal.offer(5, *pairs[3]) and cal.dropped == 1  # the queue is full: counted
+    assert not cal.offer(5, *[x[:59] for x in pairs[3]])    # too few ACs (3 x min_inliers)
+    assert cal.work(0.0) == 0 and cal.pending == 3
+    # One pair is 14 steps: a vote and 6 chunks of grid focal lengths, twice (the principal
+    # point shifted for the second profile).
+    assert cal.work(0.0, 7, max_steps=13) == 13 and cal.pairs == 0
+    assert cal.work(0.0, 8, max_steps=1) == 1 and cal.pairs == 1 and cal.pending == 2
+    # The time budget: each step costs 3 units on a fake clock, 1 unit per frame is granted, so
+    # one frame in three runs a step and the average stays at the budget (units of 2**-10 s:
+    # exact in binary).
+    unit = 2.0 ** -10
+    clock = iter(np.arange(0.0, 100.0, 3 * unit))
+    monkeypatch.setattr(focal_module.time, 'perf_counter', lambda: next(clock))
+    steps = [cal.work(unit) for _ in range(60)]
+    assert max(steps) == 1 and sum(steps) == 20
+    assert cal.steps == 14 + 20
+    with pytest.raises(InputError, match=r'budget_s: expected a non-negative duration'):
+        cal.work(-1.0)
+
+
+def test_focal_blocks_are_bounded(rng):
+    cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, pp_std=0.0, min_blocks=2, max_blocks=2)
+    for b in range(4):
+        cal.offer(10 * b, *_pair(rng, 6.0, n=120))
+        assert cal.work(0.0, max_steps=100) == 7            # one profile: 7 steps
+    assert cal.blocks == 2 and cal.pairs == 4
+
+
+def test_focal_calibrator_input_errors(rng):
+    with pytest.raises(ConfigError, match=r'width, height: expected a positive image size'):
+        OnlineFocalCalibrator(0, 10)
+    with pytest.raises(ConfigError, match=r'focal_min_blocks: expected at least 2, got 1'):
+        OnlineFocalCalibrator(WIDTH, HEIGHT_PX, min_blocks=1)
+    cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX)
+    p1, p2, A = _pair(rng, 6.0, n=60)
+    with pytest.raises(InputError, match=r'same number of items'):
+        cal.offer(1, p1, p2[:-1], A)
+
+
+def test_turn_pair_selector_picks_turns_within_the_pixel_window():
+    sel = TurnPairSelector(600)                             # 4-13 % of 600 px: 24-78 px
+    f = 600.0
+    step = math.atan(13.0 / f)                              # 13 px of rotation per keyframe
+    picks = [sel.step(k, step, f) for k in range(10)]
+    # Two steps (26 px) reach the lower bound; then at most every second keyframe.
+    assert picks == [None, None, 0, None, 2, None, 4, None, 6, None]
+    straight = TurnPairSelector(600)
+    assert all(straight.step(k, 0.0, f) is None for k in range(20))
+    fast = TurnPairSelector(600)                            # 90 px per step: beyond 13 %
+    assert all(fast.step(k, math.atan(90.0 / f), f) is None for k in range(5))
+    with pytest.raises(InputError, match=r'expected a finite yaw and a positive focal'):
+        sel.step(11, float('nan'), f)
+    with pytest.raises(ConfigError, match=r'0 < min_shift < max_shift'):
+        TurnPairSelector(600, min_shift=0.2)
