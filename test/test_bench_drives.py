@@ -206,3 +206,28 @@ def test_bad_options_are_one_line_and_exit_1(data, tmp_path, capsys, options, me
     err = capsys.readouterr().err
     assert err.startswith(f'planar_vo bench: error: {message}') and err.count('\n') == 1
     assert not (tmp_path / 'drives.md').exists()
+
+
+def test_planar_vo_alone_on_the_first_frames(data, tmp_path, capfd):
+    out = tmp_path / 'out'
+    assert main(['bench', 'drives', '--data', str(data), '--out', str(out), '--frames', '4',
+                 '--skip-peers', '--skip-focal']) == 0
+    text = (out / 'drives.md').read_text()
+    results = json.loads((out / 'drives.json').read_text())
+    assert '--frames 4 --skip-peers --skip-focal' in text and 'Focal length' not in text
+    drive = results['drives'][DRIVE]
+    assert drive['frames'] == 4 and set(drive['runs']) == {'planar_vo'}
+    assert drive['runs']['planar_vo']['frames_with_odometry'] == 3
+    assert f'## {DRIVE}: 4 frames' in capfd.readouterr().out        # printed as it goes
+
+
+def test_cli_defaults():
+    from pathlib import Path
+
+    from planar_vo.cli import build_parser
+
+    args = build_parser().parse_args(['bench', 'drives'])
+    assert (args.data, args.drives, args.camera_height, args.frames) == \
+        (Path('../shared/data'), None, 1.65, None)
+    assert not (args.skip_peers or args.skip_focal or args.quick)
+    assert args.out == 'out/bench/drives'

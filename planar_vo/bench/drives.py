@@ -38,6 +38,7 @@ import json
 import math
 import sys
 import tempfile
+import time
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
@@ -117,8 +118,10 @@ def run(args: argparse.Namespace) -> int:
     frames = args.frames if args.frames is not None else (QUICK_FRAMES if args.quick else None)
     results = {}
     for folder in drives:
+        start = time.perf_counter()
         results[folder.name] = run_drive(folder, args.camera_height, frames=frames,
                                          peers=not args.skip_peers, focal=not args.skip_focal)
+        results[folder.name]['wall_s'] = time.perf_counter() - start
         print(drive_section(folder.name, results[folder.name]) + '\n', flush=True)
     write_results(Path(args.out), args.command, args.camera_height, results)
     return 0
@@ -488,6 +491,7 @@ def drive_section(name: str, drive: dict) -> str:
     used = next((r[key]['lengths_m'] for r in drive['runs'].values() if key in r), [])
     lines = [f"## {name}: {drive['frames']} frames, {drive['path_length_m']:.1f} m, "
              f"{drive['duration_s']:.1f} s",
+             '', f"Benchmark wall time on this drive (every run): {drive['wall_s']:.0f} s.",
              '', markdown_table(header, rows, 'll' + 'r' * (len(header) - 2)), '',
              f"Drift segments: {', '.join(f'{v:g}' for v in used) or 'none'} m, a start every "
              f"10 frames. The peers' scale is the TRUE step length between consecutive frames."]
@@ -592,9 +596,9 @@ def summary_table(results: dict) -> str:
     header = ['method']
     for name, drive in results.items():
         key, _ = _protocol(drive)
-        seg = ' (10-50 m)' if key == 'kitti_short' else ''
-        header += [f'{name}: yaw err. (deg)', f'{name}: r_rel 3D{seg}',
-                   f'{name}: r_rel SE(2){seg}', f'{name}: t_rel 3D (%){seg}']
+        seg = ', 10-50 m segments' if key == 'kitti_short' else ''
+        header += [f'{name}: yaw err. (deg)', f'{name}: r_rel 3D (deg/100 m{seg})',
+                   f'{name}: r_rel SE(2) (deg/100 m{seg})', f'{name}: t_rel 3D (%{seg})']
     rows = []
     for k in keys:
         label = next(d['runs'][k]['label'] for d in results.values() if k in d['runs'])
