@@ -1,11 +1,12 @@
 """Benchmarks behind ``planar_vo bench ...``, and the peers they compare against. Never imported
 by the runtime (the pipeline and the node).
 
-One module per benchmark (``paper``, ``speed``, ``frontend``, ``pipeline``, ``solvers``), each with
-``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``, registered in
-`planar_vo.cli.bench.BENCHES`. Shared pieces: `peers` (OpenCV and PoseLib estimators in
-planar_vo's conventions), `metrics` (the paper's error measures), `methods` (the compared
-methods, '1AC + voting' among them), `common` (reports, figures, dependencies). Optional
+One module per benchmark (``paper``, ``speed``, ``frontend``, ``pipeline``, ``drives``,
+``solvers``), each with ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``, registered
+in `planar_vo.cli.bench.BENCHES`. Shared pieces: `peers` (OpenCV and PoseLib estimators in
+planar_vo's conventions), `odometry` (the peers' frame-to-frame odometry on real frames),
+`metrics` (the paper's error measures), `methods` (the compared methods, '1AC + voting' among
+them), `common` (reports, figures, dependencies). Optional
 dependencies: ``pip install 'planar_vo[bench]'`` (poselib, matplotlib).
 """
 

@@ -233,26 +233,14 @@ def kitti_table(folder: Path, height: float, pitch: float | None) -> str:
 
 def _five_point_run(frames, steps: np.ndarray, height: float, pitch: float
                     ) -> tuple[np.ndarray, float]:
-    """Frame-to-frame OpenCV five-point odometry on our front-end's points, GT step lengths."""
-    from planar_vo.bench.peers import estimate_5pc_opencv
-    from planar_vo.config import FrontendConfig
-    from planar_vo.core.camera import normalize_points
-    from planar_vo.core.conventions import camera_motion_to_base, mount_transform, se3
-    from planar_vo.frontend import ACExtractor
+    """Frame-to-frame OpenCV five-point odometry on our front-end's points, GT step lengths
+    (`planar_vo.bench.odometry.PeerOdometry`), as vehicle poses ``T_odom_base`` for the mount."""
+    from planar_vo.bench.odometry import PeerOdometry
+    from planar_vo.core.conventions import invert, mount_transform
 
-    extractor = ACExtractor(FrontendConfig())
+    peer = PeerOdometry(('opencv',), ('frontend',))
+    for i, frame in enumerate(frames):
+        peer.add(frame.image, frame.camera, steps[i - 1] if i else 0.0)
+    run = peer.runs(np.array([f.stamp_ns for f in frames]))['opencv_frontend']
     T_bc = mount_transform(height=height, pitch=pitch)
-    pose = np.eye(4)
-    poses, times = [pose.copy()], []
-    for i in range(1, len(frames)):
-        camera = frames[i].camera
-        t0 = time.perf_counter()
-        acs = extractor.extract(frames[i - 1].image, frames[i].image)
-        q1, q2 = normalize_points(camera.K, acs.p1), normalize_points(camera.K, acs.p2)
-        est = estimate_5pc_opencv(q1, q2, threshold=1.0 / camera.fx)
-        if est.ok:
-            T_c1_c2 = se3(est.R.T, -est.R.T @ est.t * steps[i - 1])
-            pose = pose @ camera_motion_to_base(T_c1_c2, T_bc)
-        times.append(time.perf_counter() - t0)
-        poses.append(pose.copy())
-    return np.array(poses), float(np.median(times))
+    return T_bc @ run.poses @ invert(T_bc), float(np.median(run.seconds))

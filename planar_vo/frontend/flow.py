@@ -49,6 +49,7 @@ __all__ = [
     'DIS_PRESETS',
     'CandidateGrid',
     'FlowExtractor',
+    'flow_candidates',
     'flow_jacobian',
     'neighbour_predictions',
     'sample_field',
@@ -153,6 +154,23 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
     points = 2 * np.stack([x[keep], y[keep]], axis=1).astype(np.int64)
     index = np.stack(np.nonzero(keep), axis=1).astype(np.int64)
     return CandidateGrid(points, value[keep].astype(np.float64), index, (rows, cols))
+
+
+def _jacobian_baseline(config: FrontendConfig) -> int:
+    """Half the central-difference baseline (pixels) of the flow Jacobian: half a patch."""
+    return max(config.patch_radius // 2, 1)
+
+
+def flow_candidates(gray: np.ndarray, config: FrontendConfig) -> CandidateGrid:
+    """The flow front-end's candidate points in image 1: `texture_grid` with the configured grid
+    step, texture threshold and cap, and the border margin its patches and flow Jacobian need.
+
+    Used by `FlowExtractor` and by benchmarks that sample a flow field where the front-end would
+    (e.g. DIS-flow points for the five-point peers).
+    """
+    margin = config.patch_radius + 1 + _jacobian_baseline(config)
+    return texture_grid(gray, config.grid_step, margin, config.min_texture,
+                        config.max_correspondences)
 
 
 def sample_field(field: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -263,10 +281,7 @@ class FlowExtractor:
         forward = run(self._forward.calc, gray1, gray2, None)
         backward = run(self._backward.calc, gray2, gray1, None) if use_fb else None
         try:
-            h_diff = max(cfg.patch_radius // 2, 1)
-            margin = cfg.patch_radius + 1 + h_diff
-            grid = texture_grid(gray1, cfg.grid_step, margin, cfg.min_texture,
-                                cfg.max_correspondences)
+            grid = flow_candidates(gray1, cfg)
             p1, texture = grid.points, grid.texture
             template = image2 = None
             if cfg.refine_affine and len(p1):
@@ -292,7 +307,7 @@ class FlowExtractor:
             fb_error = np.zeros(len(p1))
             keep = np.ones(len(p1), dtype=bool)
         stats['fb_consistent'] = float(np.count_nonzero(keep))
-        A = flow_jacobian(flow, p1, h_diff)
+        A = flow_jacobian(flow, p1, _jacobian_baseline(cfg))
         if template is not None:
             p2_flow, A_flow = p2, A
             index = np.flatnonzero(keep)

@@ -11,15 +11,15 @@ from planar_vo.io.outputs import write_file
 from planar_vo.tools.evaluation.metrics import Evaluation
 from planar_vo.tools.evaluation.plots import PLOTS
 
-__all__ = ['write_report']
+__all__ = ['json_ready', 'write_report']
 
 
-def _json_ready(value):
+def json_ready(value):
     """NaN/inf -> None (JSON has no NaN), numpy scalars -> Python, recursively."""
     if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
+        return {k: json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
+        return [json_ready(v) for v in value]
     if hasattr(value, 'item') and not isinstance(value, (str, bytes)):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
@@ -45,7 +45,7 @@ def write_report(evaluation: Evaluation, out_dir: str | Path, **extra) -> list[P
     written: list[Path] = []
     try:
         written.append(write_file(out / 'metrics.json',
-                                  json.dumps(_json_ready(metrics), indent=2) + '\n',
+                                  json.dumps(json_ready(metrics), indent=2) + '\n',
                                   role='out-dir'))
         for name, plot in PLOTS.items():
             written.append(plot(evaluation, out / name))

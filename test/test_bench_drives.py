@@ -1,0 +1,233 @@
+"""``planar_vo bench drives`` on a tiny rendered drive in the KITTI layout (never real data): the
+benchmark runs, its report has every row, and the peers' trajectories on rendered frames with
+exact poses are near the truth; the trajectory helpers are exact on exact motions."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from planar_vo.bench.drives import camera_pose, find_drives, first_frames, level_world
+from planar_vo.bench.odometry import FIVE_POINT, SOURCES, OdometryRun, chain_camera_motions
+from planar_vo.cli import main
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.conventions import invert, mount_transform, rotation_rpy, se3
+from planar_vo.errors import InputError
+from planar_vo.io.kitti import read_kitti_sequence
+from planar_vo.pipeline import FrameResult
+from planar_vo.sim import StreetWorld, straight, turn
+from planar_vo.sim.drive import render_drive
+
+CAMERA = CameraModel.pinhole(640, 480, 500.0)
+HEIGHT = 1.65
+DRIVE = 'straight_turn'
+PIPELINE_RUNS = ('planar_vo', 'planar_vo_focal')
+PEER_RUNS = tuple(f'{e}_{s}' for s in SOURCES for e in FIVE_POINT)
+
+
+def _write_kitti_folder(folder, trajectory, world) -> None:
+    """A KITTI odometry folder: image_l/ PNGs, calib.txt (P0), poses.txt (T_w_cam in the frame
+    of camera 0: x right, y down, z forward) and times.txt, rendered along ``trajectory``."""
+    mount = mount_transform(height=HEIGHT)
+    (folder / 'image_l').mkdir(parents=True)
+    for i, frame in enumerate(render_drive(trajectory, world, CAMERA, mount)):
+        assert cv2.imwrite(str(folder / 'image_l' / f'{i:06d}.png'), frame.image)
+    cameras = trajectory.camera_poses(mount)                      # T_odom_camera
+    poses = invert(cameras[0]) @ cameras                          # T_cam0_cam
+    P0 = np.hstack([CAMERA.K, np.zeros((3, 1))])
+    (folder / 'calib.txt').write_text('P0: ' + ' '.join(f'{v:.12e}' for v in P0.ravel()) + '\n')
+    (folder / 'poses.txt').write_text(''.join(
+        ' '.join(f'{v:.12e}' for v in T[:3].ravel()) + '\n' for T in poses))
+    (folder / 'times.txt').write_text(''.join(f'{t:.6f}\n' for t in trajectory.stamps))
+
+
+@pytest.fixture(scope='module')
+def data(tmp_path_factory):
+    """A data folder holding one rendered drive: 4 m straight, then a 30-degree left turn."""
+    root = tmp_path_factory.mktemp('drives_data')
+    trajectory = straight(4.0, speed=10.0).then(turn(np.deg2rad(30.0), radius=15.0, speed=8.0))
+    _write_kitti_folder(root / DRIVE, trajectory, StreetWorld.along(trajectory, seed=3))
+    (root / 'notes').mkdir()                                      # not a drive: ignored
+    return root
+
+
+@pytest.fixture(scope='module')
+def report(data, tmp_path_factory):
+    """The benchmark's outputs on the rendered drive (run once for the module)."""
+    pytest.importorskip('poselib')
+    out = tmp_path_factory.mktemp('drives_out')
+    assert main(['bench', 'drives', '--data', str(data), '--out', str(out)]) == 0
+    return (out / 'drives.md').read_text(), json.loads((out / 'drives.json').read_text())
+
+
+def test_report_has_every_row_and_the_command(report, data):
+    text, results = report
+    assert 'planar_vo bench drives --out ' in text and f'--data {data}' in text
+    assert '--camera-height 1.65' in text and '## Summary across drives' in text
+    assert f'## {DRIVE}: 15 frames' in text and '### Focal length (true 500.0 px)' in text
+    drive = results['drives'][DRIVE]
+    assert set(drive['runs']) == set(PIPELINE_RUNS + PEER_RUNS)
+    for run in drive['runs'].values():
+        assert run['label'] in text                       # a row per run in the tables
+        assert text.count(f"| {run['label']} |") >= 2     # drive table and summary
+    assert 'PoseLib shared-focal six-point' in text and 'median of 14 of 14 pairs' in text
+    # The drive is 12 m long: no 100 m segment, so the 10-50 m protocol, labelled.
+    assert drive['path_length_m'] == pytest.approx(11.85, abs=0.05)
+    assert '10-50 m segments (drive < 100 m)' in text
+    assert drive['settings'] == {'mount.height': HEIGHT}
+    assert results['command'][:3] == ['planar_vo', 'bench', 'drives']
+
+
+def test_peers_on_rendered_frames_are_near_the_truth(report):
+    _, results = report
+    runs = results['drives'][DRIVE]['runs']
+    for key in PEER_RUNS:
+        run = runs[key]
+        assert run['scale'] == 'TRUE step length' and run['failed_pairs'] == 0, key
+        assert run['odometry_pct'] == 100.0, key
+        assert run['yaw_change_error_deg']['mean'] < 0.05, key
+        assert run['ate_m']['rmse'] < 0.05, key
+        assert run['sim3_scale'] == pytest.approx(1.0, abs=0.01), key
+        assert run['kitti_short']['segments'] == 1 and run['kitti_short']['t_rel_pct'] < 1.0, key
+        assert run['estimator_ms_per_frame']['median'] > 0.0, key
+
+
+def test_planar_vo_runs_are_reported_with_their_focal_length(report):
+    _, results = report
+    drive = results['drives'][DRIVE]
+    ours = drive['runs']['planar_vo']
+    assert ours['scale'] == 'own: ground, height 1.65 m'
+    assert ours['odometry_pct'] > 90.0 and ours['yaw_change_error_deg']['mean'] < 0.1
+    assert ours['dropped'].get('first_frame') == 1
+    focal = drive['focal']['self_calibrated']
+    assert focal['settings'] == {'mount.height': HEIGHT, 'camera.estimate_focal': True}
+    assert focal['frames_seen'] >= 1 and isinstance(focal['adopted'], bool)
+    six = drive['focal']['six_point']
+    assert six['pairs'] == 14 and six['vote'] == 'median of the per-pair focal lengths'
+    assert len(six['per_pair_px']) == 14
+
+
+# ---------------------------------------------------------------------------------------------
+# Helpers, on exact data
+# ---------------------------------------------------------------------------------------------
+
+def _random_poses(rng, n: int) -> np.ndarray:
+    steps = se3(rotation_rpy(*rng.normal(0.0, 0.05, (3, n))),
+                rng.normal(0.0, 1.0, (n, 3)) + [0.0, 0.0, 1.0])
+    poses = [np.eye(4)]
+    for T in steps:
+        poses.append(poses[-1] @ T)
+    return np.array(poses)
+
+
+def test_chained_camera_motions_reproduce_the_trajectory_exactly(rng):
+    poses = _random_poses(rng, 20)                            # T_world_camera, poses[0] = I
+    rel = invert(poses[1:]) @ poses[:-1]                      # X2 = R X1 + t
+    R, t = rel[:, :3, :3], rel[:, :3, 3]
+    steps = np.linalg.norm(t, axis=1)
+    chained = chain_camera_motions(R, t / steps[:, None], steps, np.ones(20, bool))
+    np.testing.assert_allclose(chained, poses, atol=1e-12)
+    # A missing motion holds the camera where it was; the later motions still chain.
+    ok = np.ones(20, bool)
+    ok[5] = False
+    held = chain_camera_motions(R, t / steps[:, None], steps, ok)
+    np.testing.assert_allclose(held[:6], poses[:6], atol=1e-12)
+    np.testing.assert_allclose(held[6], held[5])
+    np.testing.assert_allclose(held[7], held[6] @ invert(rel[6]), atol=1e-12)
+
+
+def test_pipeline_pose_maps_back_to_the_vehicle_pose_in_the_z_up_frame(rng):
+    # A level mount at the camera height: the camera pose in the z-up frame is T_odom_base.
+    pose = se3(rotation_rpy(0.0, 0.0, 0.3), [4.0, -1.0, 0.0])
+    result = FrameResult(stamp=1.0, ok=True, pose=pose, pose_covariance=np.eye(6))
+    T_bc = mount_transform(height=HEIGHT)
+    T_wc = camera_pose(result, T_bc)
+    np.testing.assert_allclose(level_world(T_wc[None], HEIGHT)[0], pose, atol=1e-12)
+    # Driving forward (+x in odom) moves the camera along its optical axis (+z).
+    np.testing.assert_allclose(T_wc[:3, 3], [1.0, 0.0, 4.0], atol=1e-12)
+
+
+def test_runs_are_aligned_to_the_frames_by_nearest_stamp():
+    stamps = np.array([0, 100_000_000, 200_000_000, 300_000_000])
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[:, 0, 3] = [0.0, 1.0, 3.0]
+    # The run saw frames 0, 1 and 3 (stamps off by rounding); frame 2 gave no result.
+    run = OdometryRun('x', 'unit', np.array([0, 100_000_123, 299_999_900]), poses,
+                      np.array([False, True, True]), np.zeros(2), np.zeros(2))
+    on = run.aligned(stamps)
+    np.testing.assert_array_equal(on.ok, [False, True, False, True])
+    np.testing.assert_allclose(on.poses[:, 0, 3], [0.0, 1.0, 1.0, 3.0])
+    nothing = OdometryRun('x', 'unit', np.zeros(0, np.int64), np.zeros((0, 4, 4)),
+                          np.zeros(0, bool), np.zeros(0), np.zeros(0)).aligned(stamps)
+    assert not nothing.ok.any()
+
+
+def test_first_frames_is_the_same_drive_cut_short(data, tmp_path):
+    full = read_kitti_sequence(data / DRIVE)
+    view = first_frames(data / DRIVE, 5, tmp_path)
+    cut = read_kitti_sequence(view)
+    assert [p.name for p in cut.images] == [p.name for p in full.images[:5]]
+    np.testing.assert_array_equal(cut.poses, full.poses[:5])
+    np.testing.assert_array_equal(cut.P0, full.P0)
+    assert cut.times == full.times[:5]
+    assert first_frames(data / DRIVE, 100, tmp_path) == data / DRIVE
+
+
+# ---------------------------------------------------------------------------------------------
+# Bad input
+# ---------------------------------------------------------------------------------------------
+
+def test_drive_folders_are_found_or_refused(data, tmp_path):
+    assert find_drives(data) == [data / DRIVE]
+    assert find_drives(data / DRIVE) == [data / DRIVE]          # one drive given directly
+    assert find_drives(data, [DRIVE, DRIVE]) == [data / DRIVE]
+    with pytest.raises(InputError, match="data: '.*nowhere' is not a directory"):
+        find_drives(tmp_path / 'nowhere')
+    with pytest.raises(InputError, match='holds no drive in the KITTI layout'):
+        find_drives(tmp_path)
+    with pytest.raises(InputError, match=f'drives: 05 not found .*drives there: {DRIVE}'):
+        find_drives(data, ['05'])
+    (tmp_path / 'no_truth').mkdir()
+    (tmp_path / 'no_truth' / 'calib.txt').write_text('0 ' * 12)
+    with pytest.raises(InputError, match="no_truth' has no poses.txt"):
+        find_drives(tmp_path)
+
+
+@pytest.mark.parametrize('options, message', [
+    (['--frames', '2'], 'frames: expected at least 3 frames, got 2'),
+    (['--camera-height', '-1'], 'camera-height: expected a positive height in metres, got -1'),
+    (['--drives', 'kitti99'], 'drives: kitti99 not found'),
+])
+def test_bad_options_are_one_line_and_exit_1(data, tmp_path, capsys, options, message):
+    assert main(['bench', 'drives', '--data', str(data), '--out', str(tmp_path), *options]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f'planar_vo bench: error: {message}') and err.count('\n') == 1
+    assert not (tmp_path / 'drives.md').exists()
+
+
+def test_planar_vo_alone_on_the_first_frames(data, tmp_path, capfd):
+    out = tmp_path / 'out'
+    assert main(['bench', 'drives', '--data', str(data), '--out', str(out), '--frames', '4',
+                 '--skip-peers', '--skip-focal']) == 0
+    text = (out / 'drives.md').read_text()
+    results = json.loads((out / 'drives.json').read_text())
+    assert '--frames 4 --skip-peers --skip-focal' in text and 'Focal length' not in text
+    drive = results['drives'][DRIVE]
+    assert drive['frames'] == 4 and set(drive['runs']) == {'planar_vo'}
+    assert drive['runs']['planar_vo']['frames_with_odometry'] == 3
+    assert f'## {DRIVE}: 4 frames' in capfd.readouterr().out        # printed as it goes
+
+
+def test_cli_defaults():
+    from pathlib import Path
+
+    from planar_vo.cli import build_parser
+
+    args = build_parser().parse_args(['bench', 'drives'])
+    assert (args.data, args.drives, args.camera_height, args.frames) == \
+        (Path('../shared/data'), None, 1.65, None)
+    assert not (args.skip_peers or args.skip_focal or args.quick)
+    assert args.out == 'out/bench/drives'
