@@ -140,11 +140,13 @@ def test_chained_camera_motions_reproduce_the_trajectory_exactly(rng):
 
 
 def test_pipeline_pose_maps_back_to_the_vehicle_pose_in_the_z_up_frame(rng):
-    # A level mount at the camera height: the camera pose in the z-up frame is T_odom_base.
+    # A level mount at the camera height: the pipeline's camera pose (T_bc^-1 T_odom_base T_bc,
+    # world = the first camera frame) in the z-up frame is T_odom_base.
     pose = se3(rotation_rpy(0.0, 0.0, 0.3), [4.0, -1.0, 0.0])
-    result = FrameResult(stamp=1.0, ok=True, pose=pose, pose_covariance=np.eye(6))
     T_bc = mount_transform(height=HEIGHT)
-    T_wc = camera_pose(result, T_bc)
+    result = FrameResult(stamp=1.0, ok=True, pose=pose, pose_covariance=np.eye(6),
+                         camera_pose=invert(T_bc) @ pose @ T_bc)
+    T_wc = camera_pose(result)
     np.testing.assert_allclose(level_world(T_wc[None], HEIGHT)[0], pose, atol=1e-12)
     # Driving forward (+x in odom) moves the camera along its optical axis (+z).
     np.testing.assert_allclose(T_wc[:3, 3], [1.0, 0.0, 4.0], atol=1e-12)

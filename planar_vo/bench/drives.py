@@ -271,30 +271,9 @@ def level_world(poses: np.ndarray, height: float) -> np.ndarray:
     return T_bc0 @ np.asarray(poses, dtype=np.float64) @ invert(T_bc0)
 
 
-# ---- SWITCH (lead): FrameResult.camera_pose ------------------------------------------------------
-def camera_pose(result, T_base_camera: np.ndarray) -> np.ndarray:
-    """``T_world_camera`` after a pipeline frame (world = the first camera frame).
-
-    ``FrameResult.camera_pose`` is being added on main; until it is there, this derives it from
-    ``result.pose`` (``T_odom_base``, ``odom`` = ``base_link`` at the first frame) and the
-    configured mount ``T_bc``: ``T_bc^-1 T_odom_base T_bc``. When the field exists it is used as
-    it is; to switch for good, return ``result.camera_pose``.
-    """
-    pose = getattr(result, 'camera_pose', None)
-    if pose is not None:
-        return np.asarray(pose, dtype=np.float64)
-    from planar_vo.core.conventions import invert
-
-    return invert(T_base_camera) @ result.pose @ T_base_camera
-# ---- end of SWITCH ---------------------------------------------------------------------------
-
-
-def configured_mount(config) -> np.ndarray:
-    """``T_base_camera`` of a configuration's mount section."""
-    from planar_vo.core.conventions import mount_transform
-
-    m = config.mount
-    return mount_transform(m.x, m.y, m.height, m.roll, m.pitch, m.yaw)
+def camera_pose(result) -> np.ndarray:
+    """``T_world_camera`` after a pipeline frame (world = the first camera frame)."""
+    return np.asarray(result.camera_pose, dtype=np.float64)
 
 
 class FrameRecorder:
@@ -316,9 +295,9 @@ class FrameRecorder:
 
 
 def _pipeline_run(label: str, scale: str, stamps_s: Sequence[float], results: list,
-                  T_base_camera: np.ndarray, extra: dict) -> OdometryRun:
+                  extra: dict) -> OdometryRun:
     stamps_ns = np.array([round(s * 1e9) for s in stamps_s], dtype=np.int64)
-    poses = np.array([camera_pose(r, T_base_camera) for r in results]).reshape(-1, 4, 4)
+    poses = np.array([camera_pose(r) for r in results]).reshape(-1, 4, 4)
     timed = results[1:]
     return OdometryRun(
         label, scale, stamps_ns, poses, np.array([r.ok for r in results], dtype=bool),
@@ -340,7 +319,6 @@ def replay_planar_vo(bag: Path, out: Path, config, *, progress: bool = False) ->
     summary = replay_bag(bag, out, recorder, progress=progress)
     return _pipeline_run('planar_vo, shipped defaults + camera height (replay)',
                          _scale_label(config), recorder.stamps, recorder.results,
-                         configured_mount(config),
                          {'replay_wall_s': summary.wall_time, 'replay_frames': summary.frames_in,
                           'replay_odometry': summary.odometry_out})
 
@@ -373,7 +351,7 @@ class FocalRun:
     def run(self) -> OdometryRun:
         return _pipeline_run('planar_vo, self-calibrated focal (no CameraInfo)',
                              _scale_label(self.config), self.stamps, self.results,
-                             configured_mount(self.config), {})
+                             {})
 
     def summary(self, true_focal: float) -> dict:
         """The focal length in use at the end, adopted or provisional, against the truth."""
