@@ -22,7 +22,6 @@ from planar_vo.pipeline.calibration import (
     RoadNormalCalibrator,
     TurnPairSelector,
 )
-from planar_vo.pipeline.calibration import focal as focal_module
 from planar_vo.sim.synthetic import PAPER_PRINCIPAL_POINT, shared_motion_acs
 
 HEIGHT = 1.65
@@ -269,9 +268,9 @@ def _calibrate(rng, sigma, *, pairs_per_block=2, blocks=4, pp_std=1.0, yaw=(5.0,
             assert cal.offer(frame, *_pair(rng, rng.uniform(*yaw) * rng.choice([-1, 1]),
                                            sigma=sigma))
             if drain_at is None:
-                cal.work(0.0, frame, max_steps=1000)
+                cal.work(1000, frame)
     if drain_at is not None:
-        cal.work(0.0, drain_at, max_steps=1000)
+        cal.work(1000, drain_at)
     return cal
 
 
@@ -306,12 +305,12 @@ def test_focal_calibration_stays_provisional_without_turns(rng):
         syn = shared_motion_acs(rng, 300, 0.5, alpha=0.0, beta=-np.pi / 2)
         pp = np.asarray(PAPER_PRINCIPAL_POINT)
         cal.offer(10 * b, syn.acs.p1 - pp, syn.acs.p2 - pp, syn.acs.A)
-        cal.work(0.0, 10 * b, max_steps=1000)
+        cal.work(1000, 10 * b)
     assert cal.adopted is None and '(provisional' in cal.status()
     assert cal.relative_std > 0.2                           # the odometry knows it is unsure
 
 
-def test_focal_work_is_stepwise_bounded_and_within_budget(rng, monkeypatch):
+def test_focal_work_is_stepwise_bounded_and_deterministic(rng):
     cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, max_queue=3)
     pairs = [_pair(rng, 6.0, n=60) for _ in range(4)]
     assert all(cal.offer(5, *p) for p in pairs[:3])
@@ -320,18 +319,18 @@ def test_focal_work_is_stepwise_bounded_and_within_budget(rng, monkeypatch):
     assert cal.work(0.0) == 0 and cal.pending == 3
     # One pair is 14 steps: a vote and 6 chunks of grid focal lengths, twice (the principal
     # point shifted for the second profile).
-    assert cal.work(0.0, 7, max_steps=13) == 13 and cal.pairs == 0
-    assert cal.work(0.0, 8, max_steps=1) == 1 and cal.pairs == 1 and cal.pending == 2
-    # The time budget: each step costs 3 units on a fake clock, 1 unit per frame is granted, so
-    # one frame in three runs a step and the average stays at the budget (units of 2**-10 s:
-    # exact in binary).
-    unit = 2.0 ** -10
-    clock = iter(np.arange(0.0, 100.0, 3 * unit))
-    monkeypatch.setattr(focal_module.time, 'perf_counter', lambda: next(clock))
-    steps = [cal.work(unit) for _ in range(60)]
-    assert max(steps) == 1 and sum(steps) == 20
-    assert cal.steps == 14 + 20
-    with pytest.raises(InputError, match=r'budget_s: expected a non-negative duration'):
+    assert cal.work(13, 7) == 13 and cal.pairs == 0
+    assert cal.work(1, 8) == 1 and cal.pairs == 1 and cal.pending == 2
+    # Fractional steps carry over: 0.25 steps a frame run one step every fourth frame, counted
+    # in steps (not seconds), so the same frames give the same calibration at any load.
+    steps = [cal.work(0.25) for _ in range(40)]
+    assert steps == [0, 0, 0, 1] * 10 and cal.steps == 14 + 10
+    # Nothing is saved up while the queue is empty.
+    cal.work(100)
+    assert cal.pending == 0 and cal.work(5.0) == 0
+    cal.offer(50, *pairs[3])
+    assert cal.work(0.5) == 0 and cal.work(0.5) == 1
+    with pytest.raises(InputError, match=r'steps: expected a non-negative number of work steps'):
         cal.work(-1.0)
 
 
@@ -339,7 +338,7 @@ def test_focal_blocks_are_bounded(rng):
     cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, pp_std=0.0, min_blocks=2, max_blocks=2)
     for b in range(4):
         cal.offer(10 * b, *_pair(rng, 6.0, n=120))
-        assert cal.work(0.0, max_steps=100) == 7            # one profile: 7 steps
+        assert cal.work(100) == 7                           # one profile: 7 steps
     assert cal.blocks == 2 and cal.pairs == 4
 
 

@@ -83,7 +83,8 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
     ({'mount': {'tilt_wobble_std': 0.5}}, r'mount.tilt_wobble_std: expected an angle in'),
     ({'camera': {'focal_min_blocks': 8, 'focal_max_blocks': 4}},
      r'camera.focal_max_blocks: expected at least focal_min_blocks'),
-    ({'camera': {'focal_budget': 0.0}}, r'camera.focal_budget: expected a share in \(0, 1\]'),
+    ({'camera': {'focal_steps': 0.0}},
+     r'camera.focal_steps: expected work steps per frame in \(0, 100\]'),
 ])
 def test_invalid_values_are_reported_with_their_key(data, match):
     with pytest.raises(ConfigError, match=match):

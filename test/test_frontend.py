@@ -24,6 +24,7 @@ from planar_vo.core.conventions import (
 )
 from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.core.homography import apply_homography, homography_jacobian, plane_homography
+from planar_vo.core.robust.options import EstimatorConfig
 from planar_vo.errors import ConfigError, ImageError, InputError
 from planar_vo.frontend import (
     ACExtractor,
@@ -45,6 +46,7 @@ from planar_vo.frontend.affine_lk import (
 from planar_vo.frontend.asift import asift_views, keypoint_frames
 from planar_vo.frontend.flow import neighbour_predictions, texture_grid
 from planar_vo.pipeline.calibration import MountTiltEstimator
+from planar_vo.pipeline.estimator import MotionEstimator
 from planar_vo.sim import (
     GROUND_KIND,
     StreetWorld,
@@ -678,10 +680,15 @@ def test_mount_tilt_from_a_rendered_drive_makes_voting_work_on_a_tilted_camera()
     K = RENDER_CAMERA.K
     extractor = ACExtractor()
     estimator = MountTiltEstimator()
+    # General motions without the planar prior (which would hold them to the unknown plane).
+    motions = MotionEstimator(EstimatorConfig(use_prior=False))
     pairs = []
     for k in range(len(images) - 1):
         acs = extractor.extract(images[k], images[k + 1])
-        assert estimator.add_acs(normalize_points(K, acs.p1), normalize_points(K, acs.p2))
+        norm = acs.normalized(RENDER_CAMERA)
+        est = motions.estimate(norm, norm)
+        assert est.reliable
+        estimator.add_motion(est.R, est.t)
         pairs.append(acs)
     tilt = estimator.estimate()
     assert tilt.frames == len(pairs)

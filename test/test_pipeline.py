@@ -183,22 +183,41 @@ def test_pitched_and_rolled_mount_is_levelled():
 
 
 def test_uncalibrated_camera_runs_on_a_provisional_focal_length():
-    # No camera model and no intrinsics: the focal length is calibrated online from 1ACf votes.
-    # On a drive with driving-rate yaw (2-4 degrees a frame) it is only weakly observable, so
-    # the odometry runs on a provisional focal length meanwhile; the calibration may only be
-    # adopted once it is precise, and then it must be right.
+    # No camera model and no intrinsics: the focal length is calibrated online from the keyframe
+    # pairs the car turned between. One turn is not enough to adopt it (the profiles' honest
+    # uncertainty stays above 2 %), so the odometry runs on a provisional focal length and
+    # says so; whatever it estimates lies within 3 of its reported standard deviations.
     config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
                                        'camera': {'estimate_focal': True}})
     trajectory, images, _ = _drive('left')
     vo = VisualOdometry(config)
     results = [vo.process(image, float(t)) for t, image in zip(trajectory.stamps, images)]
     assert all(r.ok for r in results[1:])
-    assert vo.focal_calibrator.frames_seen == len(results) - 1
-    if vo.camera is not None:                          # adopted: precise and correct
-        assert vo.camera.fx == pytest.approx(500.0, rel=0.05)
-    # The provisional focal length (max(w, h) = 640 px) keeps the turn's sign and rough size.
+    cal = vo.focal_calibrator
+    assert cal.pairs + cal.pending >= 1                 # the turn was seen and queued
+    assert all('focal' in r.timings for r in results[1:])
+    cal.work(1000)                                      # finish the queue
+    f, std, _ = cal.estimate()
+    assert abs(f - 500.0) <= 3.0 * std
+    if cal.adopted is not None:                         # adopted: precise and correct
+        assert abs(cal.adopted - 500.0) <= 3.0 * cal.adopted_std
+        assert vo.focal_status().endswith(f'(self-calibrated at frame {cal.adopted_at})')
+    else:
+        assert '(provisional' in vo.focal_status()
+    # The provisional focal length keeps the turn's sign and rough size.
     yaw = float(np.rad2deg(yaw_of(results[-1].pose[:3, :3])))
     assert 40.0 < yaw < 80.0
+
+
+def test_focal_status_names_the_source():
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}))
+    assert vo.focal_status() == 'focal length unknown (no CameraInfo yet)'
+    vo.process(images[0], float(trajectory.stamps[0]), CAMERA)
+    assert vo.focal_status() == f'focal length {CAMERA.fx:.1f} px (CameraInfo)'
+    configured = VisualOdometry(PlanarVoConfig.from_dict({'camera': {'fx': 480.0}}))
+    configured.process(images[0], float(trajectory.stamps[0]))
+    assert configured.focal_status() == 'focal length 480.0 px (configured)'
 
 
 # ---------------------------------------------------------------------------------------------

@@ -13,7 +13,6 @@ from planar_vo.core import (
     vote_planar_motion_focal,
 )
 from planar_vo.errors import ConfigError, InputError
-from planar_vo.pipeline.calibration import FocalCalibrator
 from planar_vo.sim.synthetic import shared_motion_acs
 
 DEG = np.pi / 180.0
@@ -293,28 +292,3 @@ def test_straight_driving_does_not_reveal_the_focal_length(rng):
     acs = shared_motion_acs(rng, 3000, 0.5, alpha=0.0, beta=-np.pi / 2)
     motion, stats = vote_planar_motion_focal(*acs.centered, acs.acs.A)
     assert not stats.reliable and stats.flag == 'focal_unobservable'
-
-
-def test_focal_calibrator_accumulates_turning_frames_only():
-    rng = np.random.default_rng(7)
-    calibrator = FocalCalibrator()
-    informative = []
-    for i in range(24):
-        yaw = rng.uniform(3.0, 8.0) * rng.choice([-1, 1]) if i % 3 == 0 else 0.0
-        acs = shared_motion_acs(rng, 2000, 0.5, alpha=yaw * DEG,
-                                beta=-np.pi / 2 + rng.normal(0.0, 0.05), outlier_ratio=0.3)
-        informative.append(calibrator.add(*acs.centered, acs.acs.A))
-    # Straight frames (alpha = 0) never count; turning ones mostly do.
-    assert not any(informative[i] for i in range(24) if i % 3)
-    assert calibrator.informative_frames >= 5
-    assert calibrator.frames_seen == 24
-    assert calibrator.estimate == pytest.approx(600.0, rel=0.04)
-    assert 0.0 < calibrator.std < 0.1 * calibrator.estimate
-
-
-def test_focal_calibrator_without_turns_has_no_estimate(rng):
-    calibrator = FocalCalibrator()
-    for _ in range(3):
-        acs = shared_motion_acs(rng, 1000, 0.5, alpha=0.0, beta=-np.pi / 2)
-        assert not calibrator.add(*acs.centered, acs.acs.A)
-    assert np.isnan(calibrator.estimate) and np.isinf(calibrator.std)

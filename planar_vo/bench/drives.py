@@ -333,38 +333,40 @@ class FocalRun:
         self.vo = VisualOdometry(config)
         self.stamps: list[float] = []
         self.results: list = []
-        self.adopted_at: int | None = None
-        self._frames = 0
 
     def add(self, frame) -> None:
         """One `planar_vo.io.CameraFrame`; its CameraInfo is withheld (``camera=None``)."""
-        index = self._frames
-        self._frames += 1
         if frame.image is None:
             return                                   # replay counts it as bad_image too
         self.results.append(self.vo.process(frame.image, frame.stamp, None))
         self.stamps.append(frame.stamp)
-        if self.adopted_at is None and self.vo.camera is not None:
-            self.adopted_at = index
 
     @property
     def run(self) -> OdometryRun:
         return _pipeline_run('planar_vo, self-calibrated focal (no CameraInfo)',
                              _scale_label(self.config), self.stamps, self.results,
-                             {})
+                             {'focal_status': self.vo.focal_status()})
 
     def summary(self, true_focal: float) -> dict:
-        """The focal length in use at the end, adopted or provisional, against the truth."""
+        """The focal length in use at the end (adopted or provisional) and the calibration's
+        own estimate with its reported standard deviation (3-sigma honest), against the
+        truth."""
         calibrator = self.vo.focal_calibrator
-        adopted = self.vo.camera is not None
-        focal = float(self.vo.camera.fx) if adopted else float(calibrator.estimate)
-        std = float(calibrator.std)
-        error = focal - true_focal
-        return {'focal_px': focal, 'adopted': adopted, 'adopted_at_frame': self.adopted_at,
-                'std_px': std, 'error_px': error, 'error_pct': 100.0 * error / true_focal,
+        in_use = float(calibrator.provisional) if calibrator is not None else math.nan
+        estimate, std, info = calibrator.estimate() if calibrator is not None else \
+            (math.nan, math.inf, {})
+        adopted = calibrator is not None and calibrator.adopted is not None
+        if adopted:
+            estimate, std = calibrator.adopted, calibrator.adopted_std
+        error = estimate - true_focal
+        return {'focal_px': float(estimate), 'in_use_px': in_use, 'adopted': adopted,
+                'adopted_at_frame': calibrator.adopted_at if adopted else None,
+                'std_px': float(std), 'error_px': float(error),
+                'error_pct': 100.0 * float(error) / true_focal,
                 'error_over_std': abs(error) / std if std > 0 else math.nan,
-                'informative_frames': calibrator.informative_frames,
-                'frames_seen': calibrator.frames_seen}
+                'pairs': calibrator.pairs if calibrator is not None else 0,
+                'blocks': info.get('blocks', 0), 'pending': calibrator.pending if calibrator
+                else 0, 'status': self.vo.focal_status()}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -490,10 +492,11 @@ def focal_table(drive: dict) -> str:
     if f['adopted']:
         status = f"self-calibrated at frame {f['adopted_at_frame']}"
     else:
-        status = f"provisional (not adopted; {f['informative_frames']} informative of " \
-                 f"{f['frames_seen']} frames)"
+        status = (f"not adopted ({f['pairs']} turning pairs in {f['blocks']} blocks); runs on "
+                  f"the provisional {f['in_use_px']:.1f} px")
         if not math.isfinite(f['focal_px']):
-            status += ": no estimate, the pipeline's nominal focal length in use"
+            status = (f"no estimate (no turning pair); runs on the provisional "
+                      f"{f['in_use_px']:.1f} px")
 
     def odometry(r: dict) -> list[str]:
         return [_fmt(r['odometry_pct']), _fmt(_get(r, 'yaw_change_error_deg', 'mean')),

@@ -48,13 +48,17 @@ class CameraConfig(Options):
         fx, fy, cx, cy: pinhole intrinsics in pixels; ``fx = 0`` means 'from CameraInfo'.
         distortion_model: ``'none'``, ``'plumb_bob'`` or ``'equidistant'`` (ROS names).
         distortion: coefficients in the ROS order for that model.
-        estimate_focal: self-calibrate the focal length online with 1ACf voting (the
-            principal point is assumed at ``(cx, cy)``, or the image centre when those are 0).
-        focal_tolerance: the calibration is used once its relative standard deviation is below
-            this; until then a provisional focal length is used.
-        focal_budget: share of the average per-frame processing time that the focal
-            self-calibration may add on average (its per-pair profiles, about 100 ms each, are
-            queued and worked off in steps of about 10 ms within this budget).
+        estimate_focal: self-calibrate the focal length online when ``fx`` is 0 and no
+            CameraInfo arrives: profile likelihoods of the focal length over frame pairs the
+            car turned between (the principal point is assumed at ``(cx, cy)``, or the image
+            centre when those are 0).
+        focal_tolerance: the calibration is adopted once its relative standard deviation
+            (reported so that the error stays within 3 of them) is below this; until then a
+            provisional focal length is used and its uncertainty enters the covariance.
+        focal_steps: work steps of the focal calibration per frame while turning pairs wait
+            (each a vote or 8 focal lengths of one pair's profile, about 5-15 ms on KITTI
+            frames; a pair is 14 steps); in steps rather than seconds, so that results do not
+            depend on the machine's speed or load.
         focal_max_acs: ACs per turning pair kept for its focal profile (evenly picked), a
             memory bound; fewer cost less but lose information (800 instead of 1,300 widened
             the KITTI 05 standard deviation by a third).
@@ -76,7 +80,8 @@ class CameraConfig(Options):
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
     focal_tolerance: float = bounded(0.02, 0.0, 1.0, low_open=True, high_open=True)
-    focal_budget: float = bounded(0.1, 0.0, 1.0, low_open=True, expected='a share in (0, 1]')
+    focal_steps: float = bounded(2.0, 0.0, 100.0, low_open=True,
+                                 expected='work steps per frame in (0, 100]')
     focal_max_acs: int = bounded(2000, 50)
     focal_queue: int = bounded(16, 1)
     focal_block_frames: int = bounded(10, 1)
@@ -101,12 +106,12 @@ class MountConfig(Options):
         x, y, height: camera position in ``base_link`` (metres); ``height`` above the ground.
         roll, pitch, yaw: camera orientation offsets (radians).
         estimate_tilt: estimate pitch and roll online from the motion (real mounts are not
-            level): general poses of keyframe pairs are fitted with a motion plane, and its
-            pitch and roll replace the ones above once precise.
-        tilt_tolerance: the estimated tilt is adopted once the pitch standard deviation is
-            below this (radians).
-        tilt_max_pairs: frame pairs used for the tilt estimate (the five-point solver runs on
-            each, so this bounds the extra cost).
+            level): the general relative poses are fitted with a motion plane, and its pitch
+            and roll level the planar vote and the planar prior in place of the ones above
+            (``base_link`` stays where these put it).
+        tilt_tolerance: an estimated angle is used once its standard deviation is below this
+            (radians); a less certain one is left at the configured value (levelling by a
+            wrong angle does more harm than not levelling).
         tilt_wobble_std: initial standard deviation (rad) of a pair's rotation about axes other
             than the motion-plane normal (the car's pitch and roll on its suspension; KITTI:
             0.04-0.11 deg per frame pair); only rotations above 3 times this inform the tilt,
@@ -122,9 +127,9 @@ class MountConfig(Options):
     roll: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
     pitch: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
     yaw: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
-    estimate_tilt: bool = False
-    tilt_tolerance: float = bounded(0.002, 0.0, low_open=True, expected='a positive angle (rad)')
-    tilt_max_pairs: int = bounded(100, 10)
+    estimate_tilt: bool = True
+    tilt_tolerance: float = bounded(0.0087, 0.0, low_open=True,
+                                    expected='a positive angle (rad)')
     tilt_wobble_std: float = bounded(0.001745, 0.0, 0.1, high_open=True,
                                      expected='an angle in [0, 0.1) rad')
     tilt_window: int = bounded(1000, 10, expected='at least 10 pairs')
@@ -220,7 +225,8 @@ class ScaleConfig(Options):
 
     Attributes:
         source: ``'speed'`` (a TwistStamped/Odometry topic, e.g. wheel odometry), ``'ground'``
-            (road ACs at the known camera height ``mount.height``), ``'fixed'``
+            (road ACs at the known camera height ``mount.height``, with the road's normal in
+            the camera frame calibrated online from the road ACs), ``'fixed'``
             (``fixed_speed``), or ``'unit'`` (unit steps between keyframes).
         fallback: source used while the primary gives nothing (``'ground'`` with no road ACs in
             view, ``'speed'`` before the first message): ``'hold'`` keeps the speed of the last
@@ -234,8 +240,6 @@ class ScaleConfig(Options):
             interpolation; set it above the speed source's sample period (1.5 for 1 Hz).
         fixed_speed: metres per second for ``'fixed'``.
         fixed_speed_std: its assumed standard deviation (m/s).
-        ground_affine_tolerance: a road AC's affine must match the ground homography within
-            this relative Frobenius distance.
         ground_min_correspondences: fewer road ACs give no ground scale.
         ground_max_depth: road points farther than this (m) are not used for the scale: their
             parallax (about h s / Z^2) is small against the rotation noise.
@@ -259,8 +263,6 @@ class ScaleConfig(Options):
                                    expected='a positive duration in seconds')
     fixed_speed: float = bounded(10.0, 0.0, expected='a non-negative speed in m/s')
     fixed_speed_std: float = bounded(3.0, 0.0, low_open=True, expected='a positive speed in m/s')
-    ground_affine_tolerance: float = bounded(0.05, 0.0, low_open=True,
-                                             expected='a positive number')
     ground_min_correspondences: int = bounded(10, 1)
     ground_max_depth: float = bounded(30.0, 0.0, low_open=True, expected='a positive number')
     ground_point_std: float = bounded(1.0, 0.0, low_open=True, expected='a positive number')
@@ -297,6 +299,13 @@ class OdometryConfig(Options):
             turn rate (rad/s) per second of the gap.
         turn_rate_time_constant: the extrapolated turn rate decays with this time constant
             (s): a long gap does not spin the pose.
+        window_lags: keyframe pairs measured per new keyframe: 1 tracks frame to frame; D > 1
+            also matches each new keyframe against the D - 1 kept keyframes before the
+            previous one (a front-end run and a refinement each) and solves the orientations of
+            the last ``window_size`` keyframes jointly, causally (published poses are never
+            revised; `planar_vo.pipeline.window`). It helps where the estimator's own noise
+            dominates the drift, and costs time per lag.
+        window_size: keyframes whose orientations the window solves (the oldest held).
     """
 
     min_correspondences: int = bounded(30, 1)
@@ -317,6 +326,8 @@ class OdometryConfig(Options):
                                         expected='a positive turn rate (rad/s)')
     turn_rate_time_constant: float = bounded(2.0, 0.0, 1e4, low_open=True, high_open=True,
                                              expected='a positive duration (s)')
+    window_lags: int = bounded(1, 1, 5)
+    window_size: int = bounded(6, 2, 50)
 
 
 @dataclasses.dataclass(frozen=True)

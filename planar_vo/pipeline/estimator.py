@@ -214,6 +214,39 @@ class MotionEstimator:
             return result
         return self._refine(acs, level, motion, vstats, vote)
 
+    def refine_from(self, acs: AffineCorrespondences, R0: np.ndarray, t0: np.ndarray
+                    ) -> FrameEstimate:
+        """The motion of a longer-baseline pair refined from a predicted start (the composed
+        shorter motions; no vote, no second hypotheses), judged like `estimate` plus
+        ``'left_start'`` when the data moved it further from the prediction than two answers
+        may differ and still be the same motion (the prediction was wrong, or the pair is).
+        Without the planar prior (it describes one frame pair's wobble, not several); the
+        online state gives the noise scales and is not updated."""
+        q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
+        n = len(acs)
+        M = ac_design(q1, q2, A)
+        sp, sa = self.scales if self.scales else (1e-3, 2e-2)
+        t0 = np.asarray(t0, dtype=np.float64) / np.linalg.norm(t0)
+        # Wider scales for the selection: the prediction carries the chained errors.
+        chi2 = chi_square(M, q1, q2, A, R0, t0, _GNC_INFLATION * sp, _GNC_INFLATION * sa)
+        active = (chi2 <= GATE) & (w > 0)
+        vote = (math.nan, math.nan, False)
+        if np.count_nonzero(active) < self.config.min_inliers:
+            return self._failed(n, 'too_few_inliers', vote)
+        best = refine_general_motion(q1, q2, A, w, R0, t0, active, _GNC_INFLATION * sp,
+                                     _GNC_INFLATION * sa, prior=None,
+                                     config=self.config, M=M, shrink=0.5, target=(sp, sa),
+                                     extra_rounds=4)
+        stats = {'start': 'prediction', 'point_scale': best.sp, 'affine_scale': best.sa,
+                 'rounds': best.rounds}
+        cost, _ = self._msac(M, acs, best.R, best.t, best.sp, best.sa)
+        flag = self._judge(M, acs, best, cost, stats)
+        if flag is None and (_rotation_distance(best.R, R0) >= _DISTINCT_ROTATION
+                             or _direction_distance(best.t, t0) >= _DISTINCT_DIRECTION):
+            flag = 'left_start'
+        return FrameEstimate(best.R, best.t, best.cov, best.basis, best.inliers, flag is None,
+                             flag, vote, stats)
+
     @staticmethod
     def scales_of(result: FrameEstimate) -> tuple[float, float]:
         """The noise scales measured at an estimate (point, affine)."""

@@ -65,6 +65,11 @@ class KeyframeChain:
         self._frames.append(frame)
         return frame
 
+    @property
+    def next_index(self) -> int:
+        """The running number the next keyframe will get."""
+        return self._count
+
     def find(self, index: int) -> Keyframe | None:
         """The kept keyframe with this running number, or None."""
         for frame in self._frames:

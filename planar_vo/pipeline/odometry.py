@@ -11,14 +11,19 @@ Per frame (see `VisualOdometry.process`):
    camera's relative pose since the keyframe: the 1AC vote in front, a general 5-DoF relative
    pose refined on all AC constraints out, with its covariance and an honest reliability flag;
 5. the step length comes from the configured scale source (speed topic, the road at the
-   known camera height, a fixed speed) with a fallback (``hold``: the last metric speed, its
-   uncertainty growing with the time since); without any metric scale the step is a unit step
-   whose covariance says its length is unknown;
+   known camera height with the road's normal calibrated online, a fixed speed) with a
+   fallback (``hold``: the last metric speed, its uncertainty growing with the time since);
+   without any metric scale the step is a unit step whose covariance says its length is
+   unknown;
 6. the camera pose is the keyframe's composed with the step, with its 6x6 covariance
    (`planar_vo.pipeline.motion`); the vehicle pose is the camera's through the configured
    mount (``base_link``), in 3D or flattened to x, y, yaw (``odometry.output``);
 7. the frame becomes the new keyframe once its parallax reaches ``keyframe.min_parallax`` (or
-   after ``keyframe.max_interval`` frames); every frame is still output.
+   after ``keyframe.max_interval`` frames); every frame is still output;
+8. calibrations that run alongside: the mount tilt from the refined motions
+   (``mount.estimate_tilt``), the road normal from the road ACs (ground scale), the focal
+   length from keyframe pairs the car turned between (``camera.estimate_focal``: queued, worked
+   off a few steps per frame, adopted only with an honest uncertainty).
 
 Every frame yields a `FrameResult`; a frame without an update carries a `DropReason`, and the
 tracking state (tracking, lost, reinitialised) says where the chain stands.
@@ -38,6 +43,7 @@ from planar_vo.core.conventions import (
     adjoint,
     invert,
     mount_transform,
+    normal_from_tilt,
     planar_motion_from_pose,
     rotation_rpy,
     se3,
@@ -46,9 +52,14 @@ from planar_vo.core.conventions import (
 from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.core.homography import apply_homography
 from planar_vo.errors import ImageError, PlanarVoError
-from planar_vo.frontend import ACExtractor, leveling_rotation, undistort_acs
+from planar_vo.frontend import ACExtractor, leveling_rotation
 from planar_vo.frontend.images import as_gray
-from planar_vo.pipeline.calibration import FocalCalibrator, MountTiltEstimator
+from planar_vo.pipeline.calibration import (
+    MountTiltEstimator,
+    OnlineFocalCalibrator,
+    RoadNormalCalibrator,
+    TurnPairSelector,
+)
 from planar_vo.pipeline.clock import FrameClock, StampCheck
 from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator
 from planar_vo.pipeline.keyframes import Keyframe, KeyframeChain
@@ -60,8 +71,9 @@ from planar_vo.pipeline.motion import (
     to_base,
     yaw_rate_decay,
 )
-from planar_vo.pipeline.scale import SpeedIntegrator, ground_plane_scale
+from planar_vo.pipeline.scale import SpeedIntegrator, road_scale
 from planar_vo.pipeline.types import DropReason, FrameResult, TrackingState
+from planar_vo.pipeline.window import RotationWindow
 
 __all__ = ['VisualOdometry']
 
@@ -89,8 +101,14 @@ class VisualOdometry:
         self._extractor = ACExtractor(self.config.frontend)
         self._estimator = MotionEstimator(self.config.estimator, self.config.voting)
         self._camera = camera
-        self._speed = SpeedIntegrator()
-        self._calibrator = FocalCalibrator() if self.config.camera.estimate_focal else None
+        self._camera_from_config = False
+        scale = self.config.scale
+        self._speed = SpeedIntegrator(max_gap=scale.speed_max_gap)
+        # Created at the first image (they need its size) when the focal length is unknown.
+        self._focal: OnlineFocalCalibrator | None = None
+        self._turns: TurnPairSelector | None = None
+        self._in_use: CameraModel | None = camera
+        self._frames = 0                            # frames processed (the focal's clock)
         mount = self.config.mount
         # base_link is where the user says the camera sits (REP-105): the configured mount.
         self._T_base_camera = mount_transform(mount.x, mount.y, mount.height, mount.roll,
@@ -98,10 +116,20 @@ class VisualOdometry:
         # The camera's tilt on the vehicle, estimated online from the refined motions (its
         # pitch and roll relative to the plane of motion), levels the ACs for the planar vote
         # and centres the planar prior once precise; the configured angles until then.
-        self._tilt = MountTiltEstimator() if mount.estimate_tilt else None
+        self._tilt = (MountTiltEstimator(wobble_sigma=mount.tilt_wobble_std,
+                                         max_pairs=mount.tilt_window,
+                                         refit_every=mount.tilt_refit)
+                      if mount.estimate_tilt else None)
         self.tilt_estimate = None
+        self._level = (mount.pitch, mount.roll)
         self._estimator.R_lc = leveling_rotation(mount.pitch, mount.roll)
+        self._road = (RoadNormalCalibrator(scale.ground_normal_acs, scale.ground_normal_frames,
+                                           scale.ground_normal_refit)
+                      if 'ground' in (scale.source, scale.fallback) else None)
+        self._road_fit: tuple[float, float, float] | None = None
         self._keyframes = KeyframeChain()
+        self._window = (RotationWindow(self.config.odometry.window_size)
+                        if self.config.odometry.window_lags > 1 else None)
         self.counters: dict[str, int] = {}
         odometry = self.config.odometry
         self._clock = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
@@ -113,6 +141,8 @@ class VisualOdometry:
         """Pose back to the identity and a new keyframe chain from the next frame; the counters
         and the calibrations (tilt, focal length) are kept."""
         self._keyframes.clear()
+        if self._window is not None:
+            self._window.clear()
         self.camera_pose = np.eye(4)
         self._camera_cov = np.zeros((6, 6))
         self.pose = self._T_base_camera @ invert(self._T_base_camera)
@@ -134,13 +164,36 @@ class VisualOdometry:
 
     @property
     def camera(self) -> CameraModel | None:
-        """The camera model in use (None until known)."""
-        return self._camera
+        """The camera model in use (None until known; while the focal length is being
+        self-calibrated, the model with the provisional or adopted focal length)."""
+        return self._in_use
 
     @property
-    def focal_calibrator(self) -> FocalCalibrator | None:
-        """The online focal calibration (``camera.estimate_focal``), else None."""
-        return self._calibrator
+    def focal_calibrator(self) -> OnlineFocalCalibrator | None:
+        """The online focal calibration (``camera.estimate_focal`` without intrinsics), else
+        None."""
+        return self._focal
+
+    @property
+    def road_normal(self) -> tuple[float, float, float]:
+        """The road normal's ``(pitch, roll, std)`` (radians) in the camera frame, as the
+        ground scale uses it: calibrated online from the road ACs; before the first fit, the
+        mount's tilt (configured or estimated) trusted to about a degree."""
+        if self._road_fit is not None:
+            return self._road_fit
+        return (*self._level, _START_NORMAL_STD)
+
+    def focal_status(self) -> str:
+        """The focal length in use and where it comes from, one line: ``focal length 718.9 px
+        (CameraInfo)``, ``(configured)``, or the self-calibration's ``focal length 712.3 +- 4.1
+        px (self-calibrated at frame 143)`` / ``... (provisional, 2 of 4 blocks)``."""
+        if self._focal is not None and self._camera is None:
+            return self._focal.status()
+        if self._in_use is None:
+            return 'focal length unknown (no CameraInfo yet)'
+        origin = 'configured' if self.config.camera.fx > 0 and self._camera_from_config \
+            else 'CameraInfo'
+        return f'focal length {self._in_use.fx:.1f} px ({origin})'
 
     def add_speed(self, stamp: float, speed: float) -> None:
         """A speed sample (m/s) for ``scale.source = 'speed'`` (e.g. from wheel odometry)."""
@@ -168,6 +221,11 @@ class VisualOdometry:
             log.exception('pipeline error at stamp %.6f', stamp)
             result = self._drop(float(stamp), DropReason.PIPELINE_ERROR,
                                 f'{type(err).__name__}: {err}')
+        if self._focal is not None and self._camera is None:
+            t = time.perf_counter()
+            self._focal.work(self.config.camera.focal_steps, self._frames)
+            timings['focal'] = timings.get('focal', 0.0) + time.perf_counter() - t
+        self._frames += 1
         timings['total'] = time.perf_counter() - start
         key = 'ok' if result.ok else result.reason.value
         self.counters[key] = self.counters.get(key, 0) + 1
@@ -254,14 +312,22 @@ class VisualOdometry:
         self._update_twist(keyframe, stamp, step_cov)
         new_keyframe = (parallax >= self.config.keyframe.min_parallax
                         or keyframe.age + 1 >= self.config.keyframe.max_interval)
+        timings['integrate'] = time.perf_counter() - t
         if new_keyframe:
+            if self._window is not None:
+                t = time.perf_counter()
+                self._windowed(keyframe, gray, camera, est)
+                timings['window'] = time.perf_counter() - t
             self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov)
         else:
             keyframe.age += 1
         self._lost = 0
-        timings['integrate'] = time.perf_counter() - t
-        alpha, beta = planar_motion_from_pose(self._estimator.R_lc @ est.R @ self._estimator.R_lc.T,
-                                              self._estimator.R_lc @ est.t)
+        R_lc = self._estimator.R_lc
+        alpha, beta = planar_motion_from_pose(R_lc @ est.R @ R_lc.T, R_lc @ est.t)
+        if new_keyframe and self._focal is not None and self._camera is None:
+            t = time.perf_counter()
+            self._offer_focal_pair(gray, camera, float(alpha))
+            timings['focal'] = time.perf_counter() - t
         return self._result(stamp, True, keyframe=new_keyframe, scale_source=source,
                             num_correspondences=len(acs), num_inliers=est.num_inliers,
                             alpha=float(alpha), beta=float(beta))
@@ -275,38 +341,41 @@ class VisualOdometry:
                 log.info('camera model changed; starting a new keyframe')
                 self._keyframes.clear()
             self._camera = camera
+            self._camera_from_config = False
         if self._camera is None:
             c = self.config.camera
             height, width = shape
+            cx, cy = (c.cx or (width - 1) / 2.0), (c.cy or (height - 1) / 2.0)
             if c.fx > 0:
                 self._camera = CameraModel(
-                    width, height, np.array([[c.fx, 0.0, c.cx or (width - 1) / 2.0],
-                                             [0.0, c.fy or c.fx, c.cy or (height - 1) / 2.0],
+                    width, height, np.array([[c.fx, 0.0, cx], [0.0, c.fy or c.fx, cy],
                                              [0.0, 0.0, 1.0]]),
                     c.distortion_model, c.distortion)
-            elif self._calibrator is not None:
-                # Uncalibrated: a provisional focal length (the calibration's running estimate,
-                # else a nominal 53-degree field of view) until the calibration converges.
-                cx, cy = (c.cx or (width - 1) / 2.0), (c.cy or (height - 1) / 2.0)
-                f = self._calibrator.estimate
-                converged = math.isfinite(f) and self._calibrator.std < \
-                    self.config.camera.focal_tolerance * f
-                f = f if math.isfinite(f) else float(max(width, height))
-                model = CameraModel(width, height,
-                                    np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]]))
-                if converged:
-                    self._camera = model
-                    log.info('focal length self-calibrated: %.1f +- %.1f px', f,
-                             self._calibrator.std)
-                return model
+                self._camera_from_config = True
+            elif c.estimate_focal:
+                # Uncalibrated: the self-calibration's focal length, provisional (a prior at a
+                # 53-degree field of view combined with the pairs so far) until adopted.
+                if self._focal is None or (self._focal.width, self._focal.height) != \
+                        (width, height):
+                    self._focal = OnlineFocalCalibrator(
+                        width, height, pp_std=1.0 if c.cx and c.cy else None,
+                        tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
+                        max_queue=c.focal_queue, block_frames=c.focal_block_frames,
+                        min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,
+                        config=self.config.voting)
+                    self._turns = TurnPairSelector(width)
+                f = self._focal.provisional
+                if self._in_use is None or self._in_use.size != (width, height) \
+                        or self._in_use.fx != f:
+                    self._in_use = CameraModel(
+                        width, height, np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]]),
+                        c.distortion_model, c.distortion)
+                return self._in_use
+        self._in_use = self._camera
         return self._camera
 
     def _estimate(self, acs: AffineCorrespondences, camera: CameraModel) -> FrameEstimate:
         """The camera's relative pose since the keyframe (`MotionEstimator`)."""
-        if self._camera is None and self._calibrator is not None:
-            ideal = undistort_acs(acs, camera)
-            c = camera.K[:2, 2]
-            self._calibrator.add(ideal.p1 - c, ideal.p2 - c, ideal.A, ideal.weights)
         norm = acs.normalized(camera)                 # undistorted, K^-1
         level = norm.mapped(self._estimator.R_lc)
         if len(level) != len(norm):
@@ -323,38 +392,98 @@ class VisualOdometry:
         return est
 
     def _calibrate_tilt(self, est: FrameEstimate) -> None:
-        """Feed a reliable relative pose to the mount-tilt estimate; adopt its pitch (and roll,
-        once observable) when precise (``mount.tilt_tolerance``). Amortised: the fit runs every
-        tenth pair, for at most ``mount.tilt_max_pairs`` pairs."""
+        """Feed a reliable relative pose to the mount-tilt estimate (``mount.estimate_tilt``);
+        its pitch and roll level the vote and the prior once their standard deviations are
+        below ``mount.tilt_tolerance`` (each angle on its own; the configured one until then).
+        The estimator's measured non-planarity (the car's pitch and roll between frames) sets
+        which rotations are large enough to show the motion plane's normal. Amortised: the
+        estimator refits every ``mount.tilt_refit`` pairs."""
+        if self._tilt is None:
+            return
         cfg = self.config.mount
-        if self._tilt is None or len(self._tilt) >= cfg.tilt_max_pairs:
-            return
         self._tilt.add_motion(est.R, est.t)
-        if len(self._tilt) < 10 or len(self._tilt) % 10:
+        wobble = self._estimator.non_planarity
+        if math.isfinite(wobble) and abs(wobble - self._tilt.wobble_sigma) > \
+                _WOBBLE_CHANGE * self._tilt.wobble_sigma:
+            self._tilt.wobble_sigma = wobble          # refits at the next update
+        estimate = self._tilt.update()
+        if estimate is None or estimate is self.tilt_estimate:
             return
-        estimate = self._tilt.estimate()
-        if estimate.pitch_std > cfg.tilt_tolerance:
-            return
-        roll = estimate.roll if estimate.roll_std <= cfg.tilt_tolerance else cfg.roll
         self.tilt_estimate = estimate
-        self._estimator.R_lc = leveling_rotation(estimate.pitch, roll)
-        log.info('mount tilt estimated from %d pairs: pitch %.3f +- %.3f deg, roll %.3f +- '
-                 '%.3f deg (%s); base_link stays where mount.* puts it', estimate.frames,
-                 np.rad2deg(estimate.pitch), np.rad2deg(estimate.pitch_std),
-                 np.rad2deg(estimate.roll), np.rad2deg(estimate.roll_std),
-                 'used' if roll == estimate.roll else 'roll not observable yet: configured roll')
+        pitch = estimate.pitch if estimate.pitch_std <= cfg.tilt_tolerance else cfg.pitch
+        roll = estimate.roll if estimate.roll_std <= cfg.tilt_tolerance else cfg.roll
+        if (pitch, roll) == self._level:
+            return
+        first = self._level == (cfg.pitch, cfg.roll)
+        self._level = (pitch, roll)
+        self._estimator.R_lc = leveling_rotation(pitch, roll)
+        (log.info if first else log.debug)(
+            'mount tilt from %d pairs: pitch %.3f +- %.3f deg, roll %.3f +- %.3f deg; levelling '
+            'with pitch %.3f, roll %.3f deg (base_link stays where mount.* puts it)',
+            estimate.frames, np.rad2deg(estimate.pitch), np.rad2deg(estimate.pitch_std),
+            np.rad2deg(estimate.roll), np.rad2deg(estimate.roll_std), np.rad2deg(pitch),
+            np.rad2deg(roll))
+
+    def _windowed(self, keyframe: Keyframe, gray: np.ndarray, camera: CameraModel,
+                  est: FrameEstimate) -> None:
+        """The new keyframe's orientation from the window (``odometry.window_lags > 1``): the
+        pair from the previous keyframe (this frame's estimate), pairs from the kept keyframes
+        before it (ACs against their images, refined from the composed prediction), then the
+        window's joint solve (`planar_vo.pipeline.window`). Only the new keyframe's published
+        orientation changes; its position follows the frame-to-frame chain."""
+        window = self._window
+        j = self._keyframes.next_index
+        if keyframe.index not in window:
+            window.clear()
+            window.add_keyframe(keyframe.index, keyframe.pose[:3, :3])
+        window.add_keyframe(j, self.camera_pose[:3, :3])
+        window.add_pair(keyframe.index, j, est.R, est.cov[:3, :3])
+        for lag in range(2, self.config.odometry.window_lags + 1):
+            old = self._keyframes.find(j - lag)
+            if old is None or old.index not in window:
+                continue
+            acs = self._extractor.extract(old.image, gray)
+            if len(acs) < self.config.odometry.min_correspondences:
+                continue
+            C_old, C_new = window.orientation(old.index), window.orientation(j)
+            R0 = C_new.T @ C_old
+            c = C_old.T @ (self.camera_pose[:3, 3] - old.pose[:3, 3])   # in the old camera
+            if not np.linalg.norm(c) > 0:
+                continue
+            pair = self._estimator.refine_from(acs.normalized(camera), R0, -R0 @ c)
+            if pair.reliable:
+                window.add_pair(old.index, j, pair.R, pair.cov[:3, :3])
+        self.camera_pose[:3, :3] = window.solve()[j]
 
     def _motion_covariance(self, est: FrameEstimate) -> np.ndarray:
         """The estimator's 5x5 covariance, widened by the focal length's uncertainty while it
-        is provisional (an error of ``e`` relative scales every angle by about ``1 + e``)."""
+        is self-calibrated (a relative focal error ``e`` scales every rotation angle by about
+        ``1 + e``)."""
         cov = est.cov
-        if self._camera is None and self._calibrator is not None:
-            f = self._calibrator.estimate
-            rel = self._calibrator.std / f if math.isfinite(f) else 1.0
+        if self._focal is not None and self._camera is None:
+            rel = min(self._focal.relative_std, 1.0)
             angle = float(np.linalg.norm(so3_log(est.R)))
             cov = cov.copy()
-            cov[:3, :3] += np.eye(3) * (angle * min(rel, 1.0)) ** 2
+            cov[:3, :3] += np.eye(3) * (angle * rel) ** 2
         return cov
+
+    def _offer_focal_pair(self, gray: np.ndarray, camera: CameraModel, alpha: float) -> None:
+        """At a new keyframe: when the car turned enough since an earlier kept keyframe
+        (`TurnPairSelector`), the ACs between the two go to the focal calibration's queue
+        (pixels from the principal point, levelled with the provisional focal length: the
+        levelling shift ``f tan(pitch)`` is what the image measures, so this is consistent to
+        first order)."""
+        current = self._keyframes.current
+        partner = self._turns.step(current.index, alpha, camera.fx)
+        old = self._keyframes.find(partner) if partner is not None else None
+        if old is None:
+            return
+        acs = self._extractor.extract(old.image, gray)
+        if len(acs) < self.config.odometry.min_correspondences:
+            return
+        level = acs.normalized(camera).mapped(self._estimator.R_lc)
+        f = camera.fx
+        self._focal.offer(self._frames, level.p1 * f, level.p2 * f, level.A, level.weights)
 
     def _scale(self, acs: AffineCorrespondences, camera: CameraModel, est: FrameEstimate,
                keyframe: Keyframe, stamp: float) -> tuple[float, float, str]:
@@ -368,16 +497,9 @@ class VisualOdometry:
                 if d is not None:
                     return self._metric(d, (cfg.speed_std * dt) ** 2, 'speed', stamp, dt)
             elif source == 'ground':
-                norm = self._norm
-                R_l = self._estimator.R_lc @ est.R @ self._estimator.R_lc.T
-                alpha, beta = planar_motion_from_pose(R_l, self._estimator.R_lc @ est.t)
-                level = norm.mapped(self._estimator.R_lc)
-                g = ground_plane_scale(level.p1, level.p2, level.A, float(alpha), float(beta),
-                                       self.config.mount.height, weights=est.inliers,
-                                       affine_tol=cfg.ground_affine_tolerance,
-                                       min_count=cfg.ground_min_correspondences)
-                if math.isfinite(g.scale):
-                    return self._metric(g.scale, g.std ** 2, 'ground', stamp, dt)
+                step = self._road_step(camera, est)
+                if step is not None:
+                    return self._metric(*step, 'ground', stamp, dt)
             elif source == 'fixed':
                 return cfg.fixed_speed * dt, (cfg.fixed_speed_std * dt) ** 2, 'fixed'
             elif source == 'hold' and self._held is not None:
@@ -394,6 +516,39 @@ class VisualOdometry:
         if dt > 0:
             self._held = (distance / dt, math.sqrt(variance) / dt, stamp)
         return distance, variance, source
+
+    def _road_step(self, camera: CameraModel, est: FrameEstimate
+                   ) -> tuple[float, float] | None:
+        """The step length (m) and its variance from the road ACs at the camera height
+        (`road_scale`: the refined general motion, the road normal in the camera frame), or None
+        without enough road ACs. The variance adds the rotation's uncertainty (the estimator's
+        covariance through the step's exact sensitivity to it) to the statistical, road-normal
+        and car-pitch terms. The road ACs then refine the road normal
+        (`RoadNormalCalibrator`)."""
+        cfg = self.config.scale
+        norm = self._norm
+        pitch, roll, normal_std = self.road_normal
+        rs = road_scale(norm.p1, norm.p2, norm.A, est.R, est.t, normal_from_tilt(pitch, roll),
+                        self.config.mount.height, point_sigma=cfg.ground_point_std / camera.fx,
+                        weights=norm.weights,
+                        sigma_normal=math.hypot(normal_std, cfg.ground_normal_std),
+                        max_depth=cfg.ground_max_depth, affine_sigma=cfg.ground_affine_std,
+                        gate=cfg.ground_gate, min_count=cfg.ground_min_correspondences)
+        if self._road is not None and rs.count and \
+                self._road.add(norm.p1, norm.p2, est.R, est.t, rs.mask, norm.weights):
+            fit = self._road.update(pitch, roll)
+            if fit is not None:
+                std = math.hypot(fit.pitch_std, fit.roll_std)
+                if math.isfinite(std):
+                    self._road_fit = (fit.pitch, fit.roll, std)
+        if not (math.isfinite(rs.scale) and rs.scale > 0):
+            return None
+        d = rs.d_rotation
+        var = rs.std ** 2 + float(d @ est.cov[:3, :3] @ d)
+        if self._focal is not None and self._camera is None:
+            # Road depths scale with the focal length: so does the step.
+            var += (rs.scale * min(self._focal.relative_std, 1.0)) ** 2
+        return rs.scale, var
 
     def _stationary(self, keyframe: Keyframe, stamp: float, count: int) -> FrameResult:
         """The image has not moved: neither has the vehicle (no new keyframe, no drift). The
@@ -504,6 +659,12 @@ class VisualOdometry:
 
 # Variance (m^2 or rad^2) that says "unknown": a unit step has no metric length.
 _UNKNOWN = 1e6
+# The road normal before its first fit is the mount's tilt (configured or estimated), trusted to
+# about a degree (radians).
+_START_NORMAL_STD = math.radians(1.0)
+# The tilt estimator's wobble follows the measured non-planarity when it changed by more than
+# this share (each change triggers a refit).
+_WOBBLE_CHANGE = 0.2
 
 
 def _with_timings(result: FrameResult, timings: dict[str, float]) -> FrameResult:

@@ -9,8 +9,6 @@ A single camera observes the direction of translation only. Sources of the step 
   assumption), with a standard deviation that includes what all road ACs of a frame share
   (the relative rotation's pitch and roll, the road normal); the normal comes from
   `planar_vo.pipeline.calibration.RoadNormalCalibrator`;
-- `ground_plane_scale`: the older level-camera, planar-motion version (the ground ``Y = h``
-  in the level camera frame; kept until the pipeline moves to `road_scale`);
 - a fixed speed, or unit steps.
 """
 
@@ -25,19 +23,15 @@ from planar_vo.config.sections import ScaleConfig
 from planar_vo.core.checks import as_array, as_rotation, same_length
 from planar_vo.core.conventions import (
     normal_tilt_jacobian,
-    rotation_y,
     tilt_from_normal,
-    translation_direction,
 )
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, median, weighted_median
 from planar_vo.core.robust.types import check_clusters
 from planar_vo.errors import ConfigError, InputError
 
 __all__ = [
-    'GroundScale',
     'RoadScale',
     'SpeedIntegrator',
-    'ground_plane_scale',
     'road_scale',
     'step_factors',
 ]
@@ -231,81 +225,6 @@ def _interpolate(x, ta, tb, va, vb, da, db):
     total = 0.5 * (va + vb) * length
     safe = np.where(total > 0.0, total, 1.0)
     return da + (db - da) * np.where(total > 0.0, shape / safe, x / length)
-
-
-@dataclass(frozen=True)
-class GroundScale:
-    """The ground-plane scale estimate.
-
-    Attributes:
-        scale: step length in metres (NaN when no road ACs were found).
-        std: its standard deviation in metres.
-        count: road ACs used.
-    """
-
-    scale: float
-    std: float
-    count: int
-
-
-def ground_plane_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, alpha: float, beta: float,
-                       height: float, *, weights: np.ndarray | None = None,
-                       min_v: float = 0.05, max_depth: float = 40.0, affine_tol: float = 0.05,
-                       min_count: int = 10) -> GroundScale:
-    """Step length from road ACs at camera height ``height`` (level, normalised coordinates).
-
-    Args:
-        q1, q2: normalised coordinates of a level camera (y down), ``(N, 2)``.
-        A: normalised affines, ``(N, 2, 2)``.
-        alpha, beta: the motion between the views (radians).
-        height: camera height above the road (metres).
-        weights: optional per-AC weights (e.g. the voting inlier mask).
-        min_v: only points at least this far below the horizon (normalised) are candidates.
-        max_depth: only candidates closer than this (metres) are used: far road points carry
-            little parallax.
-        affine_tol: maximum Frobenius distance between the measured affine and the one the
-            ground homography predicts, relative to ``|A|``.
-        min_count: fewer road ACs give NaN.
-
-    Returns:
-        A `GroundScale`; ``std`` is a robust spread over ``sqrt(count / 10)``: neighbouring road
-        ACs share errors, so about one in ten counts as independent.
-    """
-    w = np.ones(len(q1)) if weights is None else np.asarray(weights, dtype=np.float64)
-    v1 = q1[:, 1]
-    depth = height / np.where(v1 > 0, v1, np.inf) * np.sqrt(1.0 + q1[:, 0] ** 2 + v1 ** 2)
-    cand = (v1 >= min_v) & (depth <= max_depth) & (w > 0)
-    if np.count_nonzero(cand) < min_count:
-        return GroundScale(float('nan'), float('inf'), 0)
-    q1c, q2c, Ac, wc = q1[cand], q2[cand], A[cand], w[cand]
-    R = rotation_y(alpha)
-    t = translation_direction(beta)
-    X1 = np.column_stack([q1c, np.ones(len(q1c))]) * (height / q1c[:, 1])[:, None]
-    RX = X1 @ R.T
-    h2 = np.column_stack([q2c, np.ones(len(q2c))])
-    a = np.cross(h2, RX)
-    b = np.cross(h2, t)
-    bb = np.einsum('ni,ni->n', b, b)
-    s = -np.einsum('ni,ni->n', a, b) / np.where(bb > 0, bb, np.inf)
-    # The affine the road homography predicts at q1: H = R + (s / h) t n^T, n = [0, 1, 0].
-    H = np.broadcast_to(R, (len(s), 3, 3)).copy()
-    H[:, :, 1] += (s / height)[:, None] * t[None, :]
-    hq = np.einsum('nij,nj->ni', H, np.column_stack([q1c, np.ones(len(q1c))]))
-    q2p = hq[:, :2] / hq[:, 2:3]
-    Jp = (H[:, :2, :2] - q2p[:, :, None] * H[:, 2:3, :2]) / hq[:, 2, None, None]
-    err = np.linalg.norm(Jp - Ac, axis=(1, 2)) / np.linalg.norm(Ac, axis=(1, 2))
-    road = (err <= affine_tol) & np.isfinite(s) & (s > 0)
-    if np.count_nonzero(road) < min_count:
-        return GroundScale(float('nan'), float('inf'), int(np.count_nonzero(road)))
-    s, wr = s[road], wc[road]
-    median = weighted_median(s, wr)
-    # A second, tighter pass around the median rejects the occasional non-road AC that matched.
-    close = np.abs(s - median) <= 3.0 * MAD_TO_SIGMA * np.median(np.abs(s - median)) + 1e-12
-    s, wr = s[close], wr[close]
-    scale = float(np.average(s, weights=wr))
-    spread = MAD_TO_SIGMA * float(np.median(np.abs(s - scale)))
-    std = spread / math.sqrt(max(len(s) / 10.0, 1.0))
-    return GroundScale(scale, std, int(len(s)))
 
 
 # --------------------------------------------------------------------------------------------

@@ -198,6 +198,7 @@ class PlanarVoNode(Node):
         self._path_published = -math.inf
         self._path_header = None         # the header of a path not published yet
         self._last_result: FrameResult | None = None
+        self._focal_state = ''
         self._last_frame_id = ''
         self._period: Counter[str] = Counter()           # outcomes since the last diagnostics
         self._period_time: list[float] = []
@@ -460,7 +461,17 @@ class PlanarVoNode(Node):
         self._node_time += node_time
         self._period_time.append(node_time)
         self._last_result = result
+        self._note_focal()
         self._publish_status(msg.header, result, node_time, path_time)
+
+    def _note_focal(self) -> None:
+        """Log the focal length's source when it changes: a self-calibration says at the first
+        frame that it runs on a provisional focal length, and when it adopts one."""
+        status = self._vo.focal_status()
+        state = status[status.find('('):].split(',')[0].split(' at ')[0]
+        if state != self._focal_state:
+            self._focal_state = state
+            self.get_logger().info(status)
 
     def _dropped(self, stamp_ns: int, reason: DropReason, message: str) -> FrameResult:
         """A frame the node drops before or after the pipeline (no pose to report)."""
@@ -635,6 +646,7 @@ class PlanarVoNode(Node):
             # Every frame names its scale source: 'none' when it produced no step.
             'scale_source': result.scale_source if result.ok else 'none',
             'focal_px': self._focal(),
+            'focal': self._vo.focal_status(),
             'correspondences': result.num_correspondences,
             'inliers': result.num_inliers,
             'alpha_rad': result.alpha,
@@ -701,6 +713,7 @@ class PlanarVoNode(Node):
             'listening_on': ' '.join(self.listened_topics()),
             'scale_source': (last.scale_source if last.ok else 'none') if last else 'none',
             'focal_px': self._focal(),
+            'focal': self._vo.focal_status(),
             'path_poses': len(self._path) + (self._path_tip is not None),
             **{f'period.{k}': v for k, v in sorted(self._period.items())},
             **self._counts(),

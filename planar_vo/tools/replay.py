@@ -80,6 +80,8 @@ class ReplaySummary:
         speed_messages: speed messages fed to the processor.
         camera_info_errors: CameraInfo messages that could not be parsed.
         wall_time: seconds from opening the input to closing the output.
+        focal: the focal length in use at the end and where it came from (the processor's
+            ``focal_status()``: CameraInfo, configured, or self-calibrated / provisional).
     """
 
     input: str
@@ -95,6 +97,7 @@ class ReplaySummary:
     speed_messages: int = 0
     camera_info_errors: int = 0
     wall_time: float = 0.0
+    focal: str = ''
 
     @property
     def throughput(self) -> float:
@@ -115,6 +118,7 @@ class ReplaySummary:
             f'  copied             {copied}',
             f'  speed messages     {self.speed_messages}',
             f'  camera info errors {self.camera_info_errors}',
+            f'  camera             {self.focal or "unknown"}',
             f'  wall time          {self.wall_time:.2f} s',
             f'  throughput         {self.throughput:.1f} frames/s',
         ]
@@ -255,6 +259,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     summary.dropped = dict(dropped)
     summary.copied = {t: writer.counts.get(t, 0) for t in copy}
     summary.camera_info_errors = decoder.camera_errors
+    status = getattr(processor, 'focal_status', None)
+    summary.focal = status() if callable(status) else ''
     summary.wall_time = time.perf_counter() - start
     return summary
 

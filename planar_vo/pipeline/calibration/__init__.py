@@ -4,16 +4,11 @@ ground-plane scale), and the focal length (1ACf self-calibration)."""
 
 from __future__ import annotations
 
-from planar_vo.pipeline.calibration.focal import (
-    FocalCalibrator,
-    OnlineFocalCalibrator,
-    TurnPairSelector,
-)
+from planar_vo.pipeline.calibration.focal import OnlineFocalCalibrator, TurnPairSelector
 from planar_vo.pipeline.calibration.road import RoadNormalCalibrator
 from planar_vo.pipeline.calibration.tilt import MountTiltEstimator, TiltEstimate
 
 __all__ = [
-    'FocalCalibrator',
     'MountTiltEstimator',
     'OnlineFocalCalibrator',
     'RoadNormalCalibrator',

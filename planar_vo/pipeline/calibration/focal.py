@@ -1,10 +1,16 @@
 """Online focal-length self-calibration from many frame pairs.
 
-- `OnlineFocalCalibrator` + `TurnPairSelector`: profile likelihoods of turning pairs
-  (`planar_vo.core.robust.focal.pair_profile`), summed per block, adopted only with an honest
-  uncertainty; bounded memory, cost amortised within a per-frame time budget;
-- `FocalCalibrator`: the older per-pair 1ACf vote (biased low on real ACs; kept until the
-  pipeline moves to `OnlineFocalCalibrator`).
+`OnlineFocalCalibrator` + `TurnPairSelector`: profile likelihoods of turning pairs
+(`planar_vo.core.robust.focal.pair_profile`), summed per block, adopted only with an honest
+uncertainty; bounded memory, cost amortised over the frames in a fixed number of work steps
+per frame.
+
+Why not a focal length per AC (the paper's 1ACf closed form, voted): for a car both parts of
+``f^2 = (n3^2 - n1^2) / (n2^2 - n4^2)`` are of the order of the yaw squared and the denominator
+is the difference of two nearly equal numbers, so zero-mean noise inflates it and biases the
+focal length low (measured on KITTI 05 turns with the true principal point and ground-truth
+inliers: median per-AC focal 351 px at 2.3 deg of yaw down to 93 px at lag 5, truth 707). The
+profile uses the calibrated 1AC machinery, unbiased at any trial focal length.
 """
 
 from __future__ import annotations
@@ -13,89 +19,19 @@ import collections
 import dataclasses
 import logging
 import math
-import time
 
 import numpy as np
 
 from planar_vo.config.sections import CameraConfig
-from planar_vo.core.robust import VotingConfig, vote_planar_motion_focal
+from planar_vo.core.robust import VotingConfig
 from planar_vo.core.robust.focal import combine_profiles, profile_steps
-from planar_vo.core.robust.stats import MAD_TO_SIGMA, few_cluster_factor, weighted_median
+from planar_vo.core.robust.stats import few_cluster_factor
 from planar_vo.core.robust.types import check_inputs
 from planar_vo.errors import ConfigError, InputError
 
-__all__ = ['FocalCalibrator', 'OnlineFocalCalibrator', 'TurnPairSelector']
+__all__ = ['OnlineFocalCalibrator', 'TurnPairSelector']
 
 log = logging.getLogger(__name__)
-
-
-class FocalCalibrator:
-    """Online focal-length self-calibration from many frames (1ACf voting per frame).
-
-    Every frame pair goes through `vote_planar_motion_focal`; a frame that does not reveal the
-    focal length (straight driving: flagged ``'focal_unobservable'``, or unreliable) contributes
-    nothing. Informative frames contribute their focal length with its standard deviation. The
-    running estimate is the inverse-variance weighted median of the frames' focal lengths (robust
-    to an occasional bad frame); its standard deviation is the larger of the combined
-    inverse-variance one and the weighted spread between frames over ``sqrt(frames)``.
-
-    Args:
-        focal_range: plausible focal lengths in pixels.
-        config: `VotingConfig` for the per-frame estimates.
-    """
-
-    def __init__(self, focal_range: tuple[float, float] = (50.0, 20000.0),
-                 config: VotingConfig | None = None) -> None:
-        if not (0.0 < focal_range[0] < focal_range[1]):
-            raise ConfigError(f'focal_range: expected 0 < min < max, got {focal_range}')
-        self.focal_range = (float(focal_range[0]), float(focal_range[1]))
-        self.config = VotingConfig() if config is None else config
-        self._focal: list[float] = []
-        self._std: list[float] = []
-        self.frames_seen = 0
-
-    def add(self, p1: np.ndarray, p2: np.ndarray, A: np.ndarray,
-            weights: np.ndarray | None = None) -> bool:
-        """Add one frame pair's ACs (pixels relative to the principal point; A in pixels).
-
-        Returns whether the frame was informative (it revealed the focal length).
-        """
-        self.frames_seen += 1
-        if len(p1) < self.config.min_inliers:
-            return False                    # nothing to learn from this pair
-        motion, stats = vote_planar_motion_focal(p1, p2, A, weights, self.config,
-                                                 focal_range=self.focal_range)
-        if not stats.reliable or not math.isfinite(stats.focal_std):
-            return False
-        self._focal.append(motion.focal)
-        self._std.append(stats.focal_std)
-        return True
-
-    @property
-    def informative_frames(self) -> int:
-        return len(self._focal)
-
-    @property
-    def estimate(self) -> float:
-        """Current focal length in pixels (NaN before the first informative frame)."""
-        if not self._focal:
-            return float('nan')
-        f, s = np.array(self._focal), np.array(self._std)
-        return weighted_median(f, 1.0 / np.maximum(s, 1e-9) ** 2)
-
-    @property
-    def std(self) -> float:
-        """Standard deviation of `estimate` in pixels (inf before the first informative frame)."""
-        if not self._focal:
-            return float('inf')
-        f, s = np.array(self._focal), np.array(self._std)
-        w = 1.0 / np.maximum(s, 1e-9) ** 2
-        combined = 1.0 / math.sqrt(float(w.sum()))
-        if f.size < 3:
-            return combined
-        m = weighted_median(f, w)
-        spread = MAD_TO_SIGMA * weighted_median(np.abs(f - m), w) / math.sqrt(f.size)
-        return max(combined, spread)
 
 
 # --------------------------------------------------------------------------------------------
@@ -190,11 +126,9 @@ class OnlineFocalCalibrator:
     Each informative pair (`TurnPairSelector`) is `offer`-ed: its ACs (at most ``max_acs``,
     evenly picked) wait in a queue of at most ``max_queue`` pairs. `work` turns them into
     profiles (`pair_profile`, the cost on a fixed log-focal grid; a second one with the
-    principal point shifted by 1 % of the width) in small steps within a time budget: the
-    profiles cost about 100 ms per pair of 1,300 ACs, far more than a frame may spend, so the
-    pipeline calls ``work(share * mean_frame_cost)`` every frame (``camera.focal_budget``).
-    Unused budget is not saved up, overspent budget (a step is not interrupted) is paid back on
-    the next frames, so the average cost per frame stays within the share.
+    principal point shifted by 1 % of the width) in small steps: the profiles cost about
+    100 ms per pair of 1,300 ACs (14 steps), far more than a frame may spend, so the pipeline
+    calls ``work(camera.focal_steps)`` every frame and a pair is done a few frames later.
 
     Profiles are summed per block of ``block_frames`` frames (pairs within about a second share
     scenery and wobble: one cluster); at most ``max_blocks`` blocks are kept (the least
@@ -212,7 +146,7 @@ class OnlineFocalCalibrator:
     turning stays uncalibrated and says so (`status`).
 
     Measured on KITTI 05 (one 90-deg turn, principal point at the image centre): 628 +- 78 px
-    (truth 707: -1.0 sigma), not adopted; the same pairs gave today's per-AC calibrator
+    (truth 707: -1.0 sigma), not adopted; the same pairs gave the former per-AC calibrator
     603.7 +- 4.4 px adopted (-23 sigma).
 
     Args:
@@ -232,7 +166,7 @@ class OnlineFocalCalibrator:
         partner = selector.step(frame, alpha, calibrator.provisional)
         if partner is not None:               # ACs between keyframe `partner` and this one
             calibrator.offer(frame, p1, p2, A, w)   # pixels from the principal point, levelled
-        calibrator.work(0.1 * mean_frame_cost, frame)
+        calibrator.work(steps_per_frame, frame)
         focal = calibrator.provisional        # and calibrator.relative_std
     """
 
@@ -268,7 +202,7 @@ class OnlineFocalCalibrator:
         self._queue: collections.deque[_Pair] = collections.deque()
         self._job = None                    # the pair in progress: a generator of steps
         self._frame: int | None = None      # the frame of the current `work` call
-        self._credit = 0.0                  # time budget (s) left; negative: overspent
+        self._credit = 0.0                  # work steps granted and not yet run
         self._blocks: dict[int, np.ndarray] = {}
         self._shifted: dict[int, np.ndarray] = {}
         self._cache: tuple[float, float, dict] | None = None
@@ -318,34 +252,31 @@ class OnlineFocalCalibrator:
         self._queue.append(_Pair(int(frame), p1.copy(), p2.copy(), A.copy(), w.copy()))
         return True
 
-    def work(self, budget_s: float, frame: int | None = None, *,
-             max_steps: int | None = None) -> int:
-        """Advance the queued profiles by small steps (a vote, or 8 grid focal lengths) while
-        the time budget lasts; returns the number of steps run.
+    def work(self, steps: float, frame: int | None = None) -> int:
+        """Advance the queued profiles by ``steps`` work steps (a vote, or 8 grid focal lengths
+        of one profile: 5-15 ms each on KITTI pairs); returns the number of steps run.
+
+        A fractional remainder carries over to the next call (``camera.focal_steps`` 0.5 runs a
+        step every other frame); nothing is saved up while the queue is empty. Counted in steps,
+        not seconds, so that the same frames give the same calibration on any machine and at
+        any load (replays, fleet runs and the node agree).
 
         Args:
-            budget_s: seconds this call may spend on average (``camera.focal_budget`` x the
-                pipeline's average per-frame cost); credit does not accumulate beyond one
-                budget, an overrun is paid back by the following calls.
+            steps: work steps this call may run (>= 0).
             frame: the current frame (`adopted_at` names it); default: the pair's frame.
-            max_steps: run up to this many steps regardless of the time and the budget
-                (tests; the budget's account is left alone).
         """
-        if not (math.isfinite(budget_s) and budget_s >= 0):
-            raise InputError(f'budget_s: expected a non-negative duration, got {budget_s}')
-        done = 0
+        if not (math.isfinite(steps) and steps >= 0):
+            raise InputError(f'steps: expected a non-negative number of work steps, got {steps}')
         self._frame = frame
-        if max_steps is not None:               # forced work: outside the budget
-            while (self._job is not None or self._queue) and done < max_steps:
-                self._step()
-                done += 1
-        else:
-            self._credit = min(self._credit + budget_s, budget_s)
-            while (self._job is not None or self._queue) and self._credit > 0:
-                start = time.perf_counter()
-                self._step()
-                self._credit -= time.perf_counter() - start
-                done += 1
+        if self._job is None and not self._queue:
+            self._credit = 0.0
+            return 0
+        self._credit += steps
+        done = 0
+        while (self._job is not None or self._queue) and self._credit >= 1.0:
+            self._step()
+            self._credit -= 1.0
+            done += 1
         self.steps += done
         return done
 
