@@ -60,7 +60,7 @@ CHI2_3_99 = 11.345            # 99 % quantile of chi-square with 3 degrees of fr
 # chi-square(3), so that an active set chosen at a motion still a little off keeps its inliers).
 GATE = 4.0 * CHI2_3_99
 _IRLS_ITERATIONS = 2          # IRLS iterations per selection round
-_GN_STEPS = 2                 # Gauss-Newton steps per IRLS iteration
+_GN_STEPS = 1                 # Gauss-Newton steps per IRLS iteration
 _STEP_TOLERANCE = 2e-6        # rad: a step below this ends an IRLS loop
 _ROUND_TOLERANCE = 0.2        # a round that moves the motion by less sigma (Mahalanobis) ...
 _MAX_SET_CHANGE = 0.03        # ... and changes the active set by at most this share: converged
