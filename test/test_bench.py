@@ -149,8 +149,22 @@ def test_bench_speed_quick_times_voting_against_the_peers(tmp_path, capfd):
     text = (out / 'speed.md').read_text()
     assert text.count('planar_vo bench speed --out') == 1 and '--quick' in text
     assert (out / 'speed_vs_size.png').exists() and (out / 'speed_vs_outliers.png').exists()
-    # Ratios are against the whole estimator (solve + vote), never solve alone.
+    # Ratios are against the whole estimator (solve + vote), never solve alone; on a car's
+    # general motion against the pipeline's estimator, with PoseLib's defaults and early stop.
     assert '(solve + vote)' in text and 'not run' not in text
+    assert '| planar_vo estimator (1AC vote + general refinement) |' in text
+    assert '5PC LO-RANSAC + refinement (PoseLib defaults) |' in text
+
+
+def test_bench_pipeline_times_every_stage_against_dis(tmp_path, capfd):
+    out = tmp_path / 'pipeline'
+    assert main(['bench', 'pipeline', '--frames', '10', '--skip-kitti', '--out', str(out)]) == 0
+    text = (out / 'pipeline.md').read_text()
+    for stage in ('decode', 'correspondences', 'solve', 'scale', 'integrate', 'publish',
+                  'whole frame (wall)', 'whole frame (CPU time)'):
+        assert f'| {stage} |' in text
+    assert '## rendered demo drive: 9 frame pairs, 1241x376, one core' in text
+    assert 'target at most 20 ms at 1241x376' in text
 
 
 # ---------------------------------------------------------------------------------------------
