@@ -32,7 +32,7 @@ import numpy as np
 
 from planar_vo.core.checks import as_array, same_length
 from planar_vo.core.conventions import planar_motion_from_pose, rotation_y, translation_direction
-from planar_vo.core.solvers import solve_2pc
+from planar_vo.core.solvers import _cheirality_flip, solve_2pc
 from planar_vo.errors import InputError
 
 __all__ = [
@@ -377,7 +377,9 @@ def estimate_2pc_ransac(q1: np.ndarray, q2: np.ndarray, *, solver: str = 'poseli
     points at once (`planar_sampson_errors`, ``(hypotheses, N)``), the hypothesis with most
     inliers (ties: smaller truncated error sum) is kept, and the number of iterations adapts to
     the best inlier ratio (`ransac_iterations`). The result is the best minimal hypothesis: no
-    refinement on its inliers, so differences between ``solver`` values are the solvers'.
+    refinement on its inliers (only the sign of ``t``, which the Sampson error cannot see, is
+    decided by all inliers' cheirality), so differences between ``solver`` values are the
+    solvers'.
 
     Args:
         q1, q2: normalised coordinates, shape ``(N, 2)``, ``N >= 2``.
@@ -421,5 +423,9 @@ def estimate_2pc_ransac(q1: np.ndarray, q2: np.ndarray, *, solver: str = 'poseli
         return _failed(n)
     a, b = best[2], best[3]
     inliers = planar_sampson_errors(q1, q2, np.array([a]), np.array([b]))[0] < threshold
+    # The Sampson error cannot tell t from -t, and a sample's two points can vote the sign
+    # wrong: all inliers decide it.
+    if _cheirality_flip(q1[inliers][None], q2[inliers][None], np.array([a]), np.array([b]))[0]:
+        b = float(np.arctan2(-np.sin(b), -np.cos(b)))
     return PoseEstimate(float(a), float(b), rotation_y(a), translation_direction(b), inliers,
                         iterations=done)

@@ -401,11 +401,17 @@ class OnlineFocalCalibrator:
     def status(self) -> str:
         """One line for logs and the status topic, e.g. ``focal length 712.3 +- 4.1 px
         (self-calibrated at frame 143)`` or ``focal length 1241.0 +- 702.3 px (provisional,
-        2 of 4 blocks)``."""
+        2 of 4 blocks)`` / ``(provisional, calibration 651.2 +- 9.9 %, adopted at 2 %)``."""
         if self.adopted is not None:
             return (f'focal length {self.adopted:.1f} +- {self.adopted_std:.1f} px '
                     f'(self-calibrated at frame {self.adopted_at})')
         f = self.provisional
         blocks = len(self._blocks)
-        return (f'focal length {f:.1f} +- {f * self.relative_std:.1f} px (provisional, '
-                f'{blocks} of {self.min_blocks} blocks)')
+        if blocks < self.min_blocks:
+            why = f'{blocks} of {self.min_blocks} blocks'
+        else:
+            estimate, std, info = self.estimate()
+            why = ('the calibration at the edge of its range' if info.get('edge', True) else
+                   f'calibration {estimate:.1f} +- {100.0 * std / estimate:.1f} %, adopted at '
+                   f'{100.0 * self.tolerance:g} %')
+        return f'focal length {f:.1f} +- {f * self.relative_std:.1f} px (provisional, {why})'
