@@ -10,15 +10,15 @@ from planar_vo.errors import InputError
 from planar_vo.tools.evaluation.metrics import Evaluation
 from planar_vo.tools.evaluation.plots import save_plots
 
-__all__ = ['write_report']
+__all__ = ['json_ready', 'write_report']
 
 
-def _json_ready(value):
+def json_ready(value):
     """NaN/inf -> None (JSON has no NaN), numpy scalars -> Python, recursively."""
     if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
+        return {k: json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
+        return [json_ready(v) for v in value]
     if hasattr(value, 'item') and not isinstance(value, (str, bytes)):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
@@ -26,8 +26,10 @@ def _json_ready(value):
     return value
 
 
-def write_report(evaluation: Evaluation, out_dir: str | Path, **extra) -> list[Path]:
-    """Write ``metrics.json`` (the metrics plus ``extra`` fields) and the plots into ``out_dir``.
+def write_report(evaluation: Evaluation, out_dir: str | Path, *, plots: bool = True,
+                 **extra) -> list[Path]:
+    """Write ``metrics.json`` (the metrics plus ``extra`` fields) and, with ``plots``, the plots
+    into ``out_dir``.
 
     Returns the paths written, ``metrics.json`` first.
     """
@@ -38,5 +40,5 @@ def write_report(evaluation: Evaluation, out_dir: str | Path, **extra) -> list[P
         raise InputError(f"out-dir: cannot create '{out}' ({err.strerror})") from err
     metrics = {**{k: str(v) for k, v in extra.items()}, **evaluation.metrics()}
     path = out / 'metrics.json'
-    path.write_text(json.dumps(_json_ready(metrics), indent=2) + '\n')
-    return [path, *save_plots(evaluation, out)]
+    path.write_text(json.dumps(json_ready(metrics), indent=2) + '\n')
+    return [path, *(save_plots(evaluation, out) if plots else [])]
