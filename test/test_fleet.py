@@ -556,3 +556,22 @@ def test_kitti_fields_are_the_evaluations_kitti_drift():
     fields = kitti_fields(metrics)
     assert fields['t_rel_pct'] == pytest.approx(1.0, abs=1e-9)
     assert fields['r_rel_deg100m'] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_bench_fleet_measures_the_three_setups(tmp_path, capsys):
+    # Timings are not asserted (a shared machine); the machinery and the equality check are.
+    out = tmp_path / 'bench'
+    assert main(['bench', 'fleet', '--bags', '2', '--frames', '10', '--repeat', '1', '--out',
+                 str(out), '--work', str(tmp_path / 'work')]) == 0
+    report = (out / 'fleet.md').read_text()
+    assert report.startswith('# planar_vo bench fleet')
+    assert 'planar_vo bench fleet --out' in report and '--bags 2 --frames 10' in report
+    for setup in ('| in-process |', '| 1 worker |', '| 2 workers |'):
+        assert setup in report
+    assert '| every result identical in the three setups | yes | met |' in report
+    assert (out / 'fleet.png').stat().st_size > 5_000
+    # The drives are kept in --work and reused by the next run.
+    assert sorted(p.name for p in (tmp_path / 'work' / 'drives').iterdir()) == [
+        'drive_00', 'drive_01', 'drives.json', 'warm_up']
+    assert not ray.is_initialized()
+    capsys.readouterr()

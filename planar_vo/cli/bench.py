@@ -17,7 +17,7 @@ __all__ = ['BENCHES', 'register', 'run']
 
 # Benchmark modules planar_vo.bench.<name>, in --help order. To add one (e.g. 'frontend'):
 # write planar_vo/bench/<name>.py with HELP, add_arguments(parser), run(args) -> int.
-BENCHES = ('paper', 'speed', 'frontend', 'pipeline')
+BENCHES = ('paper', 'speed', 'frontend', 'pipeline', 'fleet')
 
 EXAMPLES = """examples:
   planar_vo bench paper --quick                 smoke run of the paper's experiments
@@ -25,6 +25,7 @@ EXAMPLES = """examples:
   planar_vo bench speed --out out/bench/speed   one-core throughput vs OpenCV and PoseLib
   planar_vo bench frontend                      AC extraction time vs DIS, accuracy, KITTI
   planar_vo bench pipeline                      whole frame per stage vs DIS; KITTI vs 5-point
+  planar_vo bench fleet                         fleet throughput on Ray, 1 and 2 workers
 """
 
 

@@ -72,6 +72,8 @@ __all__ = [
     'kitti_fields',
     'load_result',
     'plan_jobs',
+    'default_workers',
+    'ray_session',
     'read_manifest',
     'run_fleet',
     'run_job',
@@ -467,11 +469,26 @@ class FleetRun:
         return '\n'.join(lines)
 
 
-def _start_ray(ray, address: str | None, workers: int, retries: int) -> bool:
-    """Connect to `address`, or start a local instance with `workers` CPUs; False when Ray was
-    already initialised by the caller (then the caller's settings hold and it shuts Ray down)."""
+@contextlib.contextmanager
+def ray_session(address: str | None = None, workers: int | None = None, retries: int = 2
+                ) -> Iterator[Any]:
+    """Ray for a fleet run: connect to `address`, or start a local instance with `workers`
+    CPUs (default: the CPUs this process may use); shut down on exit. Yields the ``ray``
+    module.
+
+    The workers get the driver's BLAS thread variables (see the module docstring); Ray kills
+    of out-of-memory workers are retried `retries` times like other deaths (Ray's own default
+    is forever). A Ray already initialised by the caller is used as it is, and left running.
+
+    Raises:
+        DependencyError: Ray or threadpoolctl is missing.
+        InputError: Ray cannot be started or reached.
+    """
+    ray = import_ray()
     if ray.is_initialized():
-        return False
+        yield ray
+        return
+    workers = default_workers() if workers is None else workers
     env = {name: os.environ.get(name, '') for name in THREAD_ENV}
     common = {'runtime_env': {'env_vars': env}, 'log_to_driver': False,
               'logging_level': logging.ERROR}
@@ -479,14 +496,23 @@ def _start_ray(ray, address: str | None, workers: int, retries: int) -> bool:
         if address:
             ray.init(address=address, **common)
         else:
-            # OOM kills are retried like other worker deaths, not forever (Ray's default).
             ray.init(num_cpus=workers, include_dashboard=False,
                      _system_config={'task_oom_retries': retries}, **common)
     except (ConnectionError, RuntimeError, ValueError) as err:
         where = f"'{address}'" if address else f'a local instance ({workers} CPUs)'
         raise InputError(f'address: cannot start or reach Ray at {where} '
                          f'({_one_line(err)})') from err
-    return True
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def default_workers() -> int:
+    """The CPUs this process may use."""
+    if hasattr(os, 'sched_getaffinity'):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def _failure(ray, err: Exception, job: FleetJob, retries: int) -> dict | None:
@@ -572,9 +598,7 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(f"out: cannot create '{out_dir}' ({err.strerror})") from err
-    if workers is None:
-        workers = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else (
-            os.cpu_count() or 1)
+    workers = default_workers() if workers is None else workers
     if workers < 1 or retries < 0:
         raise InputError(f'workers, retries: expected at least 1 and 0, got {workers}, {retries}')
     records: dict[int, dict] = {}
@@ -586,20 +610,17 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
                    workers=None if address else workers)
     todo = [i for i in range(len(jobs)) if i not in records]
     if todo:
-        ray = import_ray()
         t0 = time.perf_counter()
-        started = _start_ray(ray, address, workers, retries)
-        run.ray_start_s = time.perf_counter() - t0
-        bar = tqdm(total=len(jobs), initial=len(records), desc='fleet', unit='bag',
-                   file=sys.stderr, disable=not progress, leave=False)
-        t0 = time.perf_counter()
-        try:
-            run.interrupted = _execute(ray, jobs, todo, out_dir, retries, records, bar)
-        finally:
-            run.tasks_s = time.perf_counter() - t0
-            bar.close()
-            if started:
-                ray.shutdown()
+        with ray_session(address, workers, retries) as ray:
+            run.ray_start_s = time.perf_counter() - t0
+            bar = tqdm(total=len(jobs), initial=len(records), desc='fleet', unit='bag',
+                       file=sys.stderr, disable=not progress, leave=False)
+            t0 = time.perf_counter()
+            try:
+                run.interrupted = _execute(ray, jobs, todo, out_dir, retries, records, bar)
+            finally:
+                run.tasks_s = time.perf_counter() - t0
+                bar.close()
         if run.interrupted:       # results written by tasks whose end the driver did not see
             for i in todo:
                 if i not in records and (record := load_result(out_dir, jobs[i])) is not None:
