@@ -42,7 +42,6 @@ from __future__ import annotations
 import contextlib
 import difflib
 import hashlib
-import importlib
 import itertools
 import json
 import logging
@@ -68,11 +67,11 @@ __all__ = [
     'FleetJob',
     'FleetRun',
     'config_grid',
+    'default_workers',
     'import_ray',
     'kitti_fields',
     'load_result',
     'plan_jobs',
-    'default_workers',
     'ray_session',
     'read_manifest',
     'run_fleet',
@@ -277,7 +276,7 @@ def _one_line(err: BaseException) -> str:
     return ' '.join(str(err).split()) or type(err).__name__
 
 
-def new_row(job: FleetJob, **values: Any) -> dict[str, Any]:
+def _new_row(job: FleetJob, **values: Any) -> dict[str, Any]:
     """A summary row of `job` with every field present (None where not measured)."""
     row = {'bag': job.bag, 'config': job.config.name, 'status': 'ok', 'reason': None,
            'frames_in': 0, 'odom_out': 0, 'drops': {}, 'wall_s': None, 'frames_per_s': None,
@@ -353,7 +352,7 @@ def run_job(job: FleetJob, out_dir: str | Path) -> dict:
     if work.exists():
         shutil.rmtree(work)
     work.mkdir(parents=True)
-    row = new_row(job, node=socket.gethostname(), pid=os.getpid())
+    row = _new_row(job, node=socket.gethostname(), pid=os.getpid())
     thumbnail = None
     with single_threaded():
         try:
@@ -362,7 +361,6 @@ def run_job(job: FleetJob, out_dir: str | Path) -> dict:
             row.update(status='failed', reason=_one_line(err))
     wall = time.perf_counter() - start
     row.update(wall_s=wall, frames_per_s=row['frames_in'] / wall)
-
     record = {'key': job.key, 'row': row, 'thumbnail': thumbnail}
     write_json(work / RESULT, record)
     return record
@@ -387,15 +385,14 @@ def load_result(out_dir: str | Path, job: FleetJob) -> dict | None:
 # -- the run --------------------------------------------------------------------------------------
 
 def import_ray():
-    """The ``ray`` module, or `DependencyError` with the install command (one line)."""
-    for name in ('ray', 'threadpoolctl'):
-        try:
-            module = importlib.import_module(name)
-        except ImportError as err:
-            raise DependencyError(f'{name} is not installed; fleet runs need the fleet extra: '
-                                  f'{FLEET_EXTRA}') from err
-        if name == 'ray':
-            ray = module
+    """The ``ray`` module (threadpoolctl checked too), or `DependencyError` naming the install
+    command in one line."""
+    try:
+        import threadpoolctl  # noqa: F401
+        import ray
+    except ImportError as err:
+        raise DependencyError(f'{err.name or "ray"} is not installed; fleet runs need the fleet '
+                              f'extra: {FLEET_EXTRA}') from err
     return ray
 
 
@@ -528,7 +525,7 @@ def _failure(ray, err: Exception, job: FleetJob, retries: int) -> dict | None:
     else:
         reason = (f'worker died on each of {retries + 1} attempts ({type(err).__name__}: '
                   f'{_one_line(err)[:200]})')
-    return {'key': job.key, 'row': new_row(job, status='failed', reason=reason),
+    return {'key': job.key, 'row': _new_row(job, status='failed', reason=reason),
             'thumbnail': None}
 
 
