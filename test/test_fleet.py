@@ -575,3 +575,18 @@ def test_bench_fleet_measures_the_three_setups(tmp_path, capsys):
         'drive_00', 'drive_01', 'drives.json', 'warm_up']
     assert not ray.is_initialized()
     capsys.readouterr()
+
+
+def test_task_errors_become_rows_and_interruptions_none(tmp_path):
+    from planar_vo.tools.fleet import _failure
+
+    (job,) = plan_jobs([tmp_path / 'x.mcap'], config_grid(PlanarVoConfig()))
+    bug = ray.exceptions.RayTaskError('run_job', 'Traceback ...', ValueError('boom\nmore'))
+    row = _failure(ray, bug, job, 2)['row']
+    assert (row['status'], row['reason']) == ('failed', 'internal error: ValueError: boom more')
+    died = ray.exceptions.WorkerCrashedError()
+    assert _failure(ray, died, job, 2)['row']['reason'].startswith(
+        'worker died on each of 3 attempts (WorkerCrashedError: ')
+    assert _failure(ray, ray.exceptions.TaskCancelledError(), job, 2) is None
+    interrupted = ray.exceptions.RayTaskError('run_job', 'Traceback ...', KeyboardInterrupt())
+    assert _failure(ray, interrupted, job, 2) is None
