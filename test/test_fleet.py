@@ -401,11 +401,10 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_existing_cluster_by_ray_client_and_auto(drives, fleet_run, tmp_path, monkeypatch,
-                                                 capsys):
-    # Token authentication off on both sides: the head and this client (Ray 2.60's default
-    # depends on whether ~/.ray/auth_token exists).
-    monkeypatch.setenv('RAY_AUTH_MODE', 'disabled')
+def test_existing_cluster_by_ray_client_and_auto(drives, fleet_run, tmp_path):
+    # The head and the clients are subprocesses with token authentication off (Ray 2.60's
+    # default depends on whether ~/.ray/auth_token exists, and a process caches its mode).
+    env = {**os.environ, 'RAY_AUTH_MODE': 'disabled'}
     gcs, client = _free_port(), _free_port()
     ray_cli = Path(sys.executable).with_name('ray')
     temp = Path(tempfile.mkdtemp(prefix='pvo-ray-'))     # short: Ray's socket paths
@@ -413,7 +412,7 @@ def test_existing_cluster_by_ray_client_and_auto(drives, fleet_run, tmp_path, mo
         [str(ray_cli), 'start', '--head', '--block', '--num-cpus', '2', '--port', str(gcs),
          '--ray-client-server-port', str(client), '--include-dashboard', 'false',
          '--disable-usage-stats', '--temp-dir', str(temp)],
-        start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
@@ -424,17 +423,21 @@ def test_existing_cluster_by_ray_client_and_auto(drives, fleet_run, tmp_path, mo
             except OSError:
                 time.sleep(0.2)
         reference = _rows(fleet_run[0])['drive_c', 'voting.bins=720']
-        monkeypatch.setenv('RAY_ADDRESS', f'127.0.0.1:{gcs}')
         for address in (f'ray://127.0.0.1:{client}', 'auto'):
             out = tmp_path / address.replace('/', '_').replace(':', '_')
-            assert main(['fleet', 'run', str(drives['drive_c']), '--out', str(out), '--config',
-                         str(drives['config']), '--set', 'voting.bins=720', '--address',
-                         address, '--no-progress']) == 0
+            result = subprocess.run(
+                [sys.executable, '-m', 'planar_vo', 'fleet', 'run', str(drives['drive_c']),
+                 '--out', str(out), '--config', str(drives['config']), '--set',
+                 'voting.bins=720', '--address', address],
+                env={**env, 'RAY_ADDRESS': f'127.0.0.1:{gcs}'}, capture_output=True, text=True,
+                timeout=180)
+            logs = ''.join(f'\n== {p.name}\n' + p.read_text()[-1500:] for p in
+                           sorted(temp.glob('session_latest/logs/*client_server*')))
+            assert result.returncode == 0, result.stderr + logs
             (row,) = _summary(out)['rows']
             assert row['status'] == 'ok' and _summary(out)['run']['address'] == address
             assert (out / row['tum']).read_bytes() == \
                 (fleet_run[0] / reference['tum']).read_bytes()
-            assert not ray.is_initialized()
     finally:
         head.terminate()                 # `ray start --block` stops what it started
         try:
@@ -443,7 +446,6 @@ def test_existing_cluster_by_ray_client_and_auto(drives, fleet_run, tmp_path, mo
             left = _wait_gone(head.pid)
             shutil.rmtree(temp, ignore_errors=True)
     assert left == []
-    capsys.readouterr()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -89,6 +89,7 @@ ALIGN = 'sim3'
 # BLAS/OpenMP thread variables, passed from the driver to the workers as they are ('' = unset).
 THREAD_ENV = ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')
 THUMBNAIL_POINTS = 150          # points per trajectory kept for the report's thumbnails
+CLIENT_ATTEMPTS = 3             # connections to a ray:// address whose server fails to start
 
 
 # -- configurations and jobs ----------------------------------------------------------------------
@@ -475,7 +476,9 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
 
     The workers get the driver's BLAS thread variables (see the module docstring); Ray kills
     of out-of-memory workers are retried `retries` times like other deaths (Ray's own default
-    is forever). A Ray already initialised by the caller is used as it is, and left running.
+    is forever). A ``ray://`` connection whose per-client server fails to start is tried
+    `CLIENT_ATTEMPTS` times. A Ray already initialised by the caller is used as it is, and left
+    running.
 
     Raises:
         DependencyError: Ray or threadpoolctl is missing.
@@ -491,7 +494,17 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
               'logging_level': logging.ERROR}
     try:
         if address:
-            ray.init(address=address, **common)
+            for attempt in range(1, CLIENT_ATTEMPTS + 1):
+                try:
+                    ray.init(address=address, **common)
+                    break
+                except ConnectionAbortedError as err:
+                    # A ray:// server took the connection, but the server process it starts
+                    # for each client died at start (Ray 2.60 forks it from a process with
+                    # gRPC threads; now and then the child dies): connect again.
+                    if attempt == CLIENT_ATTEMPTS:
+                        raise
+                    log.warning('Ray at %s, attempt %d: %s', address, attempt, _one_line(err))
         else:
             ray.init(num_cpus=workers, include_dashboard=False,
                      _system_config={'task_oom_retries': retries}, **common)
