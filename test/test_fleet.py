@@ -1,5 +1,6 @@
-"""Fleet runs on Ray: rows and failure reasons, equality with a single replay + eval, resuming,
-Ctrl-C, a killed worker retried, an existing cluster, and Ray staying out of replay and the node.
+"""Fleet runs on Ray: rows and failure reasons, equality with a single replay + eval (with one
+BLAS thread, as the fleet's tasks), resuming, Ctrl-C, a killed worker retried, an existing
+cluster, and Ray staying out of replay and the node.
 
 Each test that runs tasks starts its own local Ray (2 CPUs) through ``planar_vo fleet run`` and
 shuts it down; the bags are short rendered drives (320x240, about 25 frames).
@@ -171,7 +172,14 @@ def test_rows_failures_and_report(drives, fleet_run):
     assert '12 of 12 results' in text and '6 failed' in text
 
 
-def test_each_result_equals_a_single_replay_and_eval(drives, fleet_run, tmp_path, capsys):
+def _single(*args: str) -> None:
+    """``OMP_NUM_THREADS=1 planar_vo ARGS``: the fleet's reference (one BLAS thread)."""
+    result = subprocess.run([sys.executable, '-m', 'planar_vo', *args], capture_output=True,
+                            text=True, env={**os.environ, 'OMP_NUM_THREADS': '1'}, timeout=300)
+    assert result.returncode == 0, result.stderr
+
+
+def test_each_result_equals_a_single_replay_and_eval(drives, fleet_run, tmp_path):
     out, _ = fleet_run
     base = load_config(drives['config'])
     for fleet_config in config_grid(base, GRID[1:]):
@@ -179,8 +187,8 @@ def test_each_result_equals_a_single_replay_and_eval(drives, fleet_run, tmp_path
         yaml = tmp_path / f'{fleet_config.name}.yaml'
         yaml.write_text(to_ros_yaml(fleet_config.build()))
         single, tum = tmp_path / f'{fleet_config.name}_vo', tmp_path / f'{fleet_config.name}.tum'
-        assert main(['replay', str(drives['drive_a']), '--out', str(single), '--tum', str(tum),
-                     '--config', str(yaml), '--no-progress']) == 0
+        _single('replay', str(drives['drive_a']), '--out', str(single), '--tum', str(tum),
+                '--config', str(yaml))
         # The same odometry, to the last bit: TUM text and every serialised /odom message.
         assert tum.read_bytes() == (out / row['tum']).read_bytes()
         with open_bag(single) as a, open_bag(out / row['odometry']) as b:
@@ -188,7 +196,7 @@ def test_each_result_equals_a_single_replay_and_eval(drives, fleet_run, tmp_path
             odom_b = [(m.log_time_ns, bytes(m.rawdata)) for m in b.messages(['/odom'])]
         assert len(odom_a) == row['odom_out'] and odom_a == odom_b
         report = tmp_path / f'{fleet_config.name}_eval'
-        assert main(['eval', str(single), '--align', 'sim3', '--out-dir', str(report)]) == 0
+        _single('eval', str(single), '--align', 'sim3', '--out-dir', str(report))
         mine = json.loads((report / 'metrics.json').read_text())
         theirs = json.loads((out / row['run_dir'] / 'evaluation' / 'metrics.json').read_text())
         for metrics in (mine, theirs):
@@ -198,7 +206,6 @@ def test_each_result_equals_a_single_replay_and_eval(drives, fleet_run, tmp_path
         assert row['yaw_err_mean_deg'] == mine['yaw_change_error_deg']['mean']
         assert row['path_m'] == mine['path_length_m']
         assert (row['t_rel_pct'], row['r_rel_deg100m']) == tuple(kitti_fields(mine).values())
-    capsys.readouterr()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -2,8 +2,9 @@
 
 One Ray task per (bag, configuration) runs what ``planar_vo replay`` and ``planar_vo eval
 --align sim3`` run (`planar_vo.tools.replay.replay_bag` with `planar_vo.pipeline.VisualOdometry`,
-then `planar_vo.tools.evaluation.evaluate` when the bag has ground truth), so each result equals
-theirs to the last bit. Ray (the ``fleet`` extra) is imported only here, inside the functions
+then `planar_vo.tools.evaluation.evaluate` when the bag has ground truth), with one thread, so
+each result equals theirs with one BLAS thread (``OMP_NUM_THREADS=1 planar_vo replay ...``) to
+the last bit. Ray (the ``fleet`` extra) is imported only here, inside the functions
 that need it; nothing else in planar_vo imports it.
 
 Output folder ``DIR``::
@@ -18,12 +19,13 @@ Output folder ``DIR``::
         result.json           the row; written last, atomically: it marks the result complete
 
 Determinism: tasks share nothing (each builds its pipeline from its configuration, in a fresh
-folder) and run with one OpenCV thread and one thread for numpy's BLAS, set at run time
-(`single_threaded`). The BLAS thread variables of the driver's environment go to the workers
-unchanged (unset stays unset): OpenBLAS fixed to one thread at load time
-(``OPENBLAS_NUM_THREADS=1``, or Ray's default ``OMP_NUM_THREADS=1`` in its workers) takes other
-code paths, which round differently. So a task computes what ``planar_vo replay`` computes in
-the same environment on the same machine.
+folder) and pin their threads (`single_threaded`): one OpenCV thread and one thread in every
+BLAS, whatever the environment. One BLAS thread is also what makes a result independent of the
+machine: OpenCV's ``cv2.gemm`` (the front-end's patch products) runs on the OpenBLAS inside
+OpenCV's wheel, which rounds differently with another thread count, so a ``planar_vo replay``
+with the default threads gives last bits that depend on the number of cores (and its busy-
+waiting BLAS threads cost a second core). One BLAS thread set at load time
+(``OMP_NUM_THREADS=1``, ``OPENBLAS_NUM_THREADS=1``) or at run time gives the same numbers.
 
 Failures: a `PlanarVoError` of a bag (missing, corrupt, truncated, no image topic, too few poses
 to evaluate) makes a ``failed`` row with its one-line message, kept in ``result.json`` (a rerun
@@ -86,8 +88,6 @@ RESULT = 'result.json'
 ODOMETRY, TUM, EVALUATION = 'odometry', 'odometry.tum', 'evaluation'
 EST_TOPIC = '/odom'
 ALIGN = 'sim3'
-# BLAS/OpenMP thread variables, passed from the driver to the workers as they are ('' = unset).
-THREAD_ENV = ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')
 THUMBNAIL_POINTS = 150          # points per trajectory kept for the report's thumbnails
 CLIENT_ATTEMPTS = 3             # connections to a ray:// address whose server fails to start
 
@@ -250,24 +250,15 @@ def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig]) -> lis
 
 @contextlib.contextmanager
 def single_threaded() -> Iterator[None]:
-    """One OpenCV thread and one thread for numpy's BLAS (threadpoolctl, at run time), restored
-    after.
-
-    Neither changes a result: the front-end batches its work alike with one OpenCV thread or
-    several, and the pipeline's numpy BLAS calls do not depend on the thread count set at run
-    time. The OpenBLAS inside OpenCV's wheel is left alone: ``cv2.gemm`` runs on it and rounds
-    differently with another thread count, so limiting it would change the ACs.
-    """
+    """One OpenCV thread and one thread in every BLAS/OpenMP library (threadpoolctl), set at run
+    time and restored after (see the module docstring)."""
     import cv2
-    from threadpoolctl import ThreadpoolController
+    from threadpoolctl import threadpool_limits
 
-    controller = ThreadpoolController()
-    others = [lib.filepath for lib in controller.lib_controllers
-              if not Path(lib.filepath).parent.name.lower().startswith('opencv')]
     previous = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        with controller.select(filepath=others).limit(limits=1):
+        with threadpool_limits(limits=1):
             yield
     finally:
         cv2.setNumThreads(previous)
@@ -474,9 +465,8 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
     CPUs (default: the CPUs this process may use); shut down on exit. Yields the ``ray``
     module.
 
-    The workers get the driver's BLAS thread variables (see the module docstring); Ray kills
-    of out-of-memory workers are retried `retries` times like other deaths (Ray's own default
-    is forever). A ``ray://`` connection whose per-client server fails to start is tried
+    Ray kills of out-of-memory workers are retried `retries` times like other deaths (Ray's
+    own default is forever). A ``ray://`` connection whose per-client server fails to start is tried
     `CLIENT_ATTEMPTS` times. A Ray already initialised by the caller is used as it is, and left
     running.
 
@@ -489,9 +479,7 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
         yield ray
         return
     workers = default_workers() if workers is None else workers
-    env = {name: os.environ.get(name, '') for name in THREAD_ENV}
-    common = {'runtime_env': {'env_vars': env}, 'log_to_driver': False,
-              'logging_level': logging.ERROR}
+    common = {'log_to_driver': False, 'logging_level': logging.ERROR}
     try:
         if address:
             for attempt in range(1, CLIENT_ATTEMPTS + 1):
