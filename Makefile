@@ -17,7 +17,8 @@ SOURCES := $(shell find planar_vo resource config -type f -not -name '*.pyc')
 # Exact versions for a reproducible environment (setup.py carries the compatible ranges).
 # Test-only tools: pytest, pytest-timeout, and evo (GPL; the tests run its evo_ape/evo_traj
 # executables to cross-check planar_vo.evaluation; the package never imports it).
-# poselib (the 'bench' extra) is here so that the benchmark tests run, not skip.
+# poselib (the 'bench' extra) is here so that the benchmark tests run, not skip; Ray (the
+# 'fleet' extra) so that the fleet tests run (quoted: [] is a shell glob).
 PINS := \
 	setuptools==80.9.0 \
 	ros-jazzy-rclpy==7.1.6 \
@@ -33,7 +34,8 @@ PINS := \
 	pytest==9.0.3 \
 	pytest-timeout==2.4.0 \
 	evo==1.38.1 \
-	poselib==2.0.5
+	poselib==2.0.5 \
+	'ray[client]==2.60.0'
 
 .PHONY: demo test venv clean
 

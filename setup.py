@@ -29,6 +29,8 @@ TEST = ['pytest>=8,<10', 'evo>=1.38,<2']
 # Optional benchmark peer, pinned exactly: the numbers in planar_vo/bench/results were measured
 # with this version.
 BENCH = ['poselib==2.0.5']
+# Fleet runs (`planar_vo fleet`) on Ray; the client part for ray://host:port addresses.
+FLEET = ['ray[client]>=2.60,<3']
 
 setup(
     name=PACKAGE,
@@ -56,7 +58,7 @@ setup(
         'threadpoolctl>=3.1,<4',
         'matplotlib>=3.8,<4',
     ],
-    extras_require={'ros': ROS, 'test': TEST, 'bench': BENCH},
+    extras_require={'ros': ROS, 'test': TEST, 'bench': BENCH, 'fleet': FLEET},
     zip_safe=True,
     entry_points={
         'console_scripts': [

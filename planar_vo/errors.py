@@ -11,6 +11,7 @@ __all__ = [
     'BagError',
     'CameraModelError',
     'ConfigError',
+    'DependencyError',
     'ImageError',
     'InputError',
     'OutputError',
@@ -32,6 +33,10 @@ class ConfigError(PlanarVoError, ValueError):
 
 class CameraModelError(PlanarVoError, ValueError):
     """Camera intrinsics or distortion are missing, inconsistent or unsupported."""
+
+
+class DependencyError(PlanarVoError, ImportError):
+    """An optional dependency (an extra such as ``planar_vo[fleet]``) is not installed."""
 
 
 class ImageError(PlanarVoError, ValueError):

@@ -219,6 +219,29 @@ def test_bgr_input_gives_the_same_acs_as_grey(mild_pair):
     np.testing.assert_allclose(a.A, b.A)
 
 
+def test_flow_acs_do_not_depend_on_the_opencv_thread_count():
+    # The refinement batches its patches alike with one OpenCV thread or several (cv2.gemm
+    # rounds differently for other row counts), so the ACs agree to the last bit: fleet tasks
+    # run with one thread and must equal a replay. A rendered VGA street has enough patches.
+    camera = CameraModel.pinhole(640, 480, 500.0)
+    drive = turn(np.pi / 8, radius=15.0, speed=6.0)
+    poses = drive.camera_poses(mount_transform(height=1.5))
+    world = StreetWorld.along(drive, seed=4)
+    images = [render(world, camera, poses[k]).image for k in (0, 1)]
+    previous = cv2.getNumThreads()
+    try:
+        runs = []
+        for threads in (1, 2):
+            cv2.setNumThreads(threads)
+            runs.append(extract_acs(*images))
+    finally:
+        cv2.setNumThreads(previous)
+    one, two = runs
+    assert len(one) > 500
+    for name in ('p1', 'p2', 'A', 'weights'):
+        np.testing.assert_array_equal(getattr(one, name), getattr(two, name), err_msg=name)
+
+
 @pytest.mark.parametrize('value', [0, 128, 255])
 @pytest.mark.parametrize('method', ['flow', 'klt'])
 def test_textureless_frames_give_no_acs(value, method):

@@ -22,6 +22,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from planar_vo.io.outputs import interrupt_signal, write_file
+from planar_vo.tools.markdown import format_cell, markdown_table
 
 __all__ = [
     'BENCH_EXTRA',
@@ -136,28 +137,6 @@ def environment_lines() -> list[str]:
         f'- libraries: {libs}',
         f'- threads: {threads}',
     ]
-
-
-def format_cell(value: float, digits: int = 2) -> str:
-    """Compact scientific/fixed formatting for a table cell; NaN -> '-'."""
-    if value is None or value != value:
-        return '-'
-    if value == 0.0:
-        return '0'
-    if 1e-2 <= abs(value) < 1e4:
-        return f'{value:.{digits + 1}g}'
-    return f'{value:.{digits}e}'
-
-
-def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]],
-                   align: str | None = None) -> str:
-    """A GitHub markdown table; ``align`` is one character per column (``l``/``r``)."""
-    header = list(header)
-    align = align or 'l' + 'r' * (len(header) - 1)
-    rule = ['---:' if a == 'r' else ':---' for a in align]
-    lines = ['| ' + ' | '.join(header) + ' |', '|' + '|'.join(rule) + '|']
-    lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
-    return '\n'.join(lines)
 
 
 def write_markdown(path: Path, title: str, command: Sequence[str], sections: Iterable[str]

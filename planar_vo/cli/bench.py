@@ -17,7 +17,7 @@ __all__ = ['BENCHES', 'register', 'run']
 
 # Benchmark modules planar_vo.bench.<name>, in --help order. To add one (e.g. 'frontend'):
 # write planar_vo/bench/<name>.py with HELP, add_arguments(parser), run(args) -> int.
-BENCHES = ('paper', 'speed', 'frontend', 'pipeline', 'drives', 'soak')
+BENCHES = ('paper', 'speed', 'frontend', 'pipeline', 'drives', 'soak', 'fleet')
 
 EXAMPLES = """examples:
   planar_vo bench paper --quick                 smoke run of the paper's experiments
@@ -27,6 +27,7 @@ EXAMPLES = """examples:
   planar_vo bench pipeline                      whole frame per stage vs DIS; KITTI vs 5-point
   planar_vo bench drives                        every real drive: planar_vo vs OpenCV, PoseLib
   planar_vo bench soak --frames 10000           memory and time per frame over a long drive
+  planar_vo bench fleet                         fleet throughput on Ray, 1 and 2 workers
 """
 
 

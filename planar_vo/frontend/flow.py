@@ -351,8 +351,9 @@ class FlowExtractor:
 
     def _refine(self, template: Template, image2: np.ndarray, p2: np.ndarray, A: np.ndarray,
                 iterations: int | None = None) -> PatchRefinement:
-        """`refine_affines` + `score_refinement`, in two halves on two threads when there are
-        many patches (numpy and OpenCV release the GIL in the heavy calls)."""
+        """`refine_affines` + `score_refinement`, in two halves when there are many patches, on
+        two threads unless OpenCV is set to one (numpy and OpenCV release the GIL in the heavy
+        calls)."""
         cfg = self.config
         iterations = cfg.lk_iterations if iterations is None else iterations
         max_iterations = max(cfg.lk_max_iterations, iterations)
@@ -366,8 +367,11 @@ class FlowExtractor:
             return score_refinement(sub, result, cfg.max_residual)
 
         n = len(template)
-        if n < _PARALLEL_MIN_PATCHES or cv2.getNumThreads() <= 1:
+        if n < _PARALLEL_MIN_PATCHES:
             return work(None)
+        # Two halves whatever the thread count (inline with one OpenCV thread): cv2.gemm rounds
+        # its float32 products differently for different row counts, so splitting only with
+        # threads would make the ACs depend on the thread count in their last bits.
         half = n // 2
         second = self._executor()(work, np.arange(half, n))
         a = work(np.arange(half))

@@ -27,8 +27,10 @@ def json_ready(value):
     return value
 
 
-def write_report(evaluation: Evaluation, out_dir: str | Path, **extra) -> list[Path]:
-    """Write ``metrics.json`` (the metrics plus ``extra`` fields) and the plots into ``out_dir``.
+def write_report(evaluation: Evaluation, out_dir: str | Path, *, plots: bool = True,
+                 **extra) -> list[Path]:
+    """Write ``metrics.json`` (the metrics plus ``extra`` fields) and, with ``plots``, the plots
+    into ``out_dir``.
 
     Each file is complete or absent (`planar_vo.io.outputs.write_file`). When one cannot be
     written (a full or read-only disk) or the run is interrupted, the exception carries a note
@@ -47,7 +49,7 @@ def write_report(evaluation: Evaluation, out_dir: str | Path, **extra) -> list[P
         written.append(write_file(out / 'metrics.json',
                                   json.dumps(json_ready(metrics), indent=2) + '\n',
                                   role='out-dir'))
-        for name, plot in PLOTS.items():
+        for name, plot in (PLOTS.items() if plots else ()):
             written.append(plot(evaluation, out / name))
     except (PlanarVoError, KeyboardInterrupt) as err:
         kept = ', '.join(p.name for p in written) or 'nothing'

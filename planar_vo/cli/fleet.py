@@ -1,0 +1,96 @@
+"""``planar_vo fleet``: replay and evaluate many bags, times a grid of configurations, on Ray.
+
+``run`` starts one Ray task per bag and configuration (``planar_vo replay`` and, when the bag
+has ground truth on /ground_truth/odom, ``planar_vo eval --align sim3``: the same result, to the
+last bit), on a local Ray instance started for the run (``--workers`` CPUs) or on an existing
+cluster (``--address``). DIR gets per bag and configuration the odometry bag, a TUM file and
+the metrics, then summary.json (one row per bag and configuration), report.md and plots.
+Rerunning the same command skips what is complete in DIR; Ctrl-C stops cleanly.
+
+Needs Ray: pip install 'planar_vo[fleet]'.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+EXAMPLES = """examples:
+  planar_vo fleet run drives/*.mcap --out fleet_out               one task per bag, all CPUs
+  planar_vo fleet run --manifest bags.txt --out fleet_out --workers 2
+  planar_vo fleet run kitti/* --out sweep --set voting.bins=360,720 --set keyframe.min_parallax=2,4
+  ray start --head && planar_vo fleet run --manifest bags.txt --out fleet_out --address auto
+  planar_vo fleet run --manifest bags.txt --out fleet_out --address ray://head:10001
+With a cluster, the bags and DIR must be on a file system every node sees.
+"""
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        'fleet', help='replay and evaluate many bags (x configurations) on Ray',
+        description=__doc__, epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    actions = parser.add_subparsers(dest='fleet_action', metavar='ACTION', required=True)
+    run_parser = actions.add_parser(
+        'run', help='run a fleet of bags', description=__doc__, epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    run_parser.add_argument('bags', nargs='*', metavar='BAG',
+                            help='input bags (directory, .mcap or .db3)')
+    run_parser.add_argument('--out', required=True, metavar='DIR',
+                            help='output folder (complete results already in it are reused)')
+    run_parser.add_argument('--manifest', metavar='FILE',
+                            help='text file of bag paths, one a line (# comments; relative '
+                                 'paths are relative to the file)')
+    run_parser.add_argument('--config', metavar='YAML',
+                            help='configuration file (default: built-in defaults)')
+    run_parser.add_argument('--set', action='append', default=[], metavar='KEY=V1[,V2...]',
+                            help='configuration values by dotted key (voting.bins=360,720); '
+                                 'several values, or several --set, run every combination')
+    run_parser.add_argument('--address', metavar='ADDR',
+                            help="an existing Ray cluster: 'auto', 'ray://host:10001' or "
+                                 "'host:6379' (default: a local instance for this run)")
+    run_parser.add_argument('--workers', type=int, metavar='N',
+                            help='CPUs of the local instance, one task per CPU (default: all '
+                                 'this process may use)')
+    run_parser.add_argument('--retries', type=int, default=2, metavar='N',
+                            help='reruns of a task whose worker died (killed, out of memory) '
+                                 '(default: 2)')
+    run_parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    run_parser.set_defaults(run=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    from planar_vo.cli import show_progress
+    from planar_vo.config import load_config
+    from planar_vo.errors import InputError
+    from planar_vo.tools.fleet import (
+        config_grid,
+        import_ray,
+        plan_jobs,
+        read_manifest,
+        run_fleet,
+    )
+
+    import_ray()                     # without the fleet extra: one line with the install command
+    if args.address and args.workers is not None:
+        raise InputError('workers: --workers sizes the local Ray instance; with --address the '
+                         "cluster's CPUs are used")
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f'workers: expected at least 1, got {args.workers}')
+    if args.retries < 0:
+        raise InputError(f'retries: expected 0 or more, got {args.retries}')
+    bags = list(args.bags) + (read_manifest(args.manifest) if args.manifest else [])
+    if not bags:
+        raise InputError('bags: expected BAG arguments or --manifest FILE, got none')
+    configs = config_grid(load_config(args.config), args.set)
+    command = ['planar_vo', 'fleet', 'run', *args.bags, '--out', args.out]
+    for flag in ('manifest', 'config', 'address', 'workers'):
+        if getattr(args, flag) is not None:
+            command += [f'--{flag}', str(getattr(args, flag))]
+    for item in args.set:
+        command += ['--set', item]
+    result = run_fleet(plan_jobs(bags, configs), args.out, address=args.address,
+                       workers=args.workers, retries=args.retries,
+                       progress=show_progress(args), command=command)
+    print(result.format())
+    return 130 if result.interrupted else 0

@@ -1,0 +1,628 @@
+"""Fleet runs: many bags, times a grid of configurations, replayed and evaluated as Ray tasks.
+
+One Ray task per (bag, configuration) runs what ``planar_vo replay`` and ``planar_vo eval
+--align sim3`` run (`planar_vo.tools.replay.replay_bag` with `planar_vo.pipeline.VisualOdometry`,
+then `planar_vo.tools.evaluation.evaluate` when the bag has ground truth), with one thread, so
+each result equals theirs with one BLAS thread (``OMP_NUM_THREADS=1 planar_vo replay ...``) to
+the last bit. Ray (the ``fleet`` extra) is imported only here, inside the functions
+that need it; nothing else in planar_vo imports it.
+
+Output folder ``DIR``::
+
+    summary.json              one row per (bag, configuration), totals, per-configuration
+                              aggregates (`planar_vo.tools.fleet_report`)
+    report.md, drift.png, trajectories.png
+    runs/<bag>-<hash>/<configuration>-<hash>/
+        odometry/             the odometry bag (MCAP), as ``planar_vo replay --out``
+        odometry.tum          as ``planar_vo replay --tum``
+        evaluation/metrics.json   as ``planar_vo eval --align sim3 --out-dir``
+        result.json           the row; written last, atomically: it marks the result complete
+
+Determinism: tasks share nothing (each builds its pipeline from its configuration, in a fresh
+folder) and pin their threads (`single_threaded`): one OpenCV thread and one thread in every
+BLAS, whatever the environment. One BLAS thread is also what makes a result independent of the
+machine: OpenCV's ``cv2.gemm`` (the front-end's patch products) runs on the OpenBLAS inside
+OpenCV's wheel, which rounds differently with another thread count, so a ``planar_vo replay``
+with the default threads gives last bits that depend on the number of cores (and its busy-
+waiting BLAS threads cost a second core). One BLAS thread set at load time
+(``OMP_NUM_THREADS=1``, ``OPENBLAS_NUM_THREADS=1``) or at run time gives the same numbers.
+
+Failures: a `PlanarVoError` of a bag (missing, corrupt, truncated, no image topic, too few poses
+to evaluate) makes a ``failed`` row with its one-line message, kept in ``result.json`` (a rerun
+does not repeat it unless the bag's files change). A worker that dies (killed, out of memory)
+is retried by Ray up to ``retries`` times; then the row is ``failed`` and not kept, so a rerun
+tries again. Any other exception is a bug: a ``failed`` row naming it, not kept.
+
+Resuming: a job whose ``result.json`` matches it (same bag path, same bag files by size and
+modification time, same configuration) is skipped; anything else in its folder is a partial
+result and is deleted before the job runs again. Ctrl-C cancels the running tasks and writes
+the summary of the complete results.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import difflib
+import hashlib
+import itertools
+import json
+import logging
+import math
+import os
+import re
+import shutil
+import socket
+import sys
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from planar_vo.config import PlanarVoConfig, flatten
+from planar_vo.errors import ConfigError, DependencyError, InputError, PlanarVoError
+from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
+
+__all__ = [
+    'FLEET_EXTRA',
+    'FleetConfig',
+    'FleetJob',
+    'FleetRun',
+    'config_grid',
+    'default_workers',
+    'import_ray',
+    'kitti_fields',
+    'load_result',
+    'plan_jobs',
+    'ray_session',
+    'read_manifest',
+    'run_fleet',
+    'run_job',
+    'single_threaded',
+]
+
+log = logging.getLogger(__name__)
+
+FLEET_EXTRA = "pip install 'planar_vo[fleet]'"
+RESULT = 'result.json'
+ODOMETRY, TUM, EVALUATION = 'odometry', 'odometry.tum', 'evaluation'
+EST_TOPIC = '/odom'
+ALIGN = 'sim3'
+THUMBNAIL_POINTS = 150          # points per trajectory kept for the report's thumbnails
+CLIENT_ATTEMPTS = 3             # connections to a ray:// address whose server fails to start
+
+
+# -- configurations and jobs ----------------------------------------------------------------------
+
+def _digest(value: Any) -> str:
+    return hashlib.sha1(json.dumps(value, sort_keys=True).encode()).hexdigest()
+
+
+def _slug(text: str) -> str:
+    return re.sub(r'[^A-Za-z0-9._=+-]+', '_', text).strip('_')[:60] or 'x'
+
+
+@dataclass(frozen=True)
+class FleetConfig:
+    """One configuration of a run: its name in the rows (``default``, or the ``--set`` values
+    that make it, ``voting.bins=360``) and every value by dotted key (`flatten` form)."""
+
+    name: str
+    values: dict[str, Any]
+
+    def build(self) -> PlanarVoConfig:
+        return PlanarVoConfig.from_flat(self.values)
+
+
+def _format_value(value: Any) -> str:
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+def config_grid(base: PlanarVoConfig, sets: Sequence[str] = ()) -> list[FleetConfig]:
+    """The configurations of ``--set KEY=V1,V2 ...`` on top of `base`: every combination.
+
+    Args:
+        base: the configuration the sets change (``--config`` file or the defaults).
+        sets: ``'KEY=V1[,V2...]'`` items with dotted keys (`planar_vo.config.flatten`); the
+            values are YAML flow items (``360``, ``true``, ``flow``, ``[0.1, 0.2]``).
+
+    Returns:
+        One `FleetConfig` per combination, in ``itertools.product`` order of the items; just
+        ``default`` (`base`) without sets.
+
+    Raises:
+        ConfigError: malformed item, unknown key (with the closest known ones), a key given
+            twice, or a combination that does not validate (named by its values).
+    """
+    import yaml
+
+    base_values = flatten(base)
+    axes: list[tuple[str, list[Any]]] = []
+    for item in sets:
+        key, sep, text = (part.strip() for part in item.partition('='))
+        if not sep or not key or not text:
+            raise ConfigError(f"set: expected KEY=VALUE[,VALUE...], got '{item}'")
+        if key not in base_values:
+            near = difflib.get_close_matches(key, list(base_values), n=3)
+            hint = f'; did you mean {", ".join(near)}?' if near else ''
+            raise ConfigError(f"set: unknown configuration key '{key}'{hint}")
+        if any(key == k for k, _ in axes):
+            raise ConfigError(f"set: '{key}' given twice; list its values once: {key}=V1,V2")
+        try:
+            values = yaml.safe_load(f'[{text}]')
+        except yaml.YAMLError as err:
+            detail = ' '.join(str(err).split())
+            raise ConfigError(f"set: cannot read the values of '{item}' ({detail})") from None
+        unique = [v for i, v in enumerate(values) if v not in values[:i]]
+        axes.append((key, unique))
+    if not axes:
+        return [FleetConfig('default', base_values)]
+    grid = []
+    for combo in itertools.product(*(values for _, values in axes)):
+        changes = dict(zip((key for key, _ in axes), combo))
+        name = ' '.join(f'{k}={_format_value(v)}' for k, v in changes.items())
+        try:
+            config = PlanarVoConfig.from_flat({**base_values, **changes})
+        except ConfigError as err:
+            raise ConfigError(f'set: {name}: {err}') from None
+        grid.append(FleetConfig(name, flatten(config)))
+    return grid
+
+
+def read_manifest(path: str | Path) -> list[Path]:
+    """Bag paths of a manifest: one a line; blank lines and ``#`` comments are skipped; relative
+    paths are relative to the manifest's folder.
+
+    Raises:
+        InputError: unreadable manifest, or no bags in it.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as err:
+        detail = getattr(err, 'strerror', None) or err
+        raise InputError(f"manifest: cannot read '{path}' ({detail})") from err
+    bags = []
+    for line in text.splitlines():
+        entry = line.strip()
+        if entry and not entry.startswith('#'):
+            bag = Path(entry).expanduser()
+            bags.append(bag if bag.is_absolute() else path.parent / bag)
+    if not bags:
+        raise InputError(f"manifest: '{path}' lists no bags")
+    return bags
+
+
+def bag_fingerprint(path: str | Path) -> list | None:
+    """``[[file, size, mtime_ns], ...]`` of a bag (directory or file); None if unreadable."""
+    path = Path(path)
+    try:
+        if path.is_dir():
+            files = sorted(f for f in path.rglob('*') if f.is_file())
+            names = [str(f.relative_to(path)) for f in files]
+        else:
+            files, names = [path], [path.name]
+        return [[name, st.st_size, st.st_mtime_ns]
+                for name, st in zip(names, (f.stat() for f in files))]
+    except OSError:
+        return None
+
+
+@dataclass(frozen=True)
+class FleetJob:
+    """One task: a bag (absolute path) under one configuration.
+
+    Attributes:
+        bag: absolute path of the input bag.
+        config: the configuration.
+        run_dir: the job's folder, relative to the output folder.
+        key: digest of the inputs (bag path, its files' sizes and times, configuration): a
+            ``result.json`` with another key is stale.
+    """
+
+    bag: str
+    config: FleetConfig
+    run_dir: str
+    key: str
+
+    @property
+    def label(self) -> str:
+        """Short name for logs and Ray's task list: ``bag:configuration``."""
+        return f'{Path(self.bag).name}:{_slug(self.config.name)}'
+
+
+def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig]) -> list[FleetJob]:
+    """Every bag (duplicates removed, order kept) under every configuration, bag-major."""
+    paths = dict.fromkeys(str(Path(bag).expanduser().absolute()) for bag in bags)
+    jobs = []
+    for bag in paths:
+        stem = Path(bag).name.removesuffix('.mcap').removesuffix('.db3')
+        bag_dir = f'runs/{_slug(stem)}-{_digest(bag)[:8]}'
+        files = bag_fingerprint(bag)
+        for config in configs:
+            run_dir = f'{bag_dir}/{_slug(config.name)}-{_digest(config.values)[:8]}'
+            key = _digest({'bag': bag, 'files': files, 'config': config.values})
+            jobs.append(FleetJob(bag, config, run_dir, key))
+    return jobs
+
+
+# -- one job --------------------------------------------------------------------------------------
+
+@contextlib.contextmanager
+def single_threaded() -> Iterator[None]:
+    """One OpenCV thread and one thread in every BLAS/OpenMP library (threadpoolctl), set at run
+    time and restored after (see the module docstring)."""
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with threadpool_limits(limits=1):
+            yield
+    finally:
+        cv2.setNumThreads(previous)
+
+
+def _one_line(err: BaseException) -> str:
+    return ' '.join(str(err).split()) or type(err).__name__
+
+
+def _new_row(job: FleetJob, **values: Any) -> dict[str, Any]:
+    """A summary row of `job` with every field present (None where not measured)."""
+    row = {'bag': job.bag, 'config': job.config.name, 'status': 'ok', 'reason': None,
+           'frames_in': 0, 'odom_out': 0, 'drops': {}, 'wall_s': None, 'frames_per_s': None,
+           't_rel_pct': None, 'r_rel_deg100m': None, 'yaw_err_mean_deg': None,
+           'ate_sim3_m': None, 'path_m': None, 'run_dir': job.run_dir, 'odometry': None,
+           'tum': None, 'node': None, 'pid': None}
+    row.update(values)
+    return row
+
+
+def kitti_fields(metrics: dict) -> dict[str, float | None]:
+    """``t_rel_pct`` and ``r_rel_deg100m`` of ``Evaluation.metrics()``: drift by the KITTI
+    protocol, in 3D (``metrics['kitti']`` from `planar_vo.tools.evaluation.metrics.kitti_drift`;
+    NaN, so None in the JSON, for drives shorter than 100 m).
+
+    The single call site of the KITTI drift. ``kitti_drift`` landed on main (f2b94f9) after this
+    branch started: until main is merged here, ``metrics`` has no ``'kitti'`` and both are None.
+    """
+    kitti = metrics.get('kitti') or {}
+    return {'t_rel_pct': kitti.get('t_rel_pct'), 'r_rel_deg100m': kitti.get('r_rel_deg_per_100m')}
+
+
+def _thumbnail(evaluation) -> dict[str, list]:
+    ref, est = evaluation.ref.positions[:, :2], evaluation.aligned.positions[:, :2]
+    step = max(1, math.ceil(len(ref) / THUMBNAIL_POINTS))
+    keep = list(range(0, len(ref), step))
+    if keep[-1] != len(ref) - 1:
+        keep.append(len(ref) - 1)
+    return {'ref_xy': ref[keep].round(3).tolist(), 'est_xy': est[keep].round(3).tolist()}
+
+
+def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
+    """``planar_vo replay`` and ``planar_vo eval --align sim3`` of one job; fills `row`."""
+    from planar_vo.io.camera_bag import GROUND_TRUTH_TOPIC
+    from planar_vo.pipeline import VisualOdometry
+    from planar_vo.tools.evaluation import evaluate, load_trajectory, write_report
+    from planar_vo.tools.replay import replay_bag
+
+    config = job.config.build()
+    odometry = work / ODOMETRY
+    summary = replay_bag(job.bag, odometry, VisualOdometry(config), tum_path=work / TUM,
+                         odom_frame=config.ros.odom_frame, base_frame=config.ros.base_frame,
+                         progress=False)
+    row.update(frames_in=summary.frames_in, odom_out=summary.odometry_out,
+               drops=dict(sorted(summary.dropped.items())),
+               odometry=f'{job.run_dir}/{ODOMETRY}', tum=f'{job.run_dir}/{TUM}')
+    if not summary.copied.get(GROUND_TRUTH_TOPIC):
+        return None
+    est = load_trajectory(odometry, EST_TOPIC, role='est-topic')
+    ref = load_trajectory(odometry, GROUND_TRUTH_TOPIC, role='gt-topic')
+    evaluation = evaluate(ref, est, align=ALIGN)
+    write_report(evaluation, work / EVALUATION, plots=False, estimate=odometry,
+                 reference=odometry)
+    metrics = evaluation.metrics()
+    row.update(ate_sim3_m=metrics['ate_m']['rmse'],
+               yaw_err_mean_deg=metrics['yaw_change_error_deg']['mean'],
+               path_m=metrics['path_length_m'], **kitti_fields(metrics))
+    return _thumbnail(evaluation)
+
+
+def run_job(job: FleetJob, out_dir: str | Path) -> dict:
+    """Replay and evaluate one job into ``out_dir/job.run_dir``; returns its result record.
+
+    The body of a fleet task (also run in-process by ``planar_vo bench fleet``). Deletes what
+    an earlier, unfinished attempt left in the job's folder, runs `single_threaded`, and writes
+    ``result.json`` last: ``{'key': job.key, 'row': {...}, 'thumbnail': {...} or None}``.
+
+    A `PlanarVoError` (bad bag, no poses to evaluate) makes a ``failed`` row, with the outputs
+    that replay kept; any other exception propagates (a bug; no ``result.json`` is written).
+    """
+    start = time.perf_counter()
+    work = Path(out_dir) / job.run_dir
+    if work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
+    row = _new_row(job, node=socket.gethostname(), pid=os.getpid())
+    thumbnail = None
+    with single_threaded():
+        try:
+            thumbnail = _replay_and_evaluate(job, work, row)
+        except PlanarVoError as err:
+            row.update(status='failed', reason=_one_line(err))
+    wall = time.perf_counter() - start
+    row.update(wall_s=wall, frames_per_s=row['frames_in'] / wall)
+    record = {'key': job.key, 'row': row, 'thumbnail': thumbnail}
+    write_json(work / RESULT, record)
+    return record
+
+
+def load_result(out_dir: str | Path, job: FleetJob) -> dict | None:
+    """The complete result record of `job` in `out_dir`, or None (absent, partial or stale)."""
+    out_dir = Path(out_dir)
+    try:
+        record = json.loads((out_dir / job.run_dir / RESULT).read_text(encoding='utf-8'))
+        row = record['row']
+        if record['key'] != job.key:
+            return None
+        outputs = [row[name] for name in ('odometry', 'tum')] if row['status'] == 'ok' else []
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not all((out_dir / path).exists() for path in outputs):
+        return None
+    return record
+
+
+# -- the run --------------------------------------------------------------------------------------
+
+def import_ray():
+    """The ``ray`` module, or `DependencyError` naming the install command in one line."""
+    try:
+        import ray
+    except ImportError as err:
+        raise DependencyError(f'{err.name or "ray"} is not installed; fleet runs need the fleet '
+                              f'extra: {FLEET_EXTRA}') from err
+    return ray
+
+
+@dataclass
+class FleetRun:
+    """What `run_fleet` did.
+
+    Attributes:
+        out_dir: the output folder.
+        records: result records in job order (``row``, ``thumbnail``); jobs not run (an
+            interrupted run) have none.
+        jobs: number of jobs asked for.
+        skipped: jobs whose complete result was already in ``out_dir``.
+        ran: jobs finished by this run (ok or failed).
+        interrupted: Ctrl-C stopped the run; ``jobs - skipped - ran`` jobs did not run.
+        ray_start_s: seconds to start (or connect to) Ray; 0 when nothing had to run.
+        tasks_s: seconds from submitting the tasks to the last result.
+        wall_s: seconds of the whole call.
+        address, workers: where it ran (``None``: a local instance with ``workers`` CPUs).
+        files: summary.json, report.md and the plots.
+    """
+
+    out_dir: Path
+    records: list[dict]
+    jobs: int
+    skipped: int = 0
+    ran: int = 0
+    interrupted: bool = False
+    ray_start_s: float = 0.0
+    tasks_s: float = 0.0
+    wall_s: float = 0.0
+    address: str | None = None
+    workers: int | None = None
+    files: list[Path] = field(default_factory=list)
+
+    def summary(self) -> dict[str, Any]:
+        """The ``run`` part of ``summary.json``."""
+        return {'jobs': self.jobs, 'skipped': self.skipped, 'ran': self.ran,
+                'not_run': self.jobs - len(self.records), 'interrupted': self.interrupted,
+                'wall_s': self.wall_s, 'ray_start_s': self.ray_start_s, 'tasks_s': self.tasks_s,
+                'frames_per_s': self.frames_per_s, 'address': self.address,
+                'workers': self.workers}
+
+    @property
+    def rows(self) -> list[dict]:
+        return [record['row'] for record in self.records]
+
+    @property
+    def frames_per_s(self) -> float | None:
+        """Aggregate throughput of this run: frames of the jobs it ran per second of tasks."""
+        frames = sum(r['row']['frames_in'] for r in self.records if not r.get('skipped'))
+        return frames / self.tasks_s if self.ran and self.tasks_s > 0 else None
+
+    def format(self) -> str:
+        """A few lines for the terminal."""
+        rows = self.rows
+        failed = [r for r in rows if r['status'] != 'ok']
+        lines = [f'fleet: {len(rows)} of {self.jobs} results in {self.out_dir} '
+                 f'({len(rows) - len(failed)} ok, {len(failed)} failed; {self.skipped} already '
+                 f'there, {self.ran} run now)']
+        if self.ran:
+            where = self.address or f'local Ray, {self.workers} CPUs'
+            lines.append(f'  {self.tasks_s:.1f} s of tasks on {where} (Ray start '
+                         f'{self.ray_start_s:.1f} s), {self.frames_per_s or 0:.1f} frames/s')
+        names = bag_names([r['bag'] for r in rows])
+        lines += [f'  failed: {names[r["bag"]]} [{r["config"]}]: {r["reason"]}' for r in failed]
+        if self.interrupted:
+            lines.append(f'  interrupted: {self.jobs - len(rows)} not run; rerun the same '
+                         'command to finish them')
+        lines += [f'  {path}' for path in self.files]
+        return '\n'.join(lines)
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None = None, workers: int | None = None, retries: int = 2
+                ) -> Iterator[Any]:
+    """Ray for a fleet run: connect to `address`, or start a local instance with `workers`
+    CPUs (default: the CPUs this process may use); shut down on exit. Yields the ``ray``
+    module.
+
+    Ray kills of out-of-memory workers are retried `retries` times like other deaths (Ray's
+    own default is forever). A ``ray://`` connection whose per-client server fails to start is tried
+    `CLIENT_ATTEMPTS` times. A Ray already initialised by the caller is used as it is, and left
+    running.
+
+    Raises:
+        DependencyError: Ray is missing.
+        InputError: Ray cannot be started or reached.
+    """
+    ray = import_ray()
+    if ray.is_initialized():
+        yield ray
+        return
+    workers = default_workers() if workers is None else workers
+    common = {'log_to_driver': False, 'logging_level': logging.ERROR}
+    try:
+        if address:
+            for attempt in range(1, CLIENT_ATTEMPTS + 1):
+                try:
+                    ray.init(address=address, **common)
+                    break
+                except ConnectionAbortedError as err:
+                    # A ray:// server took the connection, but the server process it starts
+                    # for each client died at start (Ray 2.60 forks it from a process with
+                    # gRPC threads; now and then the child dies): connect again.
+                    if attempt == CLIENT_ATTEMPTS:
+                        raise
+                    log.warning('Ray at %s, attempt %d: %s', address, attempt, _one_line(err))
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False,
+                     _system_config={'task_oom_retries': retries}, **common)
+    except (ConnectionError, RuntimeError, ValueError) as err:
+        where = f"'{address}'" if address else f'a local instance ({workers} CPUs)'
+        raise InputError(f'address: cannot start or reach Ray at {where} '
+                         f'({_one_line(err)})') from err
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def default_workers() -> int:
+    """The CPUs this process may use."""
+    if hasattr(os, 'sched_getaffinity'):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def _failure(ray, err: Exception, job: FleetJob, retries: int) -> dict | None:
+    """The row of a task that raised (a bug) or whose worker died; None if interrupted."""
+    if isinstance(err, ray.exceptions.TaskCancelledError):
+        return None
+    if isinstance(err, ray.exceptions.RayTaskError):
+        cause = err.cause if err.cause is not None else err
+        if isinstance(cause, KeyboardInterrupt):
+            return None
+        log.error('fleet task %s raised:\n%s', job.label, err)
+        reason = f'internal error: {type(cause).__name__}: {_one_line(cause)}'
+    else:
+        reason = (f'worker died on each of {retries + 1} attempts ({type(err).__name__}: '
+                  f'{_one_line(err)[:200]})')
+    return {'key': job.key, 'row': _new_row(job, status='failed', reason=reason),
+            'thumbnail': None}
+
+
+def _execute(ray, jobs: Sequence[FleetJob], todo: list[int], out_dir: Path, retries: int,
+             records: dict[int, dict], bar) -> bool:
+    """Submit the jobs `todo`, collect their records; True if interrupted by Ctrl-C."""
+    task = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=False)(run_job)
+    refs = {task.options(name=f'planar_vo_fleet:{jobs[i].label}').remote(jobs[i], str(out_dir)):
+            i for i in todo}
+    pending = list(refs)
+    start, frames, failed = time.perf_counter(), 0, 0
+    try:
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1, timeout=0.5)
+            for ref in ready:
+                job = jobs[refs[ref]]
+                try:
+                    record = ray.get(ref)
+                except ray.exceptions.RayError as err:
+                    record = _failure(ray, err, job, retries)
+                    if record is None:
+                        continue
+                records[refs[ref]] = record
+                frames += record['row']['frames_in']
+                failed += record['row']['status'] != 'ok'
+                bar.update(1)
+                elapsed = time.perf_counter() - start
+                bar.set_postfix_str(f'{frames / elapsed:.0f} frames/s, {failed} failed')
+    except KeyboardInterrupt:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        return True
+    return False
+
+
+def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | None = None,
+              workers: int | None = None, retries: int = 2, progress: bool = False,
+              command: Sequence[str] | None = None) -> FleetRun:
+    """Run the jobs not yet complete in `out_dir` as Ray tasks; write the summary and report.
+
+    Args:
+        jobs: from `plan_jobs`.
+        out_dir: output folder (created; earlier results in it are reused, see the module).
+        address: an existing Ray cluster (``'auto'``, ``'ray://host:10001'``, ``'host:6379'``);
+            None starts a local instance for the run (shut down at the end). With a cluster,
+            the bags and `out_dir` must be on a file system every node sees, and planar_vo with
+            its ``fleet`` extra installed on every node.
+        workers: CPUs of the local instance (default: the CPUs this process may use); one task
+            per CPU.
+        retries: how many times Ray reruns a task whose worker died (killed, out of memory).
+        progress: progress bar on stderr (jobs done/total, aggregate frames/s, failures).
+        command: the command line, recorded in the report.
+
+    Returns:
+        A `FleetRun`. Ctrl-C (KeyboardInterrupt) cancels the tasks still running and returns
+        with ``interrupted`` set, after writing the summary of the complete results.
+
+    Raises:
+        DependencyError: Ray is missing (only checked when a job must run).
+        InputError: Ray cannot be started or reached.
+    """
+    from tqdm import tqdm
+
+    start = time.perf_counter()
+    out_dir = Path(out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"out: cannot create '{out_dir}' ({err.strerror})") from err
+    workers = default_workers() if workers is None else workers
+    if workers < 1 or retries < 0:
+        raise InputError(f'workers, retries: expected at least 1 and 0, got {workers}, {retries}')
+    records: dict[int, dict] = {}
+    for i, job in enumerate(jobs):
+        record = load_result(out_dir, job)
+        if record is not None:
+            records[i] = {**record, 'skipped': True}
+    run = FleetRun(out_dir, [], len(jobs), skipped=len(records), address=address,
+                   workers=None if address else workers)
+    todo = [i for i in range(len(jobs)) if i not in records]
+    if todo:
+        t0 = time.perf_counter()
+        with ray_session(address, workers, retries) as ray:
+            run.ray_start_s = time.perf_counter() - t0
+            bar = tqdm(total=len(jobs), initial=len(records), desc='fleet', unit='bag',
+                       file=sys.stderr, disable=not progress, leave=False)
+            t0 = time.perf_counter()
+            try:
+                run.interrupted = _execute(ray, jobs, todo, out_dir, retries, records, bar)
+            finally:
+                run.tasks_s = time.perf_counter() - t0
+                bar.close()
+        if run.interrupted:       # results written by tasks whose end the driver did not see
+            for i in todo:
+                if i not in records and (record := load_result(out_dir, jobs[i])) is not None:
+                    records[i] = record
+    run.records = [records[i] for i in sorted(records)]
+    run.ran = len(records) - run.skipped
+    run.wall_s = time.perf_counter() - start
+    run.files = write_summary(out_dir, run.records, run.summary(), command)
+    return run
