@@ -44,7 +44,13 @@ from planar_vo.frontend.affine_lk import (
     smooth_for_refinement,
 )
 from planar_vo.frontend.asift import asift_views, keypoint_frames
-from planar_vo.frontend.flow import neighbour_predictions, texture_grid
+from planar_vo.frontend.flow import (
+    flow_downscale,
+    flow_jacobian,
+    neighbour_predictions,
+    shrink,
+    texture_grid,
+)
 from planar_vo.pipeline.calibration import MountTiltEstimator
 from planar_vo.pipeline.estimator import MotionEstimator
 from planar_vo.sim import (
@@ -155,6 +161,55 @@ def test_flow_refinement_fixes_the_foreshortened_ground(ground_pair):
     assert np.median(affine) < 0.03
     # The flow Jacobian alone is several times worse on the ground (the 0.2 vs 0.04).
     assert np.median(affine_raw) > 3.0 * np.median(affine)
+
+
+@pytest.mark.parametrize(('width', 'max_width', 'factor'), [
+    (640, 800, 1), (1241, 800, 2), (1600, 800, 2), (1601, 800, 3), (1920, 0, 1), (320, 160, 2)])
+def test_flow_downscale_is_the_smallest_factor_that_fits(width, max_width, factor):
+    assert flow_downscale(width, max_width) == factor
+
+
+@pytest.mark.parametrize('scale', [1, 2, 3])
+def test_flow_jacobian_of_a_shrunk_affine_field_is_exact(scale):
+    # A flow field that is an affine map of the full-resolution pixels, stored as the flow of
+    # the shrunk images (shrunk displacements at shrunk pixel centres): the Jacobian at
+    # full-resolution points is the map's, whatever the shrink factor.
+    A = np.array([[1.04, -0.03], [0.02, 0.97]])
+    t = np.array([3.2, -1.7])
+    hs, ws = 120 // scale, 160 // scale
+    qy, qx = np.mgrid[0:hs, 0:ws].astype(np.float64)
+    q = np.stack([qx, qy], -1)
+    p = (q + 0.5) * scale - 0.5
+    flow = ((p @ (A - np.eye(2)).T + t) / scale).astype(np.float32)
+    points = np.array([[40, 30], [81, 57], [100, 77], [63, 44]])
+    J = flow_jacobian(flow, points, 4, scale)
+    np.testing.assert_allclose(J, np.broadcast_to(A, J.shape), atol=1e-5)
+
+
+def test_shrink_averages_blocks():
+    image = np.arange(48, dtype=np.uint8).reshape(6, 8) * 5
+    small = shrink(image, 2)
+    assert small.shape == (3, 4)
+    expected = image.reshape(3, 2, 4, 2).astype(float).mean(axis=(1, 3))
+    assert np.all(np.abs(small - expected) <= 0.5)
+    assert shrink(image, 1) is image
+
+
+@pytest.mark.parametrize('max_width', [0, 160, 107])
+def test_flow_acs_from_a_shrunk_flow_match_the_exact_homography(
+        mild_pair, ground_pair, max_width):
+    # Flow on images shrunk 1x, 2x and 3x: the full-resolution refinement gives the same ACs.
+    config = FrontendConfig(flow_max_width=max_width)
+    acs = extract_acs(*mild_pair, config=config)
+    point, affine = _errors(acs, MILD)
+    assert len(acs) > 300
+    assert np.median(point) < 0.05 and np.percentile(point, 95) < 0.15
+    assert np.median(affine) < 0.015 and np.percentile(affine, 95) < 0.04
+    ground = extract_acs(*ground_pair, config=config)
+    ground = ground.subset(ground.p1[:, 1] > 159.5)
+    point, affine = _errors(ground, _ground_homography())
+    assert len(ground) > 100
+    assert np.median(point) < 0.1 and np.median(affine) < 0.03
 
 
 def test_flow_points_are_spread_over_the_image(mild_pair):

@@ -1,8 +1,9 @@
 """Affine correspondences from dense optical flow (the ``'flow'`` method; the default).
 
 1. DIS optical flow (Kroeger et al., ECCV 2016; ``cv2.DISOpticalFlow``) from image 1 to image 2
-   (preset ``dis_preset``; the refinement makes ``'ultrafast'`` as good as slower presets), and,
-   only when the forward-backward check is enabled, from image 2 to image 1.
+   (preset ``dis_preset``; the refinement makes ``'ultrafast'`` as good as slower presets), on
+   images shrunk to at most ``flow_max_width`` pixels wide, and, only when the forward-backward
+   check is enabled, from image 2 to image 1.
 2. Candidate points on a regular grid: in each ``grid_step`` cell, the pixel with the most
    texture (smaller eigenvalue of the structure tensor), kept if above ``min_texture``. One
    candidate per cell keeps the ACs spread over the image.
@@ -50,9 +51,12 @@ __all__ = [
     'CandidateGrid',
     'FlowExtractor',
     'flow_candidates',
+    'flow_downscale',
     'flow_jacobian',
     'neighbour_predictions',
     'sample_field',
+    'shrink',
+    'shrunk_points',
     'texture_grid',
 ]
 
@@ -182,28 +186,71 @@ def sample_field(field: np.ndarray, points: np.ndarray) -> np.ndarray:
                      borderMode=cv2.BORDER_REPLICATE).reshape(-1, 2)
 
 
-def flow_jacobian(flow: np.ndarray, points: np.ndarray, h: int) -> np.ndarray:
-    """Local affines ``A = I + dF/dp`` of a flow field at integer points, by central differences.
+def flow_jacobian(flow: np.ndarray, points: np.ndarray, h: int, scale: int = 1) -> np.ndarray:
+    """Local affines ``A = I + dF/dp`` of a flow field at points, by central differences.
 
     Args:
-        flow: ``(H, W, 2)`` flow (image 1 -> image 2 displacement) in pixels.
-        points: integer points ``(N, 2)``, at least ``h`` pixels from the border.
-        h: half the difference baseline in pixels (DIS flow is smooth at its patch scale).
+        flow: ``(H, W, 2)`` flow (image 1 -> image 2 displacement) in pixels of the images it
+            was computed on, which are the full-resolution images shrunk by ``scale``.
+        points: integer full-resolution points ``(N, 2)``, at least ``h`` pixels from the
+            border.
+        h: half the difference baseline in full-resolution pixels (DIS flow is smooth at its
+            patch scale); rounded to whole shrunk pixels when ``scale`` is above 1.
+        scale: the shrink factor of the flow's images; above 1 the field is sampled
+            bilinearly (`sample_field`) at `shrunk_points`.
 
     Returns:
         ``A`` ``(N, 2, 2)`` with ``A[:, i, j] = d p2_i / d p1_j``.
     """
-    w = flow.shape[1]
-    flat = flow.reshape(-1, 2)
-    lin = points[:, 1] * w + points[:, 0]
-    dx = (np.take(flat, lin + h, axis=0) - np.take(flat, lin - h, axis=0)) / (2.0 * h)
-    dy = (np.take(flat, lin + h * w, axis=0) - np.take(flat, lin - h * w, axis=0)) / (2.0 * h)
+    if scale == 1:
+        w = flow.shape[1]
+        flat = flow.reshape(-1, 2)
+        lin = points[:, 1] * w + points[:, 0]
+        dx = (np.take(flat, lin + h, axis=0) - np.take(flat, lin - h, axis=0)) / (2.0 * h)
+        dy = (np.take(flat, lin + h * w, axis=0)
+              - np.take(flat, lin - h * w, axis=0)) / (2.0 * h)
+    else:
+        # F(p) = scale * f(q(p)) with dq/dp = 1 / scale, so dF/dp = df/dq: differences of the
+        # shrunk field over a whole number of shrunk pixels (about h / scale). The samples
+        # either side then share their sub-pixel position, and `sample_field`'s quantised
+        # bilinear weights cancel in the difference.
+        q = shrunk_points(points, scale)
+        step = max(int(round(h / scale)), 1)
+        n = len(points)
+        offsets = np.array([[step, 0.0], [-step, 0.0], [0.0, step], [0.0, -step]])
+        f = sample_field(flow, (q[None, :, :] + offsets[:, None, :]).reshape(-1, 2))
+        f = f.reshape(4, n, 2).astype(np.float64)
+        dx = (f[0] - f[1]) / (2.0 * step)
+        dy = (f[2] - f[3]) / (2.0 * step)
     A = np.empty((len(points), 2, 2))
     A[:, :, 0] = dx
     A[:, :, 1] = dy
     A[:, 0, 0] += 1.0
     A[:, 1, 1] += 1.0
     return A
+
+
+def flow_downscale(width: int, max_width: int) -> int:
+    """The integer factor that shrinks an image ``width`` pixels wide to at most ``max_width``
+    (1 when it already fits or ``max_width`` is 0)."""
+    if max_width <= 0 or width <= max_width:
+        return 1
+    return int(np.ceil(width / max_width))
+
+
+def shrunk_points(points: np.ndarray, scale: int) -> np.ndarray:
+    """Full-resolution pixel coordinates in an image shrunk by ``scale`` with area averaging
+    (pixel centres: ``(p + 0.5) / scale - 0.5``)."""
+    return (np.asarray(points, np.float64) + 0.5) / scale - 0.5
+
+
+def shrink(gray: np.ndarray, scale: int) -> np.ndarray:
+    """``gray`` shrunk by the integer ``scale`` (area averaging); itself for 1."""
+    if scale == 1:
+        return gray
+    h, w = gray.shape[:2]
+    return cv2.resize(gray, (max(w // scale, 1), max(h // scale, 1)),
+                      interpolation=cv2.INTER_AREA)
 
 
 def neighbour_predictions(grid: CandidateGrid, accepted: np.ndarray, retry: np.ndarray,
@@ -278,8 +325,10 @@ class FlowExtractor:
 
         use_fb = cfg.fb_threshold > 0.0
         run = self._executor()
-        forward = run(self._forward.calc, gray1, gray2, None)
-        backward = run(self._backward.calc, gray2, gray1, None) if use_fb else None
+        s = flow_downscale(gray1.shape[1], cfg.flow_max_width)
+        small1, small2 = shrink(gray1, s), shrink(gray2, s)
+        forward = run(self._forward.calc, small1, small2, None)
+        backward = run(self._backward.calc, small2, small1, None) if use_fb else None
         try:
             grid = flow_candidates(gray1, cfg)
             p1, texture = grid.points, grid.texture
@@ -298,16 +347,20 @@ class FlowExtractor:
             if backward is not None:
                 backward.cancel()
         lap('flow')
-        x, y = p1[:, 0], p1[:, 1]
-        p2 = p1 + flow[y, x].astype(np.float64)
+        if s == 1:
+            forward_flow = flow[p1[:, 1], p1[:, 0]].astype(np.float64)
+        else:
+            forward_flow = s * sample_field(flow, shrunk_points(p1, s)).astype(np.float64)
+        p2 = p1 + forward_flow
         if use_fb and len(p1):
-            fb_error = np.linalg.norm(flow[y, x] + sample_field(back, p2), axis=1)
+            backward_flow = s * sample_field(back, shrunk_points(p2, s))
+            fb_error = np.linalg.norm(forward_flow + backward_flow, axis=1)
             keep = fb_error < cfg.fb_threshold
         else:
             fb_error = np.zeros(len(p1))
             keep = np.ones(len(p1), dtype=bool)
         stats['fb_consistent'] = float(np.count_nonzero(keep))
-        A = flow_jacobian(flow, p1, _jacobian_baseline(cfg))
+        A = flow_jacobian(flow, p1, _jacobian_baseline(cfg), s)
         if template is not None:
             p2_flow, A_flow = p2, A
             index = np.flatnonzero(keep)
