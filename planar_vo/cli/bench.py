@@ -24,7 +24,7 @@ EXAMPLES = """examples:
   planar_vo bench paper --runs 1000 --out out/bench/paper
   planar_vo bench speed --out out/bench/speed   one-core throughput vs OpenCV and PoseLib
   planar_vo bench frontend                      AC extraction time vs DIS, accuracy, KITTI
-  planar_vo bench pipeline                      whole frame per stage vs DIS; KITTI vs 5-point
+  planar_vo bench pipeline                      whole frame per stage vs DIS, rendered and KITTI
   planar_vo bench drives                        every real drive: planar_vo vs OpenCV, PoseLib
   planar_vo bench soak --frames 10000           memory and time per frame over a long drive
   planar_vo bench fleet                         fleet throughput on Ray, 1 and 2 workers
