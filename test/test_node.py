@@ -77,6 +77,15 @@ def node_args(prefix: Path, params: dict[str, object], extra: list[str] = ()) ->
     return args
 
 
+def reliable_subscriptions(*topics: str) -> list[str]:
+    """Node arguments that subscribe ``topics`` reliably (the standard QoS override
+    parameters). Tests that need every raw image use them: a 640x480 bgr8 image is 0.9 MB,
+    larger than a Fast DDS shared-memory segment, and best-effort delivery over UDP loses such
+    images on a loaded machine (the README advises the same override)."""
+    return [a for t in topics for a in ('-p', f'qos_overrides.{t}.subscription.reliability:='
+                                              f'reliable')]
+
+
 def ground_truth(bag: Path) -> dict[int, np.ndarray]:
     """Header stamp (ns) -> ground-truth ``T_odom_base``."""
     with open_bag(bag) as reader:
@@ -188,7 +197,10 @@ def test_drive_gives_one_odometry_per_image_tracking_ground_truth(
     odom, status, output = run_drive(prefix, ros_env, tmp_path, drive_bag,
                                      {**MOUNT_PARAMS, 'scale.source': source,
                                       'ros.path_max_length': 10},
-                                     topics=topics, frames=len(stamps), stop_signal=stop_signal)
+                                     topics=topics, frames=len(stamps),
+                                     stop_signal=stop_signal, reliable=True,
+                                     extra=reliable_subscriptions(IMAGE_TOPIC,
+                                                                  CAMERA_INFO_TOPIC))
 
     # Every image but the first (which starts the keyframe chain) yields odometry, stamped
     # exactly with the image's header stamp, in the configured frames.
@@ -315,14 +327,12 @@ def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
         prefix, ros_env, tmp_path, drive_bag):
     faulty = tmp_path / 'faulty'
     expected = write_faulty_bag(drive_bag, faulty)
-    # Reliable delivery (set through the standard QoS override parameters): a 640x480 32FC1
-    # image is 1.2 MB, which best-effort DDS delivery loses more often than not.
-    reliable = [f'qos_overrides.{t}.subscription.reliability:=reliable'
-                for t in (IMAGE_TOPIC, CAMERA_INFO_TOPIC)]
+    # Reliable delivery: a 640x480 32FC1 image is 1.2 MB.
     odom, status, output = run_drive(prefix, ros_env, tmp_path, faulty, MOUNT_PARAMS,
                                      topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
                                      frames=len(expected), reliable=True,
-                                     extra=[a for r in reliable for a in ('-p', r)])
+                                     extra=reliable_subscriptions(IMAGE_TOPIC,
+                                                                  CAMERA_INFO_TOPIC))
 
     # Every image has its status, in order, with the expected outcome; odometry exactly for
     # the good frames, each stamped with its image's stamp.
@@ -376,10 +386,13 @@ def test_first_signal_mid_stream_exits_cleanly_with_a_summary(prefix, ros_env, t
     """The first SIGINT or SIGTERM stops the node within a second (the signal only sets a
     flag; the spin loop looks at it at least every 0.1 s), whatever it was doing."""
     with Probe(ros_env) as probe, \
-            NodeProcess(node_args(prefix, MOUNT_PARAMS), ros_env, tmp_path / 'node.log') as node:
+            NodeProcess(node_args(prefix, MOUNT_PARAMS,
+                                  reliable_subscriptions(IMAGE_TOPIC, CAMERA_INFO_TOPIC)),
+                        ros_env, tmp_path / 'node.log') as node:
         status = probe.subscribe('/status', DiagnosticArray)
         probe.wait_for_publisher('/status', alive=[node])
-        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC]),
+        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
+                                     reliable=True),
                          ros_env, tmp_path / 'player.log') as player:
             probe.spin_until(lambda: last_count(status, 'frames') >= after, 30.0,
                              f'{after} frames', alive=[node, player])
@@ -671,6 +684,22 @@ class _Recorder:
         return lambda message, *args, **kwargs: self._lines.append((level, message))
 
 
+def test_a_reliable_image_override_leaves_the_speed_subscription_best_effort(local_node):
+    """The README's advice for large images (a reliable image subscription through the QoS
+    override parameters) must not change the other subscriptions: a best-effort wheel-speed
+    publisher would no longer match a reliable speed subscription."""
+    from rclpy.qos import ReliabilityPolicy, qos_profile_sensor_data
+
+    node = local_node({**MOUNT_PARAMS, 'scale.source': 'speed',
+                       # No remapping in the test process: the image topic is /image.
+                       'qos_overrides./image.subscription.reliability': 'reliable'})
+    assert node._image_sub.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    assert node._camera_info_sub.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+    assert node._speed_sub.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+    assert node._speed_sub.qos_profile.depth == 500
+    assert qos_profile_sensor_data.reliability == ReliabilityPolicy.BEST_EFFORT
+
+
 @pytest.mark.timeout(60)
 def test_implausible_camera_info_is_counted_and_the_last_valid_model_kept(local_node,
                                                                           drive_bag):
@@ -770,14 +799,16 @@ def test_renamed_node_with_the_shipped_parameter_file_resets_and_publishes_diagn
 
     params = edited_parameter_file(prefix, tmp_path / 'params.yaml')
     args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args', *REMAP,
-            '-r', '__node:=front_vo', '-r', '__ns:=/car', '--params-file', str(params)]
+            '-r', '__node:=front_vo', '-r', '__ns:=/car', '--params-file', str(params),
+            *reliable_subscriptions(IMAGE_TOPIC, CAMERA_INFO_TOPIC)]
     stamps = image_stamps(drive_bag)
     with Probe(ros_env) as probe, NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
         odom = probe.subscribe('/car/odom', Odometry)
         status = probe.subscribe('/car/status', DiagnosticArray)
         diagnostics = probe.subscribe('/diagnostics', Diagnostics)
         probe.wait_for_publisher('/car/status', alive=[node])
-        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC]),
+        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
+                                     reliable=True),
                          ros_env, tmp_path / 'player.log') as player:
             probe.spin_until(lambda: last_count(status, 'frames') >= 15, 60.0, '15 frames',
                              alive=[node, player])
@@ -901,8 +932,7 @@ def test_future_stamp_and_looped_bag_neither_wedge_nor_count_as_gaps(
                                      {**MOUNT_PARAMS, 'ros.path_max_length': 9},
                                      topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
                                      frames=len(expected), reliable=True,
-                                     extra=['-p', f'qos_overrides.{IMAGE_TOPIC}.subscription.'
-                                                  f'reliability:=reliable'])
+                                     extra=reliable_subscriptions(IMAGE_TOPIC))
     assert [(int(status_values(s)['stamp_ns']), status_values(s)['result'])
             for s in status] == expected
     # The glitch is that frame's problem only; the loop resets tracking at the origin.
@@ -933,7 +963,9 @@ def test_a_100_hz_speed_topic_loses_no_sample_while_images_are_processed(
     from rclpy.qos import qos_profile_sensor_data
 
     stamps = image_stamps(drive_bag)
-    args = node_args(prefix, {**MOUNT_PARAMS, 'scale.source': 'speed'})
+    # The images reliably (every frame must arrive), the speed best effort.
+    args = node_args(prefix, {**MOUNT_PARAMS, 'scale.source': 'speed'},
+                     reliable_subscriptions(IMAGE_TOPIC, CAMERA_INFO_TOPIC))
     with Probe(ros_env) as probe, NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
         status = probe.subscribe('/status', DiagnosticArray)
         speed = probe.node.create_publisher(Twist, '/speed', qos_profile_sensor_data)
@@ -956,7 +988,8 @@ def test_a_100_hz_speed_topic_loses_no_sample_while_images_are_processed(
             end = time.monotonic() + seconds
             probe.spin_until(lambda: time.monotonic() > end, seconds + 1.0, 'a pause')
 
-        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC]),
+        with NodeProcess(player_args(drive_bag, topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
+                                     reliable=True),
                          ros_env, tmp_path / 'player.log') as player:
             # Discovery completes on both sides before the count starts (a best-effort
             # writer may see the reader before the reader sees it).

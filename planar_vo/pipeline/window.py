@@ -21,7 +21,8 @@ Measured (the research behind this module, KITTI 05 frames 0-299 and a synthetic
 trajectory with independent noise per pair): lags 1-3 cut r_rel SE(2) from 0.039 to 0.009
 deg/100 m on the synthetic drive, and changed nothing beyond noise on KITTI 05 (lags 3 against
 1, with the true step lengths: r_rel 0.458 deg/100 m in 3D for both, 0.108 against 0.098 on
-SE(2)), where the ground truth's own orientation noise, not the estimator's, is the floor. It costs a front-end run and a refinement per extra lag; hence off by default.
+SE(2)), where the ground truth's own orientation noise, not the estimator's, is the floor. It
+costs a front-end run and a refinement per extra lag; hence off by default.
 """
 
 from __future__ import annotations

@@ -110,6 +110,19 @@ LIVE_PARAMETERS = frozenset({'ros.publish_tf', 'ros.path_max_length', 'ros.path_
 # front-end, about 2 s with asift). Only the queue's depth differs from the sensor-data profile.
 SPEED_QUEUE_DEPTH = 500
 
+
+def sensor_qos(depth: int | None = None) -> QoSProfile:
+    """A new profile with the sensor-data policies (best effort, volatile, keep last), of
+    ``depth`` or the sensor-data depth. New each time: rclpy writes the ``qos_overrides``
+    parameters into the profile a subscription is created with, and sharing one (let alone
+    rclpy's module-level ``qos_profile_sensor_data``) would carry one topic's overrides to the
+    others."""
+    return QoSProfile(history=qos_profile_sensor_data.history,
+                      depth=qos_profile_sensor_data.depth if depth is None else depth,
+                      reliability=qos_profile_sensor_data.reliability,
+                      durability=qos_profile_sensor_data.durability)
+
+
 # The rclpy classes of the message types `odometry_message` builds.
 _MESSAGE_TYPES = {
     'nav_msgs/msg/Odometry': Odometry, 'std_msgs/msg/Header': Header,
@@ -213,13 +226,17 @@ class PlanarVoNode(Node):
 
         # Sensor-data QoS (best effort) by default; `qos_overrides.<topic>.subscription.*`
         # parameters change it, e.g. to reliable for images too large for best-effort delivery.
+        # rclpy writes the overrides into the profile it is given: every subscription gets its
+        # own (a reliable image must not make the speed subscription reliable too).
         overriding = QoSOverridingOptions.with_default_policies()
-        sensor = {'qos_profile': qos_profile_sensor_data, 'qos_overriding_options': overriding}
         if ros.image_transport == 'compressed':
-            self._image_sub = self.create_subscription(CompressedImage, 'image/compressed',
-                                                       self._on_compressed, **sensor)
+            self._image_sub = self.create_subscription(
+                CompressedImage, 'image/compressed', self._on_compressed,
+                qos_profile=sensor_qos(), qos_overriding_options=overriding)
         else:
-            self._image_sub = self.create_subscription(Image, 'image', self._on_image, **sensor)
+            self._image_sub = self.create_subscription(
+                Image, 'image', self._on_image, qos_profile=sensor_qos(),
+                qos_overriding_options=overriding)
         self._pending: tuple | None = None
         # With estimate_focal the pipeline runs without CameraInfo: no image waits for one.
         camera = self.config.camera
@@ -227,16 +244,13 @@ class PlanarVoNode(Node):
         self._camera_info_sub = None
         if self._expects_camera_info:
             self._camera_info_sub = self.create_subscription(
-                CameraInfo, 'camera_info', self._on_camera_info, **sensor)
+                CameraInfo, 'camera_info', self._on_camera_info, qos_profile=sensor_qos(),
+                qos_overriding_options=overriding)
         self._speed_sub = None
         if self.config.scale.source == 'speed':
             speed_type = Odometry if ros.speed_topic_type == 'odometry' else TwistStamped
-            speed_qos = QoSProfile(depth=SPEED_QUEUE_DEPTH,
-                                   history=qos_profile_sensor_data.history,
-                                   reliability=qos_profile_sensor_data.reliability,
-                                   durability=qos_profile_sensor_data.durability)
             self._speed_sub = self.create_subscription(
-                speed_type, 'speed', self._on_speed, qos_profile=speed_qos,
+                speed_type, 'speed', self._on_speed, qos_profile=sensor_qos(SPEED_QUEUE_DEPTH),
                 qos_overriding_options=overriding)
         self.create_service(Trigger, '~/reset', self._on_reset)
         # Steady time: diagnostics and the no-image warning go on when a simulated clock stops.
