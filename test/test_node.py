@@ -79,9 +79,9 @@ def node_args(prefix: Path, params: dict[str, object], extra: list[str] = ()) ->
 
 def reliable_subscriptions(*topics: str) -> list[str]:
     """Node arguments that subscribe ``topics`` reliably (the standard QoS override
-    parameters). Tests that need every raw image use them: a 640x480 bgr8 image is 0.9 MB,
-    larger than a Fast DDS shared-memory segment, and best-effort delivery over UDP loses such
-    images on a loaded machine (the README advises the same override)."""
+    parameters). Tests that need every raw image use them: with best-effort delivery, the
+    drive's 640x480 bgr8 images (0.9 MB each) now and then stopped arriving after a few frames
+    on a loaded machine (2 of about 10 full test runs); the README advises the same override."""
     return [a for t in topics for a in ('-p', f'qos_overrides.{t}.subscription.reliability:='
                                               f'reliable')]
 
