@@ -21,6 +21,7 @@ import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+from planar_vo.errors import DependencyError
 from planar_vo.io.outputs import interrupt_signal, write_file
 from planar_vo.tools.markdown import format_cell, markdown_table
 
@@ -43,7 +44,7 @@ SINGLE_THREAD_ENV = {'OMP_NUM_THREADS': '1', 'OPENBLAS_NUM_THREADS': '1',
                      'MKL_NUM_THREADS': '1', 'NUMEXPR_NUM_THREADS': '1'}
 
 
-class BenchDependencyError(ImportError):
+class BenchDependencyError(DependencyError):
     """An optional benchmark dependency (poselib, matplotlib, scipy) is not installed."""
 
 

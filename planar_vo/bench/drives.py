@@ -70,7 +70,6 @@ HELP = 'planar_vo, OpenCV and PoseLib on every real drive of a data folder (KITT
 # The development data sits beside the repository (never inside it: its licence forbids that).
 DEFAULT_DATA = Path('..') / 'shared' / 'data'
 QUICK_FRAMES = 20
-KITTI_MIN_LENGTH = 100.0
 SHORT_LENGTHS = (10.0, 20.0, 30.0, 40.0, 50.0)
 
 EXAMPLES = """examples:

@@ -92,8 +92,8 @@ class OdometryRun:
                 last = self.poses[j[k]]
                 ok[k] = self.ok[j[k]]
             poses[k] = last
-        return OdometryRun(self.label, self.scale, np.asarray(stamps_ns, dtype=np.int64), poses,
-                           ok, self.seconds, self.estimator_seconds, self.extra)
+        return OdometryRun(self.label, self.scale, stamps_ns, poses, ok, self.seconds,
+                           self.estimator_seconds, self.extra)
 
 
 def chain_camera_motions(R: np.ndarray, t: np.ndarray, steps: np.ndarray, ok: np.ndarray

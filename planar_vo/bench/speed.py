@@ -51,6 +51,7 @@ from planar_vo.bench.common import (
 )
 from planar_vo.bench.methods import estimate_1ac_voting
 from planar_vo.bench.metrics import planar_pose, rotation_error_deg, translation_error_deg
+from planar_vo.bench.odometry import POSELIB_DEFAULTS
 from planar_vo.errors import InputError
 from planar_vo.sim.synthetic import SyntheticACs, shared_motion_acs
 
@@ -169,8 +170,7 @@ def _street_estimators(acs: SyntheticACs
         ESTIMATOR: ours,
         VOTE: vote,
         POSELIB_DEFAULT: lambda: pose(peers.estimate_5pc_poselib(
-            norm.p1, norm.p2, threshold=thr, confidence=0.9999, max_iters=100000,
-            min_iters=1000)),
+            norm.p1, norm.p2, threshold=thr, **POSELIB_DEFAULTS)),
         POSELIB_EARLY: lambda: pose(peers.estimate_5pc_poselib(norm.p1, norm.p2,
                                                                threshold=thr)),
     }

@@ -149,11 +149,15 @@ class MotionEstimator:
     def reset(self) -> None:
         """Forget the previous motion and the measured history."""
         n = self.config.history
-        self.scales: tuple[float, float] | None = None
         self.previous: tuple[np.ndarray, np.ndarray] | None = None
         self._motions: deque[np.ndarray] = deque(maxlen=n)
         self._scales: deque[tuple[float, float]] = deque(maxlen=n)
         self._shares: deque[float] = deque(maxlen=n)
+
+    @property
+    def scales(self) -> tuple[float, float] | None:
+        """The noise scales (point, affine) of the last reliable pair, or None."""
+        return self._scales[-1] if self._scales else None
 
     # -- the prior ------------------------------------------------------------------------------
 
@@ -420,8 +424,7 @@ class MotionEstimator:
         return 'flat' if stats['rise'] < _FLAT_RISE else None
 
     def _update(self, best, share: float) -> None:
-        self.scales = (best.sp, best.sa)
-        self._scales.append(self.scales)
+        self._scales.append((best.sp, best.sa))
         self._shares.append(share)
         self.previous = (best.R, best.t)
         c = -best.R.T @ best.t

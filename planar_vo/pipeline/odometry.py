@@ -326,7 +326,7 @@ class VisualOdometry:
         alpha, beta = planar_motion_from_pose(R_lc @ est.R @ R_lc.T, R_lc @ est.t)
         if new_keyframe and self._focal is not None and self._camera is None:
             t = time.perf_counter()
-            self._offer_focal_pair(gray, camera, float(alpha))
+            self._offer_focal_pair(gray, camera, float(alpha), {keyframe.index: acs})
             timings['focal'] = time.perf_counter() - t
         return self._result(stamp, True, keyframe=new_keyframe, scale_source=source,
                             num_correspondences=len(acs), num_inliers=est.num_inliers,
@@ -467,18 +467,22 @@ class VisualOdometry:
             cov[:3, :3] += np.eye(3) * (angle * rel) ** 2
         return cov
 
-    def _offer_focal_pair(self, gray: np.ndarray, camera: CameraModel, alpha: float) -> None:
+    def _offer_focal_pair(self, gray: np.ndarray, camera: CameraModel, alpha: float,
+                          extracted: dict[int, AffineCorrespondences]) -> None:
         """At a new keyframe: when the car turned enough since an earlier kept keyframe
         (`TurnPairSelector`), the ACs between the two go to the focal calibration's queue
         (pixels from the principal point, levelled with the provisional focal length: the
         levelling shift ``f tan(pitch)`` is what the image measures, so this is consistent to
-        first order)."""
+        first order). ``extracted``: the ACs this frame already has, by keyframe index (the
+        front-end is not run twice on the same pair)."""
         current = self._keyframes.current
         partner = self._turns.step(current.index, alpha, camera.fx)
         old = self._keyframes.find(partner) if partner is not None else None
         if old is None:
             return
-        acs = self._extractor.extract(old.image, gray)
+        acs = extracted.get(old.index)
+        if acs is None:
+            acs = self._extractor.extract(old.image, gray)
         if len(acs) < self.config.odometry.min_correspondences:
             return
         level = acs.normalized(camera).mapped(self._estimator.R_lc)

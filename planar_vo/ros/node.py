@@ -475,17 +475,19 @@ class PlanarVoNode(Node):
         self._node_time += node_time
         self._period_time.append(node_time)
         self._last_result = result
-        self._note_focal()
-        self._publish_status(msg.header, result, node_time, path_time)
+        focal = self._note_focal()
+        self._publish_status(msg.header, result, node_time, path_time, focal)
 
-    def _note_focal(self) -> None:
+    def _note_focal(self) -> str:
         """Log the focal length's source when it changes: a self-calibration says at the first
-        frame that it runs on a provisional focal length, and when it adopts one."""
+        frame that it runs on a provisional focal length, and when it adopts one. Returns the
+        focal status line (for the status message)."""
         status = self._vo.focal_status()
         state = status[status.find('('):].split(',')[0].split(' at ')[0]
         if state != self._focal_state:
             self._focal_state = state
             self.get_logger().info(status)
+        return status
 
     def _dropped(self, stamp_ns: int, reason: DropReason, message: str) -> FrameResult:
         """A frame the node drops before or after the pipeline (no pose to report)."""
@@ -639,7 +641,7 @@ class PlanarVoNode(Node):
         return values
 
     def _publish_status(self, header, result: FrameResult, node_time: float,
-                        path_time: float) -> None:
+                        path_time: float, focal: str) -> None:
         """One `DiagnosticStatus` per image: this frame's outcome and the running counters."""
         status = DiagnosticStatus()
         status.name = f'{self.get_name()}: visual odometry'
@@ -660,7 +662,7 @@ class PlanarVoNode(Node):
             # Every frame names its scale source: 'none' when it produced no step.
             'scale_source': result.scale_source if result.ok else 'none',
             'focal_px': self._focal(),
-            'focal': self._vo.focal_status(),
+            'focal': focal,
             'correspondences': result.num_correspondences,
             'inliers': result.num_inliers,
             'alpha_rad': result.alpha,

@@ -61,6 +61,7 @@ from typing import Any
 
 from planar_vo.config import PlanarVoConfig, flatten
 from planar_vo.errors import ConfigError, DependencyError, InputError, PlanarVoError
+from planar_vo.io.reader import one_line
 from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
 
 __all__ = [
@@ -151,7 +152,7 @@ def config_grid(base: PlanarVoConfig, sets: Sequence[str] = ()) -> list[FleetCon
         try:
             values = yaml.safe_load(f'[{text}]')
         except yaml.YAMLError as err:
-            detail = ' '.join(str(err).split())
+            detail = one_line(err)
             raise ConfigError(f"set: cannot read the values of '{item}' ({detail})") from None
         unique = [v for i, v in enumerate(values) if v not in values[:i]]
         axes.append((key, unique))
@@ -264,10 +265,6 @@ def single_threaded() -> Iterator[None]:
         cv2.setNumThreads(previous)
 
 
-def _one_line(err: BaseException) -> str:
-    return ' '.join(str(err).split()) or type(err).__name__
-
-
 def _new_row(job: FleetJob, **values: Any) -> dict[str, Any]:
     """A summary row of `job` with every field present (None where not measured)."""
     row = {'bag': job.bag, 'config': job.config.name, 'status': 'ok', 'reason': None,
@@ -350,7 +347,7 @@ def run_job(job: FleetJob, out_dir: str | Path) -> dict:
         try:
             thumbnail = _replay_and_evaluate(job, work, row)
         except PlanarVoError as err:
-            row.update(status='failed', reason=_one_line(err))
+            row.update(status='failed', reason=one_line(err))
     wall = time.perf_counter() - start
     row.update(wall_s=wall, frames_per_s=row['frames_in'] / wall)
     record = {'key': job.key, 'row': row, 'thumbnail': thumbnail}
@@ -490,14 +487,14 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
                     # gRPC threads; now and then the child dies): connect again.
                     if attempt == CLIENT_ATTEMPTS:
                         raise
-                    log.warning('Ray at %s, attempt %d: %s', address, attempt, _one_line(err))
+                    log.warning('Ray at %s, attempt %d: %s', address, attempt, one_line(err))
         else:
             ray.init(num_cpus=workers, include_dashboard=False,
                      _system_config={'task_oom_retries': retries}, **common)
     except (ConnectionError, RuntimeError, ValueError) as err:
         where = f"'{address}'" if address else f'a local instance ({workers} CPUs)'
         raise InputError(f'address: cannot start or reach Ray at {where} '
-                         f'({_one_line(err)})') from err
+                         f'({one_line(err)})') from err
     try:
         yield ray
     finally:
@@ -520,10 +517,10 @@ def _failure(ray, err: Exception, job: FleetJob, retries: int) -> dict | None:
         if isinstance(cause, KeyboardInterrupt):
             return None
         log.error('fleet task %s raised:\n%s', job.label, err)
-        reason = f'internal error: {type(cause).__name__}: {_one_line(cause)}'
+        reason = f'internal error: {type(cause).__name__}: {one_line(cause)}'
     else:
         reason = (f'worker died on each of {retries + 1} attempts ({type(err).__name__}: '
-                  f'{_one_line(err)[:200]})')
+                  f'{one_line(err)[:200]})')
     return {'key': job.key, 'row': _new_row(job, status='failed', reason=reason),
             'thumbnail': None}
 

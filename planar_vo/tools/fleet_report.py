@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from planar_vo.io.outputs import write_file
 from planar_vo.tools.evaluation.report import json_ready
 from planar_vo.tools.markdown import format_cell, markdown_table
 
@@ -30,9 +31,7 @@ MAX_THUMBNAILS = 48
 
 def write_json(path: Path, value: Any) -> None:
     """Write JSON atomically (a reader sees the old file or the new one, never a part)."""
-    tmp = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
-    tmp.write_text(json.dumps(json_ready(value), indent=1) + '\n', encoding='utf-8')
-    os.replace(tmp, path)
+    write_file(path, json.dumps(json_ready(value), indent=1) + '\n')
 
 
 def _mean(values: Sequence[float | None]) -> float | None:
@@ -66,10 +65,6 @@ def aggregate(rows: Sequence[dict]) -> dict:
         'ate_sim3_m': _mean([r['ate_sim3_m'] for r in ok]),
         'ate_sim3_pct': _mean([_ate_pct(r) for r in ok]),
     }
-
-
-def _cell(value, digits: int = 2) -> str:
-    return format_cell(value, digits) if value is not None else '-'
 
 
 def _figure(width: float, height: float):
@@ -118,8 +113,7 @@ def plot_drift(rows: Sequence[dict], path: Path, names: dict[str, str], configs:
     axes[0].invert_yaxis()
     fig.suptitle('Drift per bag' + (f' (the {MAX_BARS} largest)' if len(rows) == MAX_BARS
                                     else ''))
-    fig.savefig(path)
-    return path
+    return write_file(path, fig.savefig, role='plot')
 
 
 def plot_thumbnails(records: Sequence[dict], path: Path, names: dict[str, str], configs: int
@@ -142,14 +136,13 @@ def plot_thumbnails(records: Sequence[dict], path: Path, names: dict[str, str], 
     for ax in axes[len(records):]:
         ax.set_axis_off()
     fig.suptitle('Trajectories: ground truth (grey), estimate sim(3)-aligned (red)')
-    fig.savefig(path)
-    return path
+    return write_file(path, fig.savefig, role='plot')
 
 
-def _report(summary: dict, plots: list[Path], command: Sequence[str] | None) -> str:
+def _report(summary: dict, plots: list[Path], names: dict[str, str],
+            command: Sequence[str] | None) -> str:
     rows, totals, configs = summary['rows'], summary['totals'], summary['configs']
     info = summary['run']
-    names = bag_names([r['bag'] for r in rows])
     parts = ['# planar_vo fleet run']
     if command:
         parts.append('```sh\n' + shlex.join(command) + '\n```')
@@ -166,8 +159,8 @@ def _report(summary: dict, plots: list[Path], command: Sequence[str] | None) -> 
         ['frames', 'odometry', 'km (ground truth)', 'task time (s)', 'frames/s per task',
          'aggregate frames/s (this run)'],
         [[totals['frames_in'], totals['odom_out'], f"{totals['km']:.3f}",
-          f"{totals['task_s']:.1f}", _cell(totals['frames_per_s_per_task']),
-          _cell(throughput)]]))
+          f"{totals['task_s']:.1f}", format_cell(totals['frames_per_s_per_task']),
+          format_cell(throughput)]]))
     parts.append('## Per configuration\n\nMeans over the ok runs with ground truth; t_rel and '
                  'r_rel by the KITTI protocol (segments of 100-800 m), ATE after sim(3) '
                  'alignment.\n\n' + markdown_table(
@@ -175,17 +168,19 @@ def _report(summary: dict, plots: list[Path], command: Sequence[str] | None) -> 
                       'r_rel (deg/100 m)', 'yaw err (deg)', 'ATE sim3 (m)', 'ATE (% path)',
                       'frames/s per task'],
                      [[c['config'], c['runs'], c['ok'], c['failed'], c['frames_in'],
-                       f"{c['km']:.3f}", _cell(c['t_rel_pct']), _cell(c['r_rel_deg100m']),
-                       _cell(c['yaw_err_mean_deg']), _cell(c['ate_sim3_m']),
-                       _cell(c['ate_sim3_pct']), _cell(c['frames_per_s_per_task'])]
+                       f"{c['km']:.3f}",
+                       *map(format_cell, (c['t_rel_pct'], c['r_rel_deg100m'],
+                                          c['yaw_err_mean_deg'], c['ate_sim3_m'],
+                                          c['ate_sim3_pct'], c['frames_per_s_per_task']))]
                       for c in configs], 'l' + 'r' * 11))
     table = []
     for r in rows:
         drops = ', '.join(f'{k} {v}' for k, v in r['drops'].items()) or '-'
         table.append([names[r['bag']], r['config'], r['status'], r['frames_in'],
-                      r['odom_out'], drops, _cell(r['wall_s']), _cell(r['frames_per_s']),
-                      _cell(r['t_rel_pct']), _cell(r['r_rel_deg100m']),
-                      _cell(r['yaw_err_mean_deg']), _cell(r['ate_sim3_m']), _cell(r['path_m']),
+                      r['odom_out'], drops,
+                      *map(format_cell, (r['wall_s'], r['frames_per_s'], r['t_rel_pct'],
+                                         r['r_rel_deg100m'], r['yaw_err_mean_deg'],
+                                         r['ate_sim3_m'], r['path_m'])),
                       (r['reason'] or '').replace('|', '/')])
     parts.append('## Runs\n\n' + markdown_table(
         ['bag', 'configuration', 'status', 'frames', 'odometry', 'drops', 'wall (s)',
@@ -225,8 +220,5 @@ def write_summary(out_dir: Path, records: Sequence[dict], run: dict,
     plots = [p for p in (plot_drift(rows, out_dir / 'drift.png', bags, names),
                          plot_thumbnails(records, out_dir / 'trajectories.png', bags, len(names)))
              if p is not None]
-    report = out_dir / 'report.md'
-    tmp = out_dir / '.report.md.tmp'
-    tmp.write_text(_report(summary, plots, command), encoding='utf-8')
-    tmp.replace(report)
+    report = write_file(out_dir / 'report.md', _report(summary, plots, bags, command))
     return [path, report, *plots]

@@ -255,8 +255,7 @@ class GeneralMotion:
         inliers: (N,) bool, chi-square(3) at most its 99 % quantile at the final motion.
         sp, sa: the noise scales measured at the solution (normalised point units; affine
             elements).
-        chi2: (N,) total chi-square at the solution; cost: robust cost (data + prior).
-        prior_chi2: squared norm of the whitened prior residuals.
+        chi2: (N,) total chi-square at the solution.
         iterations, rounds: IRLS iterations and selection rounds used.
         converged: the last round moved the motion by less than a fraction of a sigma.
     """
@@ -269,8 +268,6 @@ class GeneralMotion:
     sp: float
     sa: float
     chi2: np.ndarray
-    cost: float
-    prior_chi2: float
     iterations: int
     rounds: int
     converged: bool
@@ -285,14 +282,6 @@ def _robust_weights(ew2: np.ndarray, c: float) -> np.ndarray:
     w[:, 1] = 1.0 / (1.0 + 0.5 * (ew2[:, 1] + ew2[:, 2]) / c2)
     w[:, 2] = w[:, 1]
     return w
-
-
-def _robust_cost(ew2: np.ndarray, wac: np.ndarray, c: float) -> float:
-    """``sum_i wac_i [rho(e0^2) + 2 rho(mean(e1^2, e2^2))]``, Cauchy ``rho(s) = c^2 log(1 +
-    s / c^2)`` (the weights of `_robust_weights` are its derivatives)."""
-    c2 = c * c
-    rho = c2 * np.log1p(ew2[:, 0] / c2) + 2.0 * c2 * np.log1p(0.5 * (ew2[:, 1] + ew2[:, 2]) / c2)
-    return float(wac @ rho)
 
 
 def _cheirality_sign(q1: np.ndarray, q2: np.ndarray, R: np.ndarray, t: np.ndarray,
@@ -487,12 +476,9 @@ def _finish(q1, q2, A, weights, M, R, t, active, sp, sa, prior, cfg, iterations,
     wac = weights * active
     W = wac[:, None] * _robust_weights(ew2, cfg.cauchy) / var
     H = D.T @ (Mf.T @ (Mf * W.reshape(-1, 1))) @ D
-    prior_chi2 = 0.0
     if prior is not None:
-        p, Jp = prior.residuals(R, t, B)
+        _, Jp = prior.residuals(R, t, B)
         H = H + Jp.T @ Jp
-        prior_chi2 = float(p @ p)
-    cost = _robust_cost(ew2, wac, cfg.cauchy) + prior_chi2
     try:
         cov = np.linalg.inv(H)
     except np.linalg.LinAlgError:
@@ -511,5 +497,4 @@ def _finish(q1, q2, A, weights, M, R, t, active, sp, sa, prior, cfg, iterations,
         robust = cov @ (per.T @ per) @ cov
         if np.all(np.isfinite(robust)) and np.trace(robust) > np.trace(cov):
             cov = robust
-    return GeneralMotion(R, t, cov, B, inliers, sp, sa, chi2, cost, prior_chi2, iterations,
-                         rounds, converged)
+    return GeneralMotion(R, t, cov, B, inliers, sp, sa, chi2, iterations, rounds, converged)

@@ -90,7 +90,6 @@ class RoadNormalCalibrator:
         self._q = np.zeros(shape + (2,))        # normalised image-1 points of road ACs
         self._lc = np.zeros(shape)              # log c_i
         self._w = np.zeros(shape)               # weights (0: empty slot)
-        self._count = np.zeros(self.max_frames, int)
         self._next = 0                          # ring position of the next frame pair
         self._stored = 0
         self._since_fit = 0
@@ -140,7 +139,6 @@ class RoadNormalCalibrator:
         k, m = self._next, idx.size
         self._q[k, :m], self._lc[k, :m], self._w[k, :m] = q1[idx], lc, w[idx]
         self._q[k, m:], self._lc[k, m:], self._w[k, m:] = (0.0, 1.0), 0.0, 0.0   # empty slots
-        self._count[k] = m
         self._next = (k + 1) % self.max_frames
         self._stored = min(self._stored + 1, self.max_frames)
         self._since_fit += 1
