@@ -311,12 +311,20 @@ class PlanarVoNode(Node):
     def _parameter_values(self) -> dict[str, Any]:
         return {name: self.get_parameter(name).value for name in self._defaults}
 
-    def _checked_config(self, values: dict[str, Any]) -> PlanarVoConfig:
-        """The config of the defaults updated with ``values``; one fatal line if invalid."""
+    def _config_from(self, values: dict[str, Any]) -> PlanarVoConfig:
+        """The config of the defaults updated with the parameter ``values``.
+
+        Raises:
+            ConfigError: an invalid value or combination.
+        """
         flat = dict(self._defaults)
         flat.update({name: self._config_value(name, value) for name, value in values.items()})
+        return PlanarVoConfig.from_flat(flat)
+
+    def _checked_config(self, values: dict[str, Any]) -> PlanarVoConfig:
+        """`_config_from`, with one fatal line if invalid."""
         try:
-            return PlanarVoConfig.from_flat(flat)
+            return self._config_from(values)
         except ConfigError as err:
             self.get_logger().fatal(f'invalid parameters: {err}')
             raise
@@ -355,11 +363,9 @@ class PlanarVoNode(Node):
         ours = [p for p in params if p.name in self._defaults]   # not e.g. use_sim_time
         if not ours:
             return SetParametersResult(successful=True)
-        flat = self._parameter_values()
-        flat.update({p.name: p.value for p in ours})
-        flat = {name: self._config_value(name, value) for name, value in flat.items()}
         try:
-            config = PlanarVoConfig.from_flat(flat)
+            config = self._config_from({**self._parameter_values(),
+                                        **{p.name: p.value for p in ours}})
         except ConfigError as err:
             return SetParametersResult(successful=False, reason=str(err))
         ros = config.ros

@@ -39,8 +39,7 @@ import numpy as np
 
 from planar_vo.core.conventions import skew, so3_exp, so3_log
 from planar_vo.core.robust.options import EstimatorConfig
-from planar_vo.core.robust.refine import spatial_clusters
-from planar_vo.core.robust.stats import HALF_NORMAL_Q25, MAD_TO_SIGMA, lower_quantile
+from planar_vo.core.robust.refine import robust_scales, spatial_clusters
 
 __all__ = [
     'CHI2_3_99',
@@ -163,16 +162,7 @@ def noise_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, mask: np.ndarray,
     (``quantile=0.5``) over an active set whose gate lies far in the tails does not shrink round
     after round; ``0.25`` tolerates up to 75 % contamination.
     """
-    if np.count_nonzero(mask) < 5:
-        return _SCALE_FLOORS
-    z = HALF_NORMAL_Q25 if quantile == 0.25 else 1.0 / MAD_TO_SIGMA
-    e0 = np.abs(r[mask, 0]) / np.sqrt(g[mask, 0] + 1e-300)
-    sp = max(lower_quantile(e0, quantile) / z, _SCALE_FLOORS[0])
-    hh = h[mask, 1:] + 1e-300
-    raw = lower_quantile((np.abs(r[mask, 1:]) / np.sqrt(hh)).ravel(), quantile) / z
-    share = sp * sp * lower_quantile((g[mask, 1:] / hh).ravel(), 0.5)
-    sa = math.sqrt(max(raw * raw - share, 0.0))
-    return sp, max(sa, 0.1 * raw, _SCALE_FLOORS[1])
+    return robust_scales(r[mask], g[mask], h[mask], quantile, floors=_SCALE_FLOORS, min_count=5)
 
 
 def _essential_jacobian(R: np.ndarray, t: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -453,18 +443,16 @@ def refine_general_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, weights
         # whitening depends strongly on the motion (turns); a last step below one sigma is
         # accepted, a larger one means the answer is not settled.
         converged = round_moved < _FINAL_TOLERANCE
-    return _finish(q1, q2, A, weights, M, R, t, active, sp, sa, prior, cfg, iterations, rounds,
-                   converged)
+    # g, h, r: computed at the final (R, t) by the last round (there is at least one).
+    return _finish(q1, q2, A, weights, M, R, t, g, h, r, active, sp, sa, prior, cfg, iterations,
+                   rounds, converged)
 
 
-def _finish(q1, q2, A, weights, M, R, t, active, sp, sa, prior, cfg, iterations, rounds,
+def _finish(q1, q2, A, weights, M, R, t, g, h, r, active, sp, sa, prior, cfg, iterations, rounds,
             converged) -> GeneralMotion:
-    """Inliers, the sign of ``t`` (cheirality) and the covariance at the solution."""
-    n = q1.shape[0]
+    """Inliers, the sign of ``t`` (cheirality) and the covariance at the solution, from the
+    residuals ``r`` and their variance terms ``g, h`` at ``(R, t)``."""
     Mf = M.reshape(-1, 9)
-    E = essential(R, t)
-    g, h = residual_variances(E, q1, q2, A)
-    r = (Mf @ E.ravel()).reshape(n, 3)
     var = sp * sp * g + sa * sa * h + 1e-300
     ew2 = r * r / var
     chi2 = ew2.sum(axis=1)

@@ -72,7 +72,8 @@ def whitened(r: np.ndarray, g: np.ndarray, h: np.ndarray, sp: float, sa: float) 
     return r / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)
 
 
-def robust_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, quantile: float = 0.25
+def robust_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, quantile: float = 0.25, *,
+                  floors: tuple[float, float] | None = None, min_count: int = 4
                   ) -> tuple[float, float]:
     """Noise scales of points (normalised units) and affines from the peak's members' residuals.
 
@@ -82,18 +83,20 @@ def robust_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, quantile: float =
     three quarters of contamination; for clean inliers ``quantile=0.5`` (the median) is used.
     Epipolar rows see point noise only: ``e1 = r1 / |dr1/dp|``.
     Affine rows see ``sqrt(sp^2 g + sa^2 h)``; ``sa`` comes from ``r / sqrt(h)`` with the point
-    share removed.
+    share removed. ``floors``: the smallest scales returned (default the voting's), also
+    returned when there are fewer than ``min_count`` rows.
     """
-    if r.shape[0] < 4:
-        return _POINT_SCALE_FLOOR, _AFFINE_SCALE_FLOOR
+    point_floor, affine_floor = floors or (_POINT_SCALE_FLOOR, _AFFINE_SCALE_FLOOR)
+    if r.shape[0] < min_count:
+        return point_floor, affine_floor
     q = HALF_NORMAL_Q25 if quantile == 0.25 else 1.0 / MAD_TO_SIGMA
     e1 = np.abs(r[:, 0]) / np.sqrt(g[:, 0] + 1e-300)
-    sp = max(lower_quantile(e1, quantile) / q, _POINT_SCALE_FLOOR)
+    sp = max(lower_quantile(e1, quantile) / q, point_floor)
     ea = (np.abs(r[:, 1:]) / np.sqrt(h[:, 1:] + 1e-300)).ravel()
     raw = lower_quantile(ea, quantile) / q
     point_share = sp * sp * lower_quantile((g[:, 1:] / (h[:, 1:] + 1e-300)).ravel(), 0.5)
     sa = math.sqrt(max(raw * raw - point_share, 0.0))
-    return sp, max(sa, _AFFINE_SCALE_FLOOR, 0.1 * raw)
+    return sp, max(sa, affine_floor, 0.1 * raw)
 
 
 def minimize_form(M: np.ndarray, theta: float, beta: float, iterations: int = 20
