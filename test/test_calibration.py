@@ -21,6 +21,7 @@ from planar_vo.pipeline.calibration import (
     OnlineFocalCalibrator,
     RoadNormalCalibrator,
     TurnPairSelector,
+    pair_road_normal,
 )
 from planar_vo.sim.synthetic import PAPER_PRINCIPAL_POINT, shared_motion_acs
 
@@ -102,6 +103,27 @@ def test_road_normal_std_is_honest_on_noisy_road_acs():
         z += [(est.pitch - PITCH) / est.pitch_std, (est.roll - ROLL) / est.roll_std]
     rms = float(np.sqrt(np.mean(np.square(z))))
     assert 0.6 < rms < 1.3, rms
+
+
+def test_one_pair_road_normal_is_exact_on_exact_acs_and_honest_on_noisy_ones(rng):
+    normal = normal_from_tilt(PITCH, ROLL)
+    q1, q2, R, t = _road_frame(rng, normal, count=300)
+    road = np.zeros(300, bool)
+    road[:250] = True                                       # the mask selects what is used
+    q2[250:] += 0.05                                        # ... the rest is not road
+    est = pair_road_normal(q1, q2, R, t, road, None, 0.0, 0.0, iterations=8)
+    assert abs(est.pitch - PITCH) < 1e-9 and abs(est.roll - ROLL) < 1e-9
+    assert est.frames == 1
+    z = []
+    for _ in range(60):
+        q1, q2, R, t = _road_frame(rng, normal, count=200, noise=1e-3)
+        est = pair_road_normal(q1, q2, R, t, np.ones(200, bool), np.ones(200), PITCH, ROLL)
+        assert math.isfinite(est.pitch_std) and est.pitch_std > 0
+        z += [(est.pitch - PITCH) / est.pitch_std, (est.roll - ROLL) / est.roll_std]
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.3 < rms < 1.3, rms                             # never over-confident
+    # Fewer than 10 road ACs: no estimate.
+    assert pair_road_normal(q1, q2, R, t, np.arange(200) < 9, None, 0.0, 0.0) is None
 
 
 def test_road_normal_memory_and_refits_are_bounded(rng):

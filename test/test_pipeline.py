@@ -334,6 +334,20 @@ def test_mount_tilt_is_estimated_and_used():
     assert all(r.ok for r in results[1:])
 
 
+def test_first_road_steps_use_the_road_normal_fitted_with_their_own_pair():
+    # The camera is pitched 3 degrees and the configuration says level: the very first road
+    # steps must already be measured with the road normal refitted on their own road ACs, not
+    # with the level guess (about 40 % long at 3 degrees).
+    pitch = np.deg2rad(3.0)
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT, 'estimate_tilt': True}})
+    trajectory, results, _ = _run('straight', config, pitch=pitch)
+    truth = np.linalg.norm(np.diff(trajectory.xy, axis=0), axis=1)
+    for k in (1, 2, 3):
+        assert results[k].ok and results[k].scale_source == 'ground'
+        step = np.linalg.norm(results[k].pose[:2, 3] - results[k - 1].pose[:2, 3])
+        assert abs(step / truth[k - 1] - 1.0) < 0.03, (k, step, truth[k - 1])
+
+
 # ---------------------------------------------------------------------------------------------
 # Clock hiccups: nothing wedges
 # ---------------------------------------------------------------------------------------------

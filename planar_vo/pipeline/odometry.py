@@ -59,6 +59,7 @@ from planar_vo.pipeline.calibration import (
     OnlineFocalCalibrator,
     RoadNormalCalibrator,
     TurnPairSelector,
+    pair_road_normal,
 )
 from planar_vo.pipeline.clock import FrameClock, StampCheck
 from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator
@@ -71,7 +72,7 @@ from planar_vo.pipeline.motion import (
     to_base,
     yaw_rate_decay,
 )
-from planar_vo.pipeline.scale import SpeedIntegrator, road_scale
+from planar_vo.pipeline.scale import RoadScale, SpeedIntegrator, road_scale
 from planar_vo.pipeline.types import DropReason, FrameResult, TrackingState
 from planar_vo.pipeline.window import RotationWindow
 
@@ -527,24 +528,55 @@ class VisualOdometry:
         (`road_scale`: the refined general motion, the road normal in the camera frame), or None
         without enough road ACs. The variance adds the rotation's uncertainty (the estimator's
         covariance through the step's exact sensitivity to it) to the statistical, road-normal
-        and car-pitch terms. The road ACs then refine the road normal
-        (`RoadNormalCalibrator`)."""
+        and car-pitch terms.
+
+        Two passes: the first, with the current road normal, finds the road ACs; they refine the
+        drive's road normal (`RoadNormalCalibrator`) and give this pair's own normal
+        (`pair_road_normal`), shrunk towards the drive's by ``scale.ground_normal_std``; the
+        second measures the step with that normal. So a pair's own road counts for its step:
+        the first steps of a drive were otherwise measured with the mount's guess (KITTI 06:
+        the first step 26 % long), and the car's pitch on its suspension moved every step
+        (KITTI 05, frames 0-299, with the step length from the road against the ground truth:
+        median error 3.9 % before, 2.6 % after; errors in units of the reported standard
+        deviation, RMS 1.63 before, 1.10 after)."""
         cfg = self.config.scale
         norm = self._norm
-        pitch, roll, normal_std = self.road_normal
-        rs = road_scale(norm.p1, norm.p2, norm.A, est.R, est.t, normal_from_tilt(pitch, roll),
-                        self.config.mount.height, point_sigma=cfg.ground_point_std / camera.fx,
-                        weights=norm.weights,
-                        sigma_normal=math.hypot(normal_std, cfg.ground_normal_std),
-                        max_depth=cfg.ground_max_depth, affine_sigma=cfg.ground_affine_std,
-                        gate=cfg.ground_gate, min_count=cfg.ground_min_correspondences)
+
+        def measure(pitch: float, roll: float, normal_std: float) -> RoadScale:
+            return road_scale(norm.p1, norm.p2, norm.A, est.R, est.t,
+                              normal_from_tilt(pitch, roll), self.config.mount.height,
+                              point_sigma=cfg.ground_point_std / camera.fx,
+                              weights=norm.weights,
+                              sigma_normal=normal_std,
+                              max_depth=cfg.ground_max_depth,
+                              affine_sigma=cfg.ground_affine_std, gate=cfg.ground_gate,
+                              min_count=cfg.ground_min_correspondences)
+
+        before = self.road_normal
+        rs = measure(before[0], before[1], math.hypot(before[2], cfg.ground_normal_std))
         if self._road is not None and rs.count and \
                 self._road.add(norm.p1, norm.p2, est.R, est.t, rs.mask, norm.weights):
-            fit = self._road.update(pitch, roll)
+            fit = self._road.update(before[0], before[1])
             if fit is not None:
                 std = math.hypot(fit.pitch_std, fit.roll_std)
                 if math.isfinite(std):
                     self._road_fit = (fit.pitch, fit.roll, std)
+            pitch, roll, normal_std = self.road_normal
+            # This pair's road departs from the average road by the car's pitch on its
+            # suspension and the road's camber and slope changes (``ground_normal_std``): its
+            # own fit, shrunk towards the average by their precisions.
+            one = pair_road_normal(norm.p1, norm.p2, est.R, est.t, rs.mask, norm.weights,
+                                   pitch, roll)
+            prior = cfg.ground_normal_std ** 2
+            if one is not None and math.isfinite(one.pitch_std) and math.isfinite(one.roll_std):
+                gain_p = prior / (prior + one.pitch_std ** 2)
+                gain_r = prior / (prior + one.roll_std ** 2)
+                pitch += gain_p * (one.pitch - pitch)
+                roll += gain_r * (one.roll - roll)
+                rs = measure(pitch, roll, math.hypot(normal_std, math.sqrt(
+                    gain_p * one.pitch_std ** 2 + gain_r * one.roll_std ** 2)))
+            elif (pitch, roll) != before[:2]:
+                rs = measure(pitch, roll, math.hypot(normal_std, cfg.ground_normal_std))
         if not (math.isfinite(rs.scale) and rs.scale > 0):
             return None
         d = rs.d_rotation

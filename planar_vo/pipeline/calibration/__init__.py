@@ -5,7 +5,7 @@ ground-plane scale), and the focal length (1ACf self-calibration)."""
 from __future__ import annotations
 
 from planar_vo.pipeline.calibration.focal import OnlineFocalCalibrator, TurnPairSelector
-from planar_vo.pipeline.calibration.road import RoadNormalCalibrator
+from planar_vo.pipeline.calibration.road import RoadNormalCalibrator, pair_road_normal
 from planar_vo.pipeline.calibration.tilt import MountTiltEstimator, TiltEstimate
 
 __all__ = [
@@ -14,4 +14,5 @@ __all__ = [
     'RoadNormalCalibrator',
     'TiltEstimate',
     'TurnPairSelector',
+    'pair_road_normal',
 ]

@@ -40,7 +40,7 @@ from planar_vo.errors import ConfigError, InputError
 from planar_vo.pipeline.calibration.tilt import TiltEstimate
 from planar_vo.pipeline.scale import step_factors
 
-__all__ = ['RoadNormalCalibrator']
+__all__ = ['RoadNormalCalibrator', 'pair_road_normal']
 
 _CAUCHY_SCALE = 2.5       # residuals (in robust spreads) at which the IRLS weight is 1/2
 _MIN_ROAD = 10            # road ACs a frame pair needs to be stored (a within-frame spread)
@@ -220,3 +220,17 @@ class RoadNormalCalibrator:
         cov = np.maximum(cov, model) * few_cluster_factor(max(nf, 2), 1.0) ** 2
         return TiltEstimate(p, r, math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1]),
                             normal_from_tilt(p, r), int(nf))
+
+
+def pair_road_normal(q1: np.ndarray, q2: np.ndarray, R: np.ndarray, t: np.ndarray,
+                     road: np.ndarray, weights: np.ndarray | None, pitch0: float, roll0: float,
+                     iterations: int = 4) -> TiltEstimate | None:
+    """The road normal from one frame pair's road ACs alone (all of them), by the same fit as
+    `RoadNormalCalibrator` started from ``(pitch0, roll0)``, with its model-based standard
+    deviations (one frame: no clusters to sandwich). None with fewer than 10 road ACs in
+    front of both views or a degenerate fit. Arguments as in `RoadNormalCalibrator.add`."""
+    count = int(np.count_nonzero(np.asarray(road, dtype=bool)))
+    one = RoadNormalCalibrator(per_frame=max(count, _MIN_ROAD), max_frames=2)
+    if not one.add(q1, q2, R, t, road, weights):
+        return None
+    return one.estimate(pitch0, roll0, iterations=iterations)
