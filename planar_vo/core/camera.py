@@ -239,10 +239,12 @@ class CameraModel:
     def pixel_to_normalized(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels ``(N, 2)`` -> ideal normalised coordinates, with the Jacobian ``dq/dp``."""
         p = as_array('p', p, (None, 2), min_items=0, finite=False)
-        L = self.K[:2, :2]
-        xd = (p - self.K[:2, 2]) @ np.linalg.inv(L).T
+        L_inv = np.linalg.inv(self.K[:2, :2])
+        xd = (p - self.K[:2, 2]) @ L_inv.T
+        if not self.is_distorted:
+            return xd, np.broadcast_to(L_inv, (xd.shape[0], 2, 2)).copy()
         q, Ju = self.undistort(xd)
-        return q, Ju @ np.linalg.inv(L)
+        return q, Ju @ L_inv
 
     def normalized_to_pixel(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ideal normalised ``(N, 2)`` -> pixels, with the Jacobian ``dp/dq``."""

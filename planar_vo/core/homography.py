@@ -28,8 +28,10 @@ def apply_homography(H: np.ndarray, p: np.ndarray) -> np.ndarray:
         return h[:, :2] / h[:, 2:3]
 
 
-def homography_jacobian(H: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Jacobian of ``p -> pi(H [p; 1])`` at points ``p`` ``(N, 2)``; returns ``(N, 2, 2)``.
+def homography_jacobian(H: np.ndarray, p: np.ndarray, *, with_points: bool = False
+                        ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Jacobian of ``p -> pi(H [p; 1])`` at points ``p`` ``(N, 2)``; returns ``(N, 2, 2)``, or
+    ``(p', J)`` with ``with_points`` (the mapped points ``(N, 2)`` come for free).
 
     With ``h = H [p; 1]`` and ``p' = h[:2] / h[2]``: ``J = (H[:2, :2] - p' H[2, :2]) / h[2]``.
     This is the exact local affine of a plane-induced homography.
@@ -39,7 +41,8 @@ def homography_jacobian(H: np.ndarray, p: np.ndarray) -> np.ndarray:
     h = p @ H[:, :2].T + H[:, 2]
     w = h[:, 2]
     p2 = h[:, :2] / w[:, None]
-    return (H[None, :2, :2] - p2[:, :, None] * H[None, 2:3, :2]) / w[:, None, None]
+    J = (H[None, :2, :2] - p2[:, :, None] * H[None, 2:3, :2]) / w[:, None, None]
+    return (p2, J) if with_points else J
 
 
 def plane_homography(K1: np.ndarray, K2: np.ndarray, R: np.ndarray, t: np.ndarray,
