@@ -163,7 +163,7 @@ class FrontendConfig(Options):
             resolution. The candidates, the flow Jacobian and the patch refinement stay at
             full resolution, so the refinement restores the accuracy: at 1241x376 (flow at
             620x188) the KITTI and rendered drives were as accurate as with the full-resolution
-            flow, and replay was about 10 % faster (README, Accuracy and speed).
+            flow, and replay was 5-11 % faster (two runs; README, Accuracy and speed).
         fb_preset: DIS preset of the backward flow used only for the forward-backward check.
         fb_threshold: maximum forward-backward flow error in pixels; 0 (the default) disables
             the check and the backward flow: after the patch refinement, whose convergence and
