@@ -49,6 +49,7 @@ from planar_vo.core.robust import VotingConfig, vote_planar_motion
 from planar_vo.core.robust.general import (
     CHI2_3_99,
     GATE,
+    PRIOR_SIGMAS,
     PlanarPrior,
     ac_design,
     chi_square,
@@ -73,7 +74,6 @@ _SECOND_START_RATIO = 1.5     # a second start is refined if its MSAC cost is be
 _PERTURBATION = math.radians(1.0)
 _FLAT_RISE = 0.2
 _HISTORY_MIN = 10             # frames before the measured history replaces the start values
-_PRIOR_START = (math.radians(0.5), math.radians(2.0))       # rotation, elevation: a car's bumps
 _PRIOR_FLOOR = (math.radians(0.02), math.radians(0.1))
 _RECHECK_SHARE, _RECHECK_RELATIVE, _GNC_INFLATION = 0.5, 0.8, 4.0
 # Noise scales above this many times the recent median flag the frame; before any history the
@@ -166,7 +166,7 @@ class MotionEstimator:
         if not self.config.use_prior:
             return None
         if len(self._motions) < _HISTORY_MIN:
-            return PlanarPrior(self.R_lc, *_PRIOR_START, np.zeros(3))
+            return PlanarPrior(self.R_lc, *PRIOR_SIGMAS, np.zeros(3))
         terms = self._level_terms()
         centre = np.median(terms, axis=0)
         spread = np.abs(terms - centre)
@@ -446,7 +446,7 @@ class MotionEstimator:
             return self._failed(n, vstats.flag or 'unreliable', vote)
         R, t = lift_planar(motion.alpha, motion.beta, self.R_lc)
         B = tangent_basis(t)
-        sigma = self.non_planarity if math.isfinite(self.non_planarity) else _PRIOR_START[0]
+        sigma = self.non_planarity if math.isfinite(self.non_planarity) else PRIOR_SIGMAS[0]
         # Level frame: w = R_lc^T [pitch, yaw, roll]; the heading beta turns t about the level
         # vertical, the elevation tilts it out of the plane.
         cov_level = np.diag([sigma ** 2, vstats.covariance[0, 0], sigma ** 2])
@@ -456,7 +456,7 @@ class MotionEstimator:
         dt_dbeta = np.cross(up, t)                   # the heading turns t about the vertical
         dt_delev = np.cross(t, dt_dbeta)             # ... the elevation tilts it
         J = B.T @ np.column_stack([dt_dbeta, dt_delev])
-        cov[3:, 3:] = J @ np.diag([vstats.covariance[1, 1], _PRIOR_START[1] ** 2]) @ J.T
+        cov[3:, 3:] = J @ np.diag([vstats.covariance[1, 1], PRIOR_SIGMAS[1] ** 2]) @ J.T
         est = FrameEstimate(R, t, cov, B, vstats.inliers.copy(), True, None, vote,
                             {'start': 'vote', 'point_scale': vstats.point_scale,
                              'affine_scale': vstats.affine_scale})

@@ -18,6 +18,7 @@ from planar_vo.core.conventions import wrap_angle
 from planar_vo.core.robust import refine
 from planar_vo.core.robust.histogram import circular_kernel
 from planar_vo.core.robust.options import VotingConfig
+from planar_vo.core.robust.stats import CHI2_3_99
 from planar_vo.core.robust.types import (
     PlanarMotion,
     VotingStats,
@@ -229,9 +230,6 @@ def _focal_jacobian(residuals, theta: float, beta: float, log_f: float, eps: flo
 # median 93-351 px, truth 707). The calibrated 1AC machinery is unbiased at any trial focal, so
 # a pair's information on f is its profile cost on a grid of focal lengths instead.
 
-# Cauchy scale of the profile cost: the chi-square(3) 99 % quantile, the voting's inlier gate.
-CHI2_3_99 = 11.34
-
 
 @dataclass(frozen=True)
 class PairProfile:
@@ -354,10 +352,11 @@ def _profile_costs(data: _ProfileData, focals: np.ndarray, point_std: float, aff
     At each focal ``f``: ``q = p / f``, the residuals of the three AC rows whitened by their
     first-order standard deviations with the point noise fixed in pixels (``point_std / f``
     normalised) and the affine noise unitless, so costs compare across ``f``; the cost is
-    ``sum_i w_i c log(1 + chi2_i / c)`` (Cauchy, ``c`` = `CHI2_3_99`: smooth in the motion, an
-    outlier costs about the same at every ``f``), minimised over ``(theta, beta)`` by
-    ``iterations`` IRLS steps from the given start (each a Gauss-Newton solve of the weighted
-    form, `refine.minimize_form`; a grid point stops on its own when its motion stops moving).
+    ``sum_i w_i c log(1 + chi2_i / c)`` (Cauchy, ``c`` = `CHI2_3_99`, the chi-square(3) 99 %
+    quantile: smooth in the motion, an outlier costs about the same at every ``f``), minimised
+    over ``(theta, beta)`` by ``iterations`` IRLS steps from the given start (each a
+    Gauss-Newton solve of the weighted form, `refine.minimize_form`; a grid point stops on its
+    own when its motion stops moving).
     """
     inv = 1.0 / focals
     theta, beta = theta.copy(), beta.copy()

@@ -40,10 +40,12 @@ import numpy as np
 from planar_vo.core.conventions import skew, so3_exp, so3_log
 from planar_vo.core.robust.options import EstimatorConfig
 from planar_vo.core.robust.refine import robust_scales, spatial_clusters
+from planar_vo.core.robust.stats import CHI2_3_99
 
 __all__ = [
     'CHI2_3_99',
     'GeneralMotion',
+    'PRIOR_SIGMAS',
     'PlanarPrior',
     'ac_design',
     'chi_square',
@@ -54,7 +56,6 @@ __all__ = [
     'tangent_basis',
 ]
 
-CHI2_3_99 = 11.345            # 99 % quantile of chi-square with 3 degrees of freedom
 # ACs whose chi-square exceeds GATE take no part in a Gauss-Newton step (far in the tails of
 # chi-square(3), so that an active set chosen at a motion still a little off keeps its inliers).
 GATE = 4.0 * CHI2_3_99
@@ -66,6 +67,9 @@ _MAX_SET_CHANGE = 0.03        # ... and changes the active set by at most this s
 _FINAL_TOLERANCE = 1.0        # out of rounds: a last move below one sigma still counts
 _COVARIANCE_GRID = 6          # k x k image cells of the cluster-robust covariance
 _SCALE_FLOORS = (1e-7, 1e-6)  # numerical floors of the point and affine noise scales
+# The planar prior's sigmas (rad) before any motion is measured: rotation about the level
+# horizontal axes and elevation of travel within a car's bumps.
+PRIOR_SIGMAS = (math.radians(0.5), math.radians(2.0))
 
 
 def essential(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -199,8 +203,8 @@ class PlanarPrior:
     """
 
     R_lc: np.ndarray = field(default_factory=lambda: np.eye(3))
-    sigma_rot: float = math.radians(0.5)
-    sigma_elev: float = math.radians(2.0)
+    sigma_rot: float = PRIOR_SIGMAS[0]
+    sigma_elev: float = PRIOR_SIGMAS[1]
     mean: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def level_terms(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 __all__ = [
+    'CHI2_3_99',
     'HALF_NORMAL_Q25',
     'MAD_TO_SIGMA',
     'few_cluster_factor',
@@ -19,6 +20,7 @@ __all__ = [
 ]
 
 MAD_TO_SIGMA = 1.4826             # sigma / median|x| for a normal
+CHI2_3_99 = 11.3449               # 99 % quantile of chi-square with 3 degrees of freedom
 HALF_NORMAL_Q25 = 0.31864         # lower quartile of |N(0, 1)|
 
 # The statistics of a vote's peak (beta votes, mean shift, noise scales) need a sample of a peak,
