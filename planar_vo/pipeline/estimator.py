@@ -20,7 +20,8 @@ the current mount tilt ``R_lc``, camera -> level camera):
 5. the answers compete on their support (MSAC gain over explaining nothing) at the tightest of
    their noise scales; an unconverged winner gets more rounds;
 6. reliability: a competitor with at least ``ambiguity_ratio`` of the winner's support
-   (``ambiguous``), not settled (``unconverged``), implausible noise scales (``noisy``), too
+   (``ambiguous``), not settled (``unconverged``), implausible noise scales (``noisy``: above
+   4 x the recent median and the nominal accuracy ``voting.point_noise`` / ``affine_noise``), too
    few inliers or too small a share, an imprecise yaw (``imprecise``), a flat minimum
    (``flat``);
 7. online state, from reliable pairs only: noise scales, inlier share, the non-planarity
@@ -396,7 +397,13 @@ class MotionEstimator:
         # A motion that 'fits' only with inflated noise scales explains the data by its noise
         # model, not by its geometry.
         if len(self._scales) >= _HISTORY_MIN:
-            cap_p, cap_a = _MAX_SCALE_RATIO * np.median(np.array(self._scales), axis=0)
+            # Relative to the recent median, but never below the nominal accuracy of ACs
+            # (``voting.point_noise``, ``voting.affine_noise``): a drive's easy stretches set a
+            # median far below it, and the model errors of a sharp turn (an assumed principal
+            # point, lens residuals) then flagged right answers.
+            median_p, median_a = np.median(np.array(self._scales), axis=0)
+            cap_p = max(_MAX_SCALE_RATIO * median_p, self.voting.point_noise)
+            cap_a = max(_MAX_SCALE_RATIO * median_a, self.voting.affine_noise)
         else:
             cap_p, cap_a = _MAX_SCALES
         if best.sp > cap_p or best.sa > cap_a:

@@ -30,8 +30,9 @@ class VotingConfig(Options):
         refine: least-squares refinement of ``(alpha, beta)`` on all inliers' constraints.
         point_noise: point noise in normalised units (pixels / focal length): RANSAC's noise
             level; voting estimates the noise from the data, capped at ``max_noise_factor`` times
-            this.
-        affine_noise: affine noise (unitless): RANSAC's level and voting's cap, as above.
+            this; the general estimator never flags noise scales up to this as implausible.
+        affine_noise: affine noise (unitless): RANSAC's level, voting's cap and the estimator's
+            floor, as above.
         max_noise_factor: cap of the data-driven noise scales relative to the two levels above.
         covariance_grid: ACs are grouped in a grid x grid partition of the image for the
             cluster-robust covariance (neighbouring ACs share errors).
