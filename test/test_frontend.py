@@ -788,3 +788,18 @@ def test_mount_tilt_from_a_rendered_drive_makes_voting_work_on_a_tilted_camera()
     leveled = yaw_errors(tilt.pitch, tilt.roll)
     assert np.max(leveled) < np.deg2rad(0.05)
     assert np.mean(raw) > 5 * np.mean(leveled)
+
+
+@pytest.mark.parametrize('darker', [1, 2])
+def test_flow_acs_survive_an_exposure_change(mild_pair, darker):
+    """One image 30 % darker and offset (auto-exposure, a shadow): the refinement compares
+    patches up to gain and offset, so the ACs are as many and as accurate as without the change
+    (KITTI 05 with the frames' brightness scaled by U(0.75, 1.25): 9 % of frames were lost)."""
+    g1, g2 = mild_pair
+    images = [g1, g2]
+    images[darker - 1] = (images[darker - 1].astype(np.float64) * 0.7 + 8.0).astype(np.uint8)
+    same, acs = extract_acs(g1, g2), extract_acs(*images)
+    point, affine = _errors(acs, MILD)
+    assert len(acs) >= 0.9 * len(same)
+    assert np.median(point) < 0.05 and np.percentile(point, 95) < 0.15
+    assert np.median(affine) < 0.015 and np.percentile(affine, 95) < 0.04

@@ -43,6 +43,7 @@ logger = logging.getLogger(__name__)
 # Parameter order of the warp increment: [da00, da01, da10, da11, dtx, dty], matching the
 # steepest-descent images [Gx ox, Gx oy, Gy ox, Gy oy, Gx, Gy].
 _NPARAM = 6
+_TINY = np.float32(1e-12)    # floor of a warped patch's sum of squares (a flat patch)
 
 
 def patch_offsets(radius: int, stride: int) -> np.ndarray:
@@ -229,8 +230,10 @@ class AffineLKResult:
 
 def _gauss_newton_step(T: np.ndarray, Gx: np.ndarray, Gy: np.ndarray, Hinv: np.ndarray,
                        image2: np.ndarray, p2: np.ndarray, A: np.ndarray, mono: np.ndarray,
-                       radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One inverse-compositional Gauss-Newton iteration for ``M`` patches (see `refine_affines`).
+                       radius: float, energy: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One inverse-compositional Gauss-Newton iteration for ``M`` patches (see `refine_affines`;
+    ``energy``: the templates' sums of squares ``(M,)`` float32).
 
     Returns the updated ``p2 (M, 2)``, ``A (M, 2, 2)``, the step size ``(M,)`` (largest sample
     displacement of the increment, pixels) and the residual ``(M, S)`` before the update.
@@ -243,7 +246,12 @@ def _gauss_newton_step(T: np.ndarray, Gx: np.ndarray, Gy: np.ndarray, Hinv: np.n
     X = _gemm(coeff, mono)
     warped = cv2.remap(image2, X[:m], X[m:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     warped -= warped.mean(axis=1, keepdims=True)
-    r = T - warped
+    # Photometric gain: image 2 may be brighter or darker (auto-exposure, shadows), so the
+    # warped patch is scaled to the template's contrast (the offset is already removed). The
+    # fixed point is unchanged (T = g I2(W(x))), and an anti-correlated patch still leaves a
+    # large residual (a least-squares gain would flip its sign and fit it).
+    gain = np.sqrt(energy / np.maximum(np.einsum('ms,ms->m', warped, warped), _TINY))
+    r = T - gain[:, None] * warped
     # Gradient sum_x SD^T r: (Gx r, Gy r) against (1, ox, oy); T and warped are centred, so the
     # offset's Schur complement (mean steepest-descent image times sum(r)) vanishes.
     q = _gemm(np.stack([Gx * r, Gy * r], axis=1).reshape(-1, s), mono.T.copy()).reshape(m, 2, 3)
@@ -319,6 +327,7 @@ def refine_affines(template: Template, image2: np.ndarray, p2: np.ndarray, A: np
     residual = np.full(n, np.inf)
     alive = template.ok.copy()
     active = np.flatnonzero(alive)
+    energy = (template.contrast ** 2 * s).astype(np.float32)
     for it in range(max(max_iterations, 1)):
         if it >= iterations:
             active = active[last[active] >= tolerance]
@@ -330,8 +339,9 @@ def refine_affines(template: Template, image2: np.ndarray, p2: np.ndarray, A: np
             args = (template.values[active], template.gx[active], template.gy[active],
                     Hinv[:, :, active], p2[active], A[active])
         T, Gx, Gy, Hi, p2_a, A_a = args
-        p2_new, A_new, step, r = _gauss_newton_step(T, Gx, Gy, Hi, image2, p2_a, A_a, mono,
-                                                    radius)
+        p2_new, A_new, step, r = _gauss_newton_step(
+            T, Gx, Gy, Hi, image2, p2_a, A_a, mono, radius,
+            energy if active.size == n else energy[active])
         residual[active] = np.sqrt(np.einsum('ns,ns->n', r, r).astype(np.float64)
                                    / max(s - _NPARAM - 1, 1))
         # A patch whose step explodes has lost its match: freeze it (and flag it) instead of
