@@ -10,7 +10,14 @@ import cv2
 import numpy as np
 import pytest
 
-from planar_vo.bench.drives import camera_pose, find_drives, first_frames, level_world
+from planar_vo.bench.drives import (
+    STRESS,
+    camera_pose,
+    find_drives,
+    first_frames,
+    level_world,
+    stress_folder,
+)
 from planar_vo.bench.odometry import FIVE_POINT, SOURCES, OdometryRun, chain_camera_motions
 from planar_vo.cli import main
 from planar_vo.core.camera import CameraModel
@@ -111,6 +118,18 @@ def test_planar_vo_runs_are_reported_with_their_focal_length(report):
     assert len(six['per_pair_px']) == 14
 
 
+def test_harder_conditions_are_run_and_reported(report):
+    text, results = report
+    stress = results['drives'][DRIVE]['stress']
+    assert list(stress) == [key for key, *_ in STRESS]
+    assert '### Harder conditions (planar_vo, calibrated; no peers)' in text
+    assert [stress[k]['frames'] for k in ('x2', 'x3', 'flicker', 'centre')] == [8, 5, 15, 15]
+    for run in stress.values():
+        assert f"| {run['label']} |" in text
+        # Rendered frames: harder, but still tracked (the true principal point is the centre).
+        assert run['odometry_pct'] > 70.0 and run['yaw_change_error_deg']['mean'] < 0.2, run
+
+
 # ---------------------------------------------------------------------------------------------
 # Helpers, on exact data
 # ---------------------------------------------------------------------------------------------
@@ -179,6 +198,30 @@ def test_first_frames_is_the_same_drive_cut_short(data, tmp_path):
     assert first_frames(data / DRIVE, 100, tmp_path) == data / DRIVE
 
 
+def test_stress_folders_hold_the_drive_in_harder_conditions(data, tmp_path):
+    full = read_kitti_sequence(data / DRIVE)
+    fast = read_kitti_sequence(stress_folder(data / DRIVE, 'stride', 3, tmp_path / 'x3'))
+    assert len(fast.images) == 5
+    np.testing.assert_array_equal(fast.poses, full.poses[::3])
+    assert fast.times == full.times[::3]
+    for k, path in enumerate(fast.images):
+        assert path.resolve() == full.images[3 * k].resolve()
+    flicker = read_kitti_sequence(stress_folder(data / DRIVE, 'flicker', 0.25, tmp_path / 'f'))
+    for i in (0, 7):
+        a = cv2.imread(str(full.images[i]), cv2.IMREAD_UNCHANGED).astype(np.float64)
+        b = cv2.imread(str(flicker.images[i]), cv2.IMREAD_UNCHANGED).astype(np.float64)
+        gain = np.random.default_rng(i).uniform(0.75, 1.25)
+        unsaturated = a * gain < 254.5
+        assert np.abs(b - a * gain)[unsaturated].max() <= 0.5 + 1e-9
+    np.testing.assert_array_equal(flicker.poses, full.poses)
+    centre = read_kitti_sequence(stress_folder(data / DRIVE, 'centre', 0, tmp_path / 'c'))
+    expected = full.P0.copy()
+    expected[0, 2], expected[1, 2] = (CAMERA.width - 1) / 2.0, (CAMERA.height - 1) / 2.0
+    np.testing.assert_array_equal(centre.P0, expected)
+    with pytest.raises(InputError, match="kind: expected 'stride', 'flicker' or 'centre'"):
+        stress_folder(data / DRIVE, 'rain', 1, tmp_path / 'r')
+
+
 # ---------------------------------------------------------------------------------------------
 # Bad input
 # ---------------------------------------------------------------------------------------------
@@ -214,12 +257,13 @@ def test_bad_options_are_one_line_and_exit_1(data, tmp_path, capsys, options, me
 def test_planar_vo_alone_on_the_first_frames(data, tmp_path, capfd):
     out = tmp_path / 'out'
     assert main(['bench', 'drives', '--data', str(data), '--out', str(out), '--frames', '4',
-                 '--skip-peers', '--skip-focal']) == 0
+                 '--skip-peers', '--skip-focal', '--skip-stress']) == 0
     text = (out / 'drives.md').read_text()
     results = json.loads((out / 'drives.json').read_text())
-    assert '--frames 4 --skip-peers --skip-focal' in text and 'Focal length' not in text
+    assert '--frames 4 --skip-peers --skip-focal --skip-stress' in text
+    assert 'Focal length' not in text and '### Harder conditions' not in text
     drive = results['drives'][DRIVE]
-    assert drive['frames'] == 4 and set(drive['runs']) == {'planar_vo'}
+    assert drive['frames'] == 4 and set(drive['runs']) == {'planar_vo'} and 'stress' not in drive
     assert drive['runs']['planar_vo']['frames_with_odometry'] == 3
     assert f'## {DRIVE}: 4 frames' in capfd.readouterr().out        # printed as it goes
 
@@ -232,5 +276,5 @@ def test_cli_defaults():
     args = build_parser().parse_args(['bench', 'drives'])
     assert (args.data, args.drives, args.camera_height, args.frames) == \
         (Path('../shared/data'), None, 1.65, None)
-    assert not (args.skip_peers or args.skip_focal or args.quick)
+    assert not (args.skip_peers or args.skip_focal or args.skip_stress or args.quick)
     assert args.out == 'out/bench/drives'

@@ -19,6 +19,10 @@ run it, and the peers run on the same frames:
   length between consecutive frames (from ``poses.txt``), which planar_vo does not get.
 - **Focal peer**: PoseLib's shared-focal six-point RANSAC and refinement on (a), per frame pair;
   the median of its per-pair focal lengths.
+- **Harder conditions** (planar_vo calibrated only, `STRESS`): the same drive driven faster
+  (every 2nd and every 3rd frame), with exposure flicker (each frame's brightness scaled by
+  U(0.75, 1.25)), and with the principal point assumed at the image centre (what a user with an
+  approximate calibration has); each as its own KITTI folder, imported and replayed as above.
 
 Evaluation (`planar_vo.tools.evaluation`): camera trajectories (``T_world_camera``, world = the
 first camera frame, as in ``poses.txt``) are put into one z-up frame the same way for every run
@@ -95,6 +99,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='only the first N frames of each drive')
     for flag, text in (('--skip-peers', 'no five-point peers'),
                        ('--skip-focal', 'no focal self-calibration run and no focal peer'),
+                       ('--skip-stress', 'no runs in harder conditions (faster driving, '
+                                         'exposure flicker, an assumed principal point)'),
                        ('--quick', f'smoke run: the first {QUICK_FRAMES} frames of each drive '
                                    f'(unless --frames)')):
         parser.add_argument(flag, action='store_true', help=text)
@@ -120,6 +126,9 @@ def run(args: argparse.Namespace) -> int:
         start = time.perf_counter()
         results[folder.name] = run_drive(folder, args.camera_height, frames=frames,
                                          peers=not args.skip_peers, focal=not args.skip_focal)
+        if not args.skip_stress:
+            results[folder.name]['stress'] = run_stress(folder, args.camera_height,
+                                                        frames=frames)
         results[folder.name]['wall_s'] = time.perf_counter() - start
         print(drive_section(folder.name, results[folder.name]) + '\n', flush=True)
     write_results(Path(args.out), args.command, args.camera_height, results)
@@ -176,16 +185,91 @@ def first_frames(folder: Path, count: int, into: Path) -> Path:
     (view / 'image_l').mkdir(parents=True)
     for path in seq.images[:count]:
         (view / 'image_l' / path.name).symlink_to(path.resolve())
+    _write_texts(view, seq.P0, seq.times[:count], seq.poses[:count])
+    return view
 
+
+def _write_texts(view: Path, P0: np.ndarray, times: np.ndarray, poses: np.ndarray) -> None:
+    """``calib.txt`` (P0 only), ``times.txt`` and ``poses.txt`` of a KITTI drive folder."""
     def numbers(values: np.ndarray) -> str:
         return ' '.join(repr(float(v)) for v in values.ravel())
 
-    (view / 'calib.txt').write_text(numbers(seq.P0) + '\n', encoding='utf-8')
-    (view / 'times.txt').write_text(''.join(f'{t}\n' for t in seq.times[:count]),
+    (view / 'calib.txt').write_text(numbers(P0) + '\n', encoding='utf-8')
+    (view / 'times.txt').write_text(''.join(f'{t}\n' for t in times), encoding='utf-8')
+    (view / 'poses.txt').write_text(''.join(numbers(p[:3]) + '\n' for p in poses),
                                     encoding='utf-8')
-    (view / 'poses.txt').write_text(''.join(numbers(p[:3]) + '\n' for p in seq.poses[:count]),
-                                    encoding='utf-8')
-    return view
+
+
+# The drive in harder conditions (module docstring): key, label, kind, parameter.
+STRESS = (
+    ('x2', 'every 2nd frame (2x speed)', 'stride', 2),
+    ('x3', 'every 3rd frame (3x speed)', 'stride', 3),
+    ('flicker', 'exposure flicker (brightness x U(0.75, 1.25) per frame)', 'flicker', 0.25),
+    ('centre', 'principal point assumed at the image centre', 'centre', 0),
+)
+
+
+def stress_folder(folder: Path, kind: str, value: float, into: Path) -> Path:
+    """A KITTI drive folder in ``into`` holding ``folder`` in a harder condition: ``'stride'``
+    (every ``value``-th frame), ``'flicker'`` (frame ``i``'s brightness times a gain drawn from
+    ``U(1 - value, 1 + value)`` with seed ``i``, saturating at 255) or ``'centre'`` (the
+    principal point of ``calib.txt`` moved to the image centre)."""
+    import cv2
+
+    from planar_vo.io.kitti import read_kitti_sequence
+
+    if kind not in ('stride', 'flicker', 'centre'):
+        raise InputError(f"kind: expected 'stride', 'flicker' or 'centre', got {kind!r}")
+    seq = read_kitti_sequence(folder)
+    index = np.arange(0, len(seq.images), int(value) if kind == 'stride' else 1)
+    (into / 'image_l').mkdir(parents=True)
+    P0 = np.array(seq.P0, dtype=np.float64)
+    for k, i in enumerate(index):
+        target = into / 'image_l' / f'{k:06d}{seq.images[i].suffix}'
+        if kind == 'flicker':
+            image = cv2.imread(str(seq.images[i]), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                raise InputError(f"'{seq.images[i]}' is not a readable image")
+            gain = np.random.default_rng(int(i)).uniform(1.0 - value, 1.0 + value)
+            cv2.imwrite(str(target), np.clip(np.rint(image * gain), 0, 255).astype(np.uint8))
+        else:
+            target.symlink_to(seq.images[i].resolve())
+    if kind == 'centre':
+        image = cv2.imread(str(seq.images[0]), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise InputError(f"'{seq.images[0]}' is not a readable image")
+        P0[0, 2], P0[1, 2] = (image.shape[1] - 1) / 2.0, (image.shape[0] - 1) / 2.0
+    _write_texts(into, P0, np.asarray(seq.times)[index], np.asarray(seq.poses)[index])
+    return into
+
+
+def run_stress(folder: Path, height: float, *, frames: int | None = None) -> dict:
+    """planar_vo (shipped defaults + camera height, calibrated) on ``folder`` in every `STRESS`
+    condition: per key its label, frame count and `evaluate_run` metrics."""
+    from planar_vo.config import PlanarVoConfig
+    from planar_vo.core.trajectory import Trajectory
+    from planar_vo.io import import_kitti
+    from planar_vo.io.kitti import read_kitti_sequence
+
+    progress = sys.stderr.isatty()
+    config = PlanarVoConfig.from_flat({'mount.height': float(height)})
+    out = {}
+    with tempfile.TemporaryDirectory(prefix='planar_vo_stress_') as tmp:
+        tmp = Path(tmp)
+        source = first_frames(folder, frames, tmp / 'source') if frames else folder
+        for key, label, kind, value in STRESS:
+            view = stress_folder(source, kind, value, tmp / key / 'drive')
+            seq = read_kitti_sequence(view)
+            import_kitti(view, tmp / key / 'bag', camera_height=height, progress=progress)
+            run = replay_planar_vo(tmp / key / 'bag', tmp / key / 'replayed', config,
+                                   progress=progress)
+            if len(run.stamps_ns) != len(seq.images):
+                raise InputError(f'{folder.name} ({label}): the replay saw '
+                                 f'{len(run.stamps_ns)} frames of {len(seq.images)}')
+            gt = Trajectory.from_poses(run.stamps_ns, level_world(seq.poses, height))
+            out[key] = {'label': label, 'frames': len(seq.images), **run.extra,
+                        **evaluate_run(gt, run, height)}
+    return out
 
 
 def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: bool = True,
@@ -476,8 +560,32 @@ def drive_section(name: str, drive: dict) -> str:
              f"10 frames. The peers' scale is the TRUE step length between consecutive frames."]
     if 'focal' in drive:
         lines += ['', focal_table(drive)]
+    if 'stress' in drive:
+        lines += ['', stress_table(drive)]
     lines += ['', targets(drive)]
     return '\n'.join(lines)
+
+
+def stress_table(drive: dict) -> str:
+    """Markdown: planar_vo (calibrated) on the drive as recorded and in harder conditions."""
+    from planar_vo.bench.common import markdown_table
+
+    key, segments = _protocol(drive)
+    header = ['condition', 'frames', 'frames with odometry (%)', 'frames lost (reasons)',
+              'yaw-change error, mean abs. (deg)', f'r_rel 3D (deg/100 m), {segments}',
+              'r_rel SE(2) (deg/100 m)', 't_rel 3D (%)', 'Sim(3) scale']
+    rows = []
+    for label, frames, r in [('as recorded', drive['frames'], drive['runs']['planar_vo'])] + [
+            (r['label'], r['frames'], r) for r in drive['stress'].values()]:
+        lost = {k: v for k, v in r.get('dropped', {}).items() if k != 'first_frame'}
+        rows.append([label, str(frames), _fmt(r['odometry_pct']),
+                     ', '.join(f'{k} {v}' for k, v in lost.items()) or '-',
+                     _fmt(_get(r, 'yaw_change_error_deg', 'mean')),
+                     _fmt(_get(r, key, 'r_rel_deg_per_100m')),
+                     _fmt(_get(r, f'{key}_se2', 'r_rel_deg_per_100m')),
+                     _fmt(_get(r, key, 't_rel_pct')), _fmt(_get(r, 'sim3_scale'), 4)])
+    return '\n'.join(['### Harder conditions (planar_vo, calibrated; no peers)', '',
+                      markdown_table(header, rows, 'lrrl' + 'r' * (len(header) - 4))])
 
 
 def focal_table(drive: dict) -> str:
@@ -642,6 +750,10 @@ def method_notes(height: float) -> str:
         f'- **Focal peer**: PoseLib shared-focal six-point (PoseLib defaults, {THRESHOLD_PX:g} '
         f'px) on (a), pixels about the image centre; its per-pair focal lengths are voted by '
         f'their **median**.',
+        '- **Harder conditions**: the calibrated planar_vo run again on the drive driven '
+        'faster (every 2nd / 3rd frame), with exposure flicker (frame i\'s brightness times '
+        'U(0.75, 1.25), seed i) and with the principal point assumed at the image centre; '
+        'each imported and replayed like the drive itself, no peers.',
         '- **Evaluation**: camera trajectories (world = the first camera frame) and the ground '
         'truth in one z-up frame (a level mount at the camera height); ATE after Sim(3) '
         'alignment, the alignment\'s scale (> 1: the estimate is too short); KITTI-protocol '
