@@ -208,7 +208,8 @@ class AffineLKResult:
     Attributes:
         p2: refined points in image 2, ``(N, 2)`` pixels.
         A: refined affines ``(N, 2, 2)``.
-        residual: RMS photometric residual after the offset is removed, ``(N,)`` grey levels.
+        residual: RMS photometric residual after the offset and gain are removed, ``(N,)``
+            grey levels.
         sigma_A: predicted standard error of ``A`` (Frobenius), ``(N,)``, from
             ``residual^2 H^-1`` (the Gauss-Newton covariance).
         sigma_p: predicted standard error of ``p2`` (pixels), ``(N,)``.
@@ -283,7 +284,8 @@ def refine_affines(template: Template, image2: np.ndarray, p2: np.ndarray, A: np
     """Refine the warps ``W(x) = p2 + A x`` of all template patches in image 2.
 
     Inverse-compositional Gauss-Newton (Baker and Matthews 2004): with residual
-    ``r = T(x) - I2(W(x))`` (both centred), the increment is ``d = -H^-1 sum_x SD^T r`` and the warp
+    ``r = T(x) - g I2(W(x))`` (both centred, ``g`` scaling the warped patch to the template's
+    contrast), the increment is ``d = -H^-1 sum_x SD^T r`` and the warp
     is updated by composing with the inverse increment, ``W <- W o W(d)^-1``, i.e.
     ``A <- A (I + dA)^-1``, ``p2 <- p2 - A_new dt``.
 
