@@ -262,12 +262,13 @@ def write_faulty_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
     """A bag of the drive's first 30 frames with faults injected, in this order (F3 = frame 3):
 
     no camera info for F0-F2, then camera info with every image: F0 and F1 are no_camera_info,
-    F2 waits in the node's slot for the first CameraInfo (it comes just before F3) and starts the
-    keyframe chain; F6 as 32FC1 and F7 as yuv422 (bad_image x2); a camera info with K all
-    zeros before F8 (ignored, the last valid one stays); F9 black and F10 saturated
-    (blank_image x2); F12 twice (duplicate_stamp); after F13 the image of F11 again
-    (out_of_order); F14 and F15 missing (a gap); F18 at half size (size_changed: a stray frame,
-    dropped, while tracking continues).
+    F2 waits in the node's slot for the first CameraInfo (it comes 50 ms before F3: DDS does not
+    order two topics, and with the 1 us lead of a driver F3 itself overtook it on a loaded
+    machine, so F2 was counted no_camera_info) and starts the keyframe chain; F6 as 32FC1 and
+    F7 as yuv422 (bad_image x2); a camera info with K all zeros before F8 (ignored, the last
+    valid one stays); F9 black and F10 saturated (blank_image x2); F12 twice (duplicate_stamp);
+    after F13 the image of F11 again (out_of_order); F14 and F15 missing (a gap); F18 at half
+    size (size_changed: a stray frame, dropped, while tracking continues).
 
     Returns the expected ``(stamp_ns, result)`` of every image message, in publishing order.
     """
@@ -284,7 +285,7 @@ def write_faulty_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
         slot[0] += 1
         if info is not False:
             k = CAMERA.K if info is True else info
-            entries.append((CAMERA_INFO_TOPIC, info_type, log_ns - 1000,
+            entries.append((CAMERA_INFO_TOPIC, info_type, log_ns - 50_000_000,
                             camera_info_msg(stamp_ns, 640, 480, 500.0, k=k)))
         entries.append((IMAGE_TOPIC, image_type, log_ns, image_message))
         expected.append((stamp_ns, result))
