@@ -145,6 +145,57 @@ def test_road_scale_std_is_honest_over_many_noisy_frames(point, sigma_rot, sigma
     assert abs(float(np.mean(z))) < 0.25
 
 
+def _cambered_road(rng, step: float, camber: float, count: int = 800):
+    """Noisy ACs of a road whose surface rises by ``camber x^2`` (m) at the lateral distance
+    ``x`` from the line of travel (a road in a shallow trough: kerbs, gutters, verges); each
+    AC's affine is that of the surface's tangent plane. Returns the scene and ``x``."""
+    n = normal_from_tilt(PITCH, ROLL)
+    R, t = _motion()
+    side = np.cross(n, t)
+    side /= np.linalg.norm(side)
+    q1 = np.column_stack([rng.uniform(-0.6, 0.6, count), rng.uniform(0.06, 0.28, count)])
+    Q1 = np.column_stack([q1, np.ones(count)])
+    a, b = Q1 @ side, Q1 @ n
+    # The ray X = lam Q1 meets n.X + camber (side.X)^2 = HEIGHT.
+    lam = 2.0 * HEIGHT / (b + np.sqrt(b * b + 4.0 * camber * a * a * HEIGHT))
+    X1 = Q1 * lam[:, None]
+    x = X1 @ side
+    X2 = X1 @ R.T + step * t
+    q2 = X2[:, :2] / X2[:, 2:]
+    A = np.empty((count, 2, 2))
+    for i in range(count):
+        normal = n + 2.0 * camber * x[i] * side          # the tangent plane normal . X = d
+        A[i] = homography_jacobian(R + step * np.outer(t, normal) / (normal @ X1[i]),
+                                   q1[i:i + 1])[0]
+    q2 = q2 + rng.normal(0.0, 1e-3, q2.shape)
+    A = A + rng.normal(0.0, 0.01, A.shape)
+    return q1, q2, A, R, t, n, x
+
+
+def test_road_scale_lateral_weights_favour_the_surface_under_the_car(rng):
+    """The camera height holds for the surface under the car. A road rising to the sides by
+    0.1 m at 5 m makes the plain mean of the road ACs' steps long; the Gaussian lateral
+    weights keep part of that bias out. On a plane they change nothing."""
+    q1, q2, A, R, t, n, _ = _scene(rng, 1.3)
+    flat = road_scale(q1, q2, A, R, t, n, HEIGHT, point_sigma=1.5e-3, lateral_std=3.5)
+    assert abs(flat.scale - 1.3) < 1e-9
+    step = 1.2
+    for _ in range(3):
+        q1, q2, A, R, t, n, _ = _cambered_road(rng, step, 0.004)
+        plain = road_scale(q1, q2, A, R, t, n, HEIGHT, point_sigma=1.5e-3)
+        weighted = road_scale(q1, q2, A, R, t, n, HEIGHT, point_sigma=1.5e-3, lateral_std=3.5)
+        assert plain.count > 500 and weighted.count > 500
+        assert plain.scale > 1.015 * step                        # measured: 1.019-1.021
+        assert weighted.scale - step < 0.8 * (plain.scale - step)  # measured: 0.69-0.73
+        # The weights: the Gaussian of each road AC's lateral distance on the plane n.X = h.
+        m = weighted.mask
+        side = np.cross(n, t) / np.linalg.norm(np.cross(n, t))
+        lateral = HEIGHT * (q1[m] @ side[:2] + side[2]) / (q1[m] @ n[:2] + n[2])
+        w = np.exp(-0.5 * (lateral / 3.5) ** 2)
+        assert weighted.scale == pytest.approx(
+            np.average(_per_ac(q1[m], q2[m], R, t, n), weights=w), abs=1e-12)
+
+
 def test_road_scale_without_enough_road_gives_nan(rng):
     q1, q2, A, R, t, n, is_road = _scene(rng, 1.0, road=8, wall=100)
     res = road_scale(q1, q2, A, R, t, n, HEIGHT, point_sigma=1.5e-3)
@@ -178,6 +229,8 @@ def test_road_scale_input_errors(rng):
         road_scale(q1, q2, A, R, t, n, 0.0, **ok)
     with pytest.raises(ConfigError, match=r'point_sigma: expected a positive number'):
         road_scale(q1, q2, A, R, t, n, HEIGHT, point_sigma=0.0)
+    with pytest.raises(ConfigError, match=r'lateral_std: expected a non-negative distance'):
+        road_scale(q1, q2, A, R, t, n, HEIGHT, lateral_std=-1.0, **ok)
 
 
 # --------------------------------------------------------------------------------------------

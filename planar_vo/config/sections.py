@@ -254,6 +254,12 @@ class ScaleConfig(Options):
         ground_point_std: point noise (pixels) of the road test (the front-end's accuracy).
         ground_affine_std: affine noise (unitless) of the road test.
         ground_gate: whitened RMS residual (points and affine) above which an AC is not road.
+        ground_lateral_std: road ACs count for the step with a Gaussian weight of their lateral
+            distance (m) from the car's line of travel, this standard deviation; 0 weighs all
+            alike. The camera height is the height above the surface the car stands on; a
+            road's crown and gutters, curbs, parking strips and sidewalks lie at other heights
+            (KITTI 06 excerpt: steps from road ACs more than 3 m to the right 8.5 % long, those
+            within 1 m of the line of travel 1 % short). The default is a lane's width.
         ground_normal_std: standard deviation (rad) of the road ahead's normal against the
             calibrated one in a single frame (car pitch on its suspension, slope changes;
             measured on KITTI about 0.2 deg); added to the calibration's own.
@@ -276,6 +282,8 @@ class ScaleConfig(Options):
     ground_point_std: float = bounded(1.0, 0.0, low_open=True, expected='a positive number')
     ground_affine_std: float = bounded(0.03, 0.0, low_open=True, expected='a positive number')
     ground_gate: float = bounded(3.0, 0.0, low_open=True, expected='a positive number')
+    ground_lateral_std: float = bounded(
+        3.5, 0.0, expected='a non-negative distance in m (0: no lateral weighting)')
     ground_normal_std: float = bounded(0.00349, 0.0, 0.1, high_open=True,
                                        expected='an angle in [0, 0.1) rad')
     ground_normal_frames: int = bounded(200, 2)

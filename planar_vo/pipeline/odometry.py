@@ -550,7 +550,8 @@ class VisualOdometry:
                               sigma_normal=normal_std,
                               max_depth=cfg.ground_max_depth,
                               affine_sigma=cfg.ground_affine_std, gate=cfg.ground_gate,
-                              min_count=cfg.ground_min_correspondences)
+                              min_count=cfg.ground_min_correspondences,
+                              lateral_std=cfg.ground_lateral_std)
 
         before = self.road_normal
         rs = measure(before[0], before[1], math.hypot(before[2], cfg.ground_normal_std))

@@ -346,6 +346,7 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
                affine_sigma: float = ScaleConfig.ground_affine_std,
                gate: float = ScaleConfig.ground_gate,
                min_count: int = ScaleConfig.ground_min_correspondences,
+               lateral_std: float = 0.0,
                s_prior: float | None = None) -> RoadScale:
     """Step length from road ACs, for a general motion and an explicit road normal.
 
@@ -365,7 +366,11 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
     affine only *selects* road ACs: on KITTI the front-end's road affines are biased (the
     vertical foreshortening ``a4 - 1`` about 8 % low), so they do not measure ``s``.
 
-    Estimate: the weighted mean of the road ACs' ``s_i`` after a 3-MAD clip. Variance:
+    Estimate: the weighted mean of the road ACs' ``s_i`` after a 3-MAD clip; with
+    ``lateral_std`` the weights are multiplied by ``exp(-x_i^2 / (2 lateral_std^2))``, ``x_i``
+    the road point's distance from the line of travel (along ``n x t``): the height is known
+    for the surface under the car, and the rest of the road (crown, gutters, curbs, sidewalks)
+    may lie higher or lower. Variance:
 
         std^2 = std_stat^2 + sigma_rot^2 (ds/dw_x^2 + ds/dw_z^2)
                 + sigma_normal^2 (ds/dpitch^2 + ds/droll^2),
@@ -401,6 +406,8 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
         affine_sigma: affine noise (unitless) of the road test.
         gate: whitened RMS residual above which an AC is not road.
         min_count: fewer road ACs give no estimate (NaN).
+        lateral_std: standard deviation (m) of the Gaussian weight of a road AC's lateral
+            distance from the line of travel; 0 weighs all alike.
         s_prior: step (m) to start the road test from (e.g. the last step); None: the weighted
             median of all candidates.
 
@@ -432,6 +439,9 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
                         ('gate', gate)):
         if not (math.isfinite(value) and value > 0.0):
             raise ConfigError(f'{name}: expected a positive number, got {value}')
+    if not (math.isfinite(lateral_std) and lateral_std >= 0.0):
+        raise ConfigError(f'lateral_std: expected a non-negative distance (m), got '
+                          f'{lateral_std}')
     if not (math.isfinite(min_elevation) and min_count >= 1):
         raise ConfigError(f'min_elevation, min_count: expected a finite number and at least 1, '
                           f'got {min_elevation}, {min_count}')
@@ -462,6 +472,13 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
     if idx.size < min_count:
         return failed
     ws, labels = w[below], labels[below]
+    lateral = np.cross(n, t)
+    width = float(np.linalg.norm(lateral))
+    if lateral_std > 0.0 and width > 1e-6:
+        # Lateral offset of the road point X1 = lam Q1 from the line of travel.
+        lateral /= width
+        x = lam * (lateral[0] * u1 + lateral[1] * v1 + lateral[2])
+        ws = ws * np.exp(-0.5 * (x / lateral_std) ** 2)
     s0 = s_prior if s_prior is not None else _robust_mean(s_i[idx], ws[idx], labels[idx])[0]
     # Road test, twice: point residual |s_i - s0| |b| / depth (first order: ds_i/dq2 ~
     # depth / |b|) and the affine's distance to the road homography's Jacobian at s0.
