@@ -20,6 +20,7 @@ from planar_vo.core.conventions import (
     yaw_of,
 )
 from planar_vo.core.correspondences import AffineCorrespondences
+from planar_vo.core.homography import apply_homography
 from planar_vo.errors import CameraModelError, InputError
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 510.0, 240.0], [0.0, 0.0, 1.0]])
@@ -181,3 +182,35 @@ def test_correspondences_normalized_matches_chain_rule(rng):
 def test_correspondences_check_shapes():
     with pytest.raises(InputError, match=r'same number of items: p1 has 3, p2 has 3, A has 2'):
         AffineCorrespondences(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((2, 2, 2)))
+
+
+def test_correspondences_transformed_says_which_items_it_kept():
+    """Items whose map gives a finite point but a non-finite Jacobian (or, in image 1, a
+    singular one: ``A J1^-1``) are dropped as well as those mapped to NaN, and the mask says
+    which: a finite-point check alone would keep them and pair other per-item arrays wrongly
+    with the result."""
+    p1 = np.array([[0.0, 0.0], [0.5, 0.1], [-0.5, 0.2], [0.3, -0.1], [0.2, 0.2]])
+    acs = AffineCorrespondences(p1, p1 + 0.01, np.tile(np.eye(2), (5, 1, 1)),
+                                np.array([0.1, 0.2, 0.3, 0.4, 0.5]))
+
+    def identity(p):
+        return p.copy(), np.tile(np.eye(2), (len(p), 1, 1))
+
+    def faulty(p):
+        g, J = identity(p)
+        J[0] = np.inf                   # finite point, overflowing Jacobian
+        J[2] = 0.0                      # singular Jacobian (image 1 only)
+        g[3] = np.nan                   # no point
+        return g, J
+
+    out, kept = acs.transformed_kept(faulty, identity)
+    assert kept.tolist() == [False, True, False, False, True]
+    np.testing.assert_array_equal(out.p1, p1[kept])
+    np.testing.assert_array_equal(out.weights, [0.2, 0.5])
+    assert acs.transformed_kept(identity, faulty)[1].tolist() == [False, True, True, False, True]
+    # A rotation keeps every ray in front of the camera, and mapped() is mapped_kept()'s ACs.
+    R = rotation_rpy(0.1, -0.2, 0.05)
+    level, kept = acs.mapped_kept(R)
+    assert kept.all()
+    np.testing.assert_allclose(level.p1, apply_homography(R, p1))
+    np.testing.assert_array_equal(acs.mapped(R).A, level.A)

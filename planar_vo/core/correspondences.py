@@ -55,43 +55,54 @@ class AffineCorrespondences:
     def transformed(self, map1, map2) -> AffineCorrespondences:
         """Apply point maps ``p -> (g(p), J_g(p))`` to each image: ``A' = J2 A J1^-1``.
 
-        Items that a map sends to NaN (e.g. undistortion outside the calibrated field) are
-        dropped.
+        Items that a map sends to NaN (e.g. undistortion outside the calibrated field) or whose
+        Jacobian is not finite or singular are dropped (`transformed_kept` also says which).
         """
+        return self.transformed_kept(map1, map2)[0]
+
+    def transformed_kept(self, map1, map2) -> tuple[AffineCorrespondences, np.ndarray]:
+        """`transformed` and the ``(N,)`` bool mask of the items it kept, so that other arrays
+        item by item with these ACs can be cut the same way."""
         g1, J1 = map1(self.p1)
         g2, J2 = map2(self.p2)
         ok = np.isfinite(g1).all(1) & np.isfinite(g2).all(1)
         ok &= np.isfinite(J1).all((1, 2)) & np.isfinite(J2).all((1, 2))
-        j00, j01, j10, j11 = J1[:, 0, 0], J1[:, 0, 1], J1[:, 1, 0], J1[:, 1, 1]
-        det = j00 * j11 - j01 * j10
-        ok &= det != 0.0
-        inv_det = 1.0 / np.where(ok, det, 1.0)
-        # A J1^-1 (J1^-1 = [[j11, -j01], [-j10, j00]] / det), then J2 (A J1^-1), entry by
-        # entry: batched 2x2 matrix products cost several times more at these sizes.
-        a00, a01, a10, a11 = self.A[:, 0, 0], self.A[:, 0, 1], self.A[:, 1, 0], self.A[:, 1, 1]
-        m00 = (a00 * j11 - a01 * j10) * inv_det
-        m01 = (a01 * j00 - a00 * j01) * inv_det
-        m10 = (a10 * j11 - a11 * j10) * inv_det
-        m11 = (a11 * j00 - a10 * j01) * inv_det
-        A = np.empty_like(self.A, dtype=np.float64)
-        A[:, 0, 0] = J2[:, 0, 0] * m00 + J2[:, 0, 1] * m10
-        A[:, 0, 1] = J2[:, 0, 0] * m01 + J2[:, 0, 1] * m11
-        A[:, 1, 0] = J2[:, 1, 0] * m00 + J2[:, 1, 1] * m10
-        A[:, 1, 1] = J2[:, 1, 0] * m01 + J2[:, 1, 1] * m11
+        # Dropped items may hold inf or NaN: their arithmetic is discarded.
+        with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
+            j00, j01, j10, j11 = J1[:, 0, 0], J1[:, 0, 1], J1[:, 1, 0], J1[:, 1, 1]
+            det = j00 * j11 - j01 * j10
+            ok &= det != 0.0
+            inv_det = 1.0 / np.where(ok, det, 1.0)
+            # A J1^-1 (J1^-1 = [[j11, -j01], [-j10, j00]] / det), then J2 (A J1^-1), entry by
+            # entry: batched 2x2 matrix products cost several times more at these sizes.
+            a00, a01, a10, a11 = self.A[:, 0, 0], self.A[:, 0, 1], self.A[:, 1, 0], self.A[:, 1, 1]
+            m00 = (a00 * j11 - a01 * j10) * inv_det
+            m01 = (a01 * j00 - a00 * j01) * inv_det
+            m10 = (a10 * j11 - a11 * j10) * inv_det
+            m11 = (a11 * j00 - a10 * j01) * inv_det
+            A = np.empty_like(self.A, dtype=np.float64)
+            A[:, 0, 0] = J2[:, 0, 0] * m00 + J2[:, 0, 1] * m10
+            A[:, 0, 1] = J2[:, 0, 0] * m01 + J2[:, 0, 1] * m11
+            A[:, 1, 0] = J2[:, 1, 0] * m00 + J2[:, 1, 1] * m10
+            A[:, 1, 1] = J2[:, 1, 0] * m01 + J2[:, 1, 1] * m11
         if ok.all():
-            return AffineCorrespondences(g1, g2, A, self.weights)
-        return AffineCorrespondences(g1[ok], g2[ok], A[ok], self.weights[ok])
+            return AffineCorrespondences(g1, g2, A, self.weights), ok
+        return AffineCorrespondences(g1[ok], g2[ok], A[ok], self.weights[ok]), ok
 
     def mapped(self, H: np.ndarray) -> AffineCorrespondences:
         """Both views mapped by the homography ``H`` (3x3), e.g. a rotation ``R`` of normalised
         rays (levelling) or ``K R K^-1`` of pixels. Items sent to infinity are dropped."""
+        return self.mapped_kept(H)[0]
+
+    def mapped_kept(self, H: np.ndarray) -> tuple[AffineCorrespondences, np.ndarray]:
+        """`mapped` and the ``(N,)`` bool mask of the items it kept."""
         H = as_array('H', H, (3, 3))
 
         def g(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            with np.errstate(divide='ignore', invalid='ignore'):
+            with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
                 return homography_jacobian(H, p, with_points=True)
 
-        return self.transformed(g, g)
+        return self.transformed_kept(g, g)
 
     def normalized(self, camera1, camera2=None) -> AffineCorrespondences:
         """Ideal normalised coordinates ``K^-1 undistort(p)`` of `CameraModel` s."""

@@ -50,7 +50,6 @@ from planar_vo.core.conventions import (
     so3_log,
 )
 from planar_vo.core.correspondences import AffineCorrespondences
-from planar_vo.core.homography import apply_homography
 from planar_vo.errors import ImageError, PlanarVoError
 from planar_vo.frontend import ACExtractor, leveling_rotation
 from planar_vo.frontend.images import as_gray
@@ -378,14 +377,11 @@ class VisualOdometry:
     def _estimate(self, acs: AffineCorrespondences, camera: CameraModel) -> FrameEstimate:
         """The camera's relative pose since the keyframe (`MotionEstimator`)."""
         norm = acs.normalized(camera)                 # undistorted, K^-1
-        level = norm.mapped(self._estimator.R_lc)
-        if len(level) != len(norm):
-            # A ray the levelling rotation sends behind the camera (only beyond 90 degrees off
-            # axis): drop it from both, so that the two sets stay item by item the same.
-            keep = np.isfinite(apply_homography(self._estimator.R_lc, norm.p1)).all(1) & \
-                np.isfinite(apply_homography(self._estimator.R_lc, norm.p2)).all(1)
-            norm = norm.subset(keep)
-            level = norm.mapped(self._estimator.R_lc)
+        level, kept = norm.mapped_kept(self._estimator.R_lc)
+        if not kept.all():
+            # A ray the levelling rotation sends to infinity (only about 90 degrees off axis):
+            # drop it from both, so that the two sets stay item by item the same.
+            norm = norm.subset(kept)
         est = self._estimator.estimate(norm, level)
         if est.reliable:
             self._calibrate_tilt(est)
