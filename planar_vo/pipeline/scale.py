@@ -472,12 +472,11 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
     if idx.size < min_count:
         return failed
     ws, labels = w[below], labels[below]
-    lateral = np.cross(n, t)
-    width = float(np.linalg.norm(lateral))
-    if lateral_std > 0.0 and width > 1e-6:
+    side = np.cross(n, t)                       # across the line of travel, in the road
+    side_norm = float(np.linalg.norm(side))
+    if lateral_std > 0.0 and side_norm > 1e-6:
         # Lateral offset of the road point X1 = lam Q1 from the line of travel.
-        lateral /= width
-        x = lam * (lateral[0] * u1 + lateral[1] * v1 + lateral[2])
+        x = lam * (side[0] * u1 + side[1] * v1 + side[2]) / side_norm
         ws = ws * np.exp(-0.5 * (x / lateral_std) ** 2)
     s0 = s_prior if s_prior is not None else _robust_mean(s_i[idx], ws[idx], labels[idx])[0]
     # Road test, twice: point residual |s_i - s0| |b| / depth (first order: ds_i/dq2 ~
