@@ -229,3 +229,38 @@ def test_noise_above_an_easy_history_is_flagged_only_beyond_the_nominal_accuracy
     # Beyond both (1.5 px, 0.05): flagged as noisy.
     est, _ = _estimate(street_pair(rng, 800, sigma_px=1.5, sigma_affine=0.05), estimator)
     assert not est.reliable and est.flag == 'noisy', (est.flag, est.stats)
+
+
+def test_second_hypotheses_are_screened_on_a_sample_and_only_new_motions_refined_in_full(
+        monkeypatch):
+    """With most ACs outliers the first answer explains less than half of them, which sends a
+    fresh estimator to its second hypotheses. Each is refined first on an even sample of the
+    ACs; only one that finds another motion with a support that could matter is refined again
+    on all ACs and competes. So the refinements on all ACs are the first answer's plus the
+    competitors' (plus more rounds for an unsettled winner), the sample ones the screened
+    hypotheses', and the answer stays right."""
+    from planar_vo.pipeline import estimator as module
+    sizes = []
+    original = module.refine_general_motion
+
+    def counting(q1, *args, **kwargs):
+        sizes.append(len(q1))
+        return original(q1, *args, **kwargs)
+
+    monkeypatch.setattr(module, 'refine_general_motion', counting)
+    rng = np.random.default_rng(21)
+    screened_pairs = 0
+    for _ in range(6):
+        s = street_pair(rng, 1000, outlier_ratio=0.6, tilt_deg=0.1)
+        sizes.clear()
+        est, _ = _estimate(s)
+        n = len(s.acs)
+        assert est.reliable, est.flag
+        assert _rotation_error_deg(est.R, s.R) < 0.05
+        on_sample = sum(size == module._SCREEN_SIZE for size in sizes)
+        on_all = sum(size == n for size in sizes)
+        assert on_sample + on_all == len(sizes)
+        assert on_sample == est.stats['screened'] >= 2
+        assert est.stats['answers'] <= on_all <= est.stats['answers'] + 1
+        screened_pairs += est.stats['answers'] == 1
+    assert screened_pairs >= 3            # mostly the hypotheses confirm the first answer

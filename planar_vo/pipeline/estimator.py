@@ -16,7 +16,11 @@ the current mount tilt ``R_lc``, camera -> level camera):
 4. second hypotheses when the answer explains less than half of the ACs (and less than 0.8 of
    the recent typical share) or used all its rounds: graduated non-convexity from the best
    start, the same rotation with straight-ahead travel (the other side of the
-   rotation-translation valley), and a vote on the ACs the answer leaves unexplained;
+   rotation-translation valley), and a vote on the ACs the answer leaves unexplained. Each is
+   first refined on an even sample of at most ``_SCREEN_SIZE`` ACs (it only has to find its
+   basin); one that lands on the first answer's motion confirms it and is dropped, one that
+   lands elsewhere with a support that could matter is refined again on all ACs and
+   competes;
 5. the answers compete on their support (MSAC gain over explaining nothing) at the tightest of
    their noise scales; an unconverged winner gets more rounds;
 6. reliability: a competitor with at least ``ambiguity_ratio`` of the winner's support
@@ -38,6 +42,7 @@ sigmas) or generic.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -77,6 +82,12 @@ _FLAT_RISE = 0.2
 _HISTORY_MIN = 10             # frames before the measured history replaces the start values
 _PRIOR_FLOOR = (math.radians(0.02), math.radians(0.1))
 _RECHECK_SHARE, _RECHECK_RELATIVE, _GNC_INFLATION = 0.5, 0.8, 4.0
+# The second hypotheses find their basins on an even sample of this many ACs (step 4).
+_SCREEN_SIZE = 300
+_SCREEN_ROUNDS = 4
+# ... and one whose support on the sample is below this share of the ambiguity ratio times
+# the first answer's is dropped there.
+_SCREEN_MARGIN = 0.5
 # Noise scales above this many times the recent median flag the frame; before any history the
 # generic caps of the voting (5 x its default noise levels) apply.
 _MAX_SCALE_RATIO = 4.0
@@ -110,7 +121,8 @@ class FrameEstimate:
             ``'low_share'``, ``'imprecise'``, ``'ambiguous'``, ``'flat'``, ``'unconverged'``,
             ``'noisy'``).
         vote: ``(alpha, beta, reliable)`` of the planar vote (level frame).
-        stats: diagnostics (start used, costs, scales, rounds, ...).
+        stats: diagnostics (start used, costs, scales, rounds, ``answers``: the answers that
+            competed, ``screened``: second hypotheses screened on a sample, ...).
     """
 
     R: np.ndarray
@@ -145,6 +157,8 @@ class MotionEstimator:
         self.config = EstimatorConfig() if config is None else config
         self.voting = VotingConfig() if voting is None else voting
         self.R_lc = np.eye(3)
+        self._screen_config = dataclasses.replace(
+            self.config, rounds=min(self.config.rounds, _SCREEN_ROUNDS))
         self.reset()
 
     def reset(self) -> None:
@@ -299,18 +313,25 @@ class MotionEstimator:
                    else 1.0)
         if (share < min(_RECHECK_SHARE, _RECHECK_RELATIVE * typical)
                 or first.rounds >= self.config.rounds):
-            answers += self._second_hypotheses(acs, level, M, scored[0], first, prior,
-                                               (sp, sa), (sp0, sa0))
-        return self._decide(acs, M, answers, prior, vote, vstats)
+            more, screened = self._second_hypotheses(acs, level, M, scored[0], first, prior,
+                                                     (sp, sa), (sp0, sa0))
+            answers += more
+        else:
+            screened = 0
+        return self._decide(acs, M, answers, prior, vote, vstats, screened)
 
     def _second_hypotheses(self, acs, level, M, best_start, first, prior, coarse, start_scales):
         """Other answers when the first explains too little or did not settle (module
-        docstring, step 4)."""
+        docstring, step 4): each screened on an even sample of the ACs, refined on all of them
+        only when it found a motion other than the first answer's with a support that could
+        matter. Returns the answers and the number of hypotheses screened."""
         q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
         n = len(acs)
         sp, sa = coarse
         _, chi2_0, _, R0, t0 = best_start
-        answers = []
+        pick = (np.linspace(0, n - 1, _SCREEN_SIZE).astype(np.intp) if n > _SCREEN_SIZE
+                else np.arange(n))
+        qs1, qs2, As, ws, Ms = q1[pick], q2[pick], A[pick], w[pick], M[pick]
         # (a) Graduated non-convexity from the best start: scales several times those measured
         # at the start (inliers of a start ~1 deg off are not yet down-weighted), halved every
         # round down to the first answer's.
@@ -321,35 +342,59 @@ class MotionEstimator:
         spg, sag = noise_scales(r0, g0, h0, active)
         spg, sag = _GNC_INFLATION * max(spg, sp), _GNC_INFLATION * max(sag, sa)
         target = (min(first.sp, sp), min(first.sa, sa))
+        annealed = {'shrink': 0.5, 'target': target}
         # (b) The same rotation with straight-ahead travel: a start on the other side of the
         # rotation-translation (bas-relief) valley.
         forward = -R0 @ (self.R_lc.T @ np.array([0.0, 0.0, 1.0]))
-        for label, t_start in (('gnc', t0), ('forward', forward)):
-            chi2 = chi_square(M, q1, q2, A, R0, t_start, spg, sag)
-            active = (chi2 <= GATE) & (w > 0)
-            if np.count_nonzero(active) >= 5:
-                answers.append((label, refine_general_motion(
-                    q1, q2, A, w, R0, t_start, active, spg, sag, prior=prior, config=self.config,
-                    M=M, shrink=0.5, target=target, extra_rounds=4)))
+        starts = [('gnc', R0, t0, spg, sag, annealed),
+                  ('forward', R0, forward, spg, sag, annealed)]
         # (c) Sequential consensus: a vote on the ACs the first answer leaves unexplained.
         rest = w * ~first.inliers
         if np.count_nonzero(rest) >= self.config.min_inliers:
             m2, v2 = vote_planar_motion(level.p1, level.p2, level.A, rest, self.voting)
             if math.isfinite(m2.alpha) and math.isfinite(m2.beta):
                 R2, t2 = lift_planar(m2.alpha, m2.beta, self.R_lc)
-                if (_rotation_distance(R2, first.R) >= _DISTINCT_ROTATION
-                        or _direction_distance(t2, first.t) >= _DISTINCT_DIRECTION):
+                if not self._same_motion(R2, t2, first):
                     sp2 = v2.point_scale if math.isfinite(v2.point_scale) else sp
                     sa2 = v2.affine_scale if math.isfinite(v2.affine_scale) else sa
-                    chi2 = chi_square(M, q1, q2, A, R2, t2, sp2, sa2)
-                    active = (chi2 <= GATE) & (w > 0)
-                    if np.count_nonzero(active) >= 5:
-                        answers.append(('revote', refine_general_motion(
-                            q1, q2, A, w, R2, t2, active, *start_scales, prior=prior,
-                            config=self.config, M=M)))
-        return answers
+                    starts.append(('revote', R2, t2, sp2, sa2, {}))
+        answers = []
+        for label, R_s, t_s, sp_s, sa_s, schedule in starts:
+            chi2 = chi_square(Ms, qs1, qs2, As, R_s, t_s, sp_s, sa_s)
+            active = (chi2 <= GATE) & (ws > 0)
+            if np.count_nonzero(active) < 5:
+                continue
+            scales = (sp_s, sa_s) if schedule else start_scales
+            found = refine_general_motion(qs1, qs2, As, ws, R_s, t_s, active, *scales,
+                                          prior=prior, config=self._screen_config, M=Ms,
+                                          **schedule)
+            if self._same_motion(found.R, found.t, first):
+                continue                  # it confirms the first answer
+            # A different motion that explains far less of the sample than the first answer
+            # can neither win nor make the frame ambiguous (supports compared as in
+            # `_decide`, at the tighter of the two answers' noise scales).
+            sp_c, sa_c = min(first.sp, found.sp), min(first.sa, found.sa)
+            zero = float(ws.sum()) * GATE
+            gains = [zero - float(ws @ np.minimum(chi_square(Ms, qs1, qs2, As, g.R, g.t, sp_c,
+                                                             sa_c), GATE))
+                     for g in (first, found)]
+            if gains[1] < _SCREEN_MARGIN * self.config.ambiguity_ratio * gains[0]:
+                continue
+            chi2 = chi_square(M, q1, q2, A, found.R, found.t, found.sp, found.sa)
+            active = (chi2 <= GATE) & (w > 0)
+            if np.count_nonzero(active) >= 5:
+                answers.append((label, refine_general_motion(
+                    q1, q2, A, w, found.R, found.t, active, found.sp, found.sa,
+                    prior=prior, config=self.config, M=M)))
+        return answers, len(starts)
 
-    def _decide(self, acs, M, answers, prior, vote, vstats) -> FrameEstimate:
+    @staticmethod
+    def _same_motion(R: np.ndarray, t: np.ndarray, other) -> bool:
+        """``(R, t)`` and ``other`` (with ``.R``, ``.t``) are the same solution."""
+        return (_rotation_distance(R, other.R) < _DISTINCT_ROTATION
+                and _direction_distance(t, other.t) < _DISTINCT_DIRECTION)
+
+    def _decide(self, acs, M, answers, prior, vote, vstats, screened=0) -> FrameEstimate:
         """The winning answer, its reliability, and the state update."""
         q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
         # Compete at common noise scales, the tightest of the answers' (a wrong answer inflates
@@ -370,7 +415,8 @@ class MotionEstimator:
             cost_best = self._msac(M, acs, best.R, best.t, sp_c, sa_c)[0]
         stats = {'start': name, 'msac': cost_best, 'point_scale': best.sp,
                  'affine_scale': best.sa, 'iterations': best.iterations, 'rounds': best.rounds,
-                 'answers': len(final), 'vote_reliable': bool(vstats.reliable)}
+                 'answers': len(final), 'screened': screened,
+                 'vote_reliable': bool(vstats.reliable)}
         flag = None
         zero = float(w.sum()) * GATE                  # the MSAC cost of explaining nothing
         for cost_other, _, other in final[1:]:
