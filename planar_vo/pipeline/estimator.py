@@ -82,7 +82,8 @@ _FLAT_RISE = 0.2
 _HISTORY_MIN = 10             # frames before the measured history replaces the start values
 _PRIOR_FLOOR = (math.radians(0.02), math.radians(0.1))
 _RECHECK_SHARE, _RECHECK_RELATIVE, _GNC_INFLATION = 0.5, 0.8, 4.0
-# The second hypotheses find their basins on an even sample of this many ACs (step 4).
+# The second hypotheses find their basins on an even sample of this many ACs, in at most this
+# many selection rounds (step 4) ...
 _SCREEN_SIZE = 300
 _SCREEN_ROUNDS = 4
 # ... and one whose support on the sample is below this share of the ambiguity ratio times
@@ -106,6 +107,12 @@ def _rotation_distance(Ra: np.ndarray, Rb: np.ndarray) -> float:
 
 def _direction_distance(ta: np.ndarray, tb: np.ndarray) -> float:
     return math.acos(max(-1.0, min(1.0, float(ta @ tb))))
+
+
+def _same_motion(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> bool:
+    """Two answers closer than the distinctness thresholds are the same solution."""
+    return (_rotation_distance(Ra, Rb) < _DISTINCT_ROTATION
+            and _direction_distance(ta, tb) < _DISTINCT_DIRECTION)
 
 
 @dataclass
@@ -260,8 +267,7 @@ class MotionEstimator:
                  'rounds': best.rounds}
         cost, _ = self._msac(M, acs, best.R, best.t, best.sp, best.sa)
         flag = self._judge(M, acs, best, cost, stats)
-        if flag is None and (_rotation_distance(best.R, R0) >= _DISTINCT_ROTATION
-                             or _direction_distance(best.t, t0) >= _DISTINCT_DIRECTION):
+        if flag is None and not _same_motion(best.R, best.t, R0, t0):
             flag = 'left_start'
         return FrameEstimate(best.R, best.t, best.cov, best.basis, best.inliers, flag is None,
                              flag, vote, stats)
@@ -295,8 +301,7 @@ class MotionEstimator:
             if k > 0 and answers:
                 # Another start only when it is a different motion and not clearly worse.
                 best = answers[0][1]
-                if (_rotation_distance(R0, best.R) < _DISTINCT_ROTATION
-                        and _direction_distance(t0, best.t) < _DISTINCT_DIRECTION):
+                if _same_motion(R0, t0, best.R, best.t):
                     continue
                 if cost0 > _SECOND_START_RATIO * scored[0][0]:
                     continue
@@ -354,7 +359,7 @@ class MotionEstimator:
             m2, v2 = vote_planar_motion(level.p1, level.p2, level.A, rest, self.voting)
             if math.isfinite(m2.alpha) and math.isfinite(m2.beta):
                 R2, t2 = lift_planar(m2.alpha, m2.beta, self.R_lc)
-                if not self._same_motion(R2, t2, first):
+                if not _same_motion(R2, t2, first.R, first.t):
                     sp2 = v2.point_scale if math.isfinite(v2.point_scale) else sp
                     sa2 = v2.affine_scale if math.isfinite(v2.affine_scale) else sa
                     starts.append(('revote', R2, t2, sp2, sa2, {}))
@@ -368,7 +373,7 @@ class MotionEstimator:
             found = refine_general_motion(qs1, qs2, As, ws, R_s, t_s, active, *scales,
                                           prior=prior, config=self._screen_config, M=Ms,
                                           **schedule)
-            if self._same_motion(found.R, found.t, first):
+            if _same_motion(found.R, found.t, first.R, first.t):
                 continue                  # it confirms the first answer
             # A different motion that explains far less of the sample than the first answer
             # can neither win nor make the frame ambiguous (supports compared as in
@@ -387,12 +392,6 @@ class MotionEstimator:
                     q1, q2, A, w, found.R, found.t, active, found.sp, found.sa,
                     prior=prior, config=self.config, M=M)))
         return answers, len(starts)
-
-    @staticmethod
-    def _same_motion(R: np.ndarray, t: np.ndarray, other) -> bool:
-        """``(R, t)`` and ``other`` (with ``.R``, ``.t``) are the same solution."""
-        return (_rotation_distance(R, other.R) < _DISTINCT_ROTATION
-                and _direction_distance(t, other.t) < _DISTINCT_DIRECTION)
 
     def _decide(self, acs, M, answers, prior, vote, vstats, screened=0) -> FrameEstimate:
         """The winning answer, its reliability, and the state update."""
@@ -420,8 +419,7 @@ class MotionEstimator:
         flag = None
         zero = float(w.sum()) * GATE                  # the MSAC cost of explaining nothing
         for cost_other, _, other in final[1:]:
-            if (_rotation_distance(other.R, best.R) >= _DISTINCT_ROTATION
-                    or _direction_distance(other.t, best.t) >= _DISTINCT_DIRECTION):
+            if not _same_motion(other.R, other.t, best.R, best.t):
                 # Compare the supports (MSAC gains over explaining nothing): with many outliers
                 # the costs are dominated by the outliers' constant and their ratio says little.
                 ratio = (zero - cost_other) / max(zero - cost_best, 1e-300)

@@ -221,23 +221,16 @@ class PlanarPrior:
         ``d rho / d w ~ R_lc`` (small tilt: the log's Jacobian is about the identity);
         ``d c / d w = -R^T [t]x``, ``d c / d d = -R^T B`` (camera-1 frame), rotated by ``R_lc``.
         """
-        P = self.R_lc @ R.T                                  # camera-1 -> level, after R^T
-        rho = so3_log(self.R_lc @ R @ self.R_lc.T)
-        c = -P @ t
-        norm_c = math.sqrt(float(c @ c))
-        elevation = math.asin(max(-1.0, min(1.0, float(c[1]) / norm_c)))
-        terms = np.array([rho[0], rho[2], elevation])
-        inv = self._inverse_sigmas()
+        terms = self.level_terms(R, t)
+        s = np.array([self.sigma_rot, self.sigma_rot, self.sigma_elev])
         J = np.zeros((3, 5))
         J[0, :3] = self.R_lc[0]
         J[1, :3] = self.R_lc[2]
-        dc = -P @ np.concatenate([skew(t), B], axis=1)       # (3, 5)
+        c = -self.R_lc @ (R.T @ t)
+        dc = np.concatenate([-self.R_lc @ R.T @ skew(t), -self.R_lc @ R.T @ B], axis=1)
         J[2] = (dc[1] - c[1] * (c @ dc)) / max(math.sqrt(max(1.0 - c[1] ** 2, 1e-12)), 1e-6)
+        inv = np.where(np.isfinite(s), 1.0 / s, 0.0)
         return (terms - self.mean) * inv, J * inv[:, None]
-
-    def _inverse_sigmas(self) -> np.ndarray:
-        s = (self.sigma_rot, self.sigma_rot, self.sigma_elev)
-        return np.array([1.0 / v if math.isfinite(v) else 0.0 for v in s])
 
 
 # --------------------------------------------------------------------------------------------
