@@ -336,7 +336,8 @@ class MotionEstimator:
         _, chi2_0, _, R0, t0 = best_start
         pick = (np.linspace(0, n - 1, _SCREEN_SIZE).astype(np.intp) if n > _SCREEN_SIZE
                 else np.arange(n))
-        qs1, qs2, As, ws, Ms = q1[pick], q2[pick], A[pick], w[pick], M[pick]
+        sample, Ms = acs.subset(pick), M[pick]
+        qs1, qs2, As, ws = sample.p1, sample.p2, sample.A, sample.weights
         # (a) Graduated non-convexity from the best start: scales several times those measured
         # at the start (inliers of a start ~1 deg off are not yet down-weighted), halved every
         # round down to the first answer's.
@@ -363,7 +364,7 @@ class MotionEstimator:
                     sp2 = v2.point_scale if math.isfinite(v2.point_scale) else sp
                     sa2 = v2.affine_scale if math.isfinite(v2.affine_scale) else sa
                     starts.append(('revote', R2, t2, sp2, sa2, {}))
-        answers = []
+        answers, screened = [], 0
         for label, R_s, t_s, sp_s, sa_s, schedule in starts:
             chi2 = chi_square(Ms, qs1, qs2, As, R_s, t_s, sp_s, sa_s)
             active = (chi2 <= GATE) & (ws > 0)
@@ -373,6 +374,7 @@ class MotionEstimator:
             found = refine_general_motion(qs1, qs2, As, ws, R_s, t_s, active, *scales,
                                           prior=prior, config=self._screen_config, M=Ms,
                                           **schedule)
+            screened += 1
             if _same_motion(found.R, found.t, first.R, first.t):
                 continue                  # it confirms the first answer
             # A different motion that explains far less of the sample than the first answer
@@ -380,8 +382,7 @@ class MotionEstimator:
             # `_decide`, at the tighter of the two answers' noise scales).
             sp_c, sa_c = min(first.sp, found.sp), min(first.sa, found.sa)
             zero = float(ws.sum()) * GATE
-            gains = [zero - float(ws @ np.minimum(chi_square(Ms, qs1, qs2, As, g.R, g.t, sp_c,
-                                                             sa_c), GATE))
+            gains = [zero - self._msac(Ms, sample, g.R, g.t, sp_c, sa_c)[0]
                      for g in (first, found)]
             if gains[1] < _SCREEN_MARGIN * self.config.ambiguity_ratio * gains[0]:
                 continue
@@ -391,7 +392,7 @@ class MotionEstimator:
                 answers.append((label, refine_general_motion(
                     q1, q2, A, w, found.R, found.t, active, found.sp, found.sa,
                     prior=prior, config=self.config, M=M)))
-        return answers, len(starts)
+        return answers, screened
 
     def _decide(self, acs, M, answers, prior, vote, vstats, screened=0) -> FrameEstimate:
         """The winning answer, its reliability, and the state update."""
