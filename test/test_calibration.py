@@ -12,7 +12,7 @@ import pytest
 
 from planar_vo.core.conventions import normal_from_tilt, rotation_y
 from planar_vo.core.homography import apply_homography
-from planar_vo.core.robust import combine_profiles, pair_profile
+from planar_vo.core.robust import combine_profiles, pair_profile, shifted_profile
 from planar_vo.core.robust.stats import few_cluster_factor, student_t_quantile
 from planar_vo.errors import ConfigError, InputError
 from planar_vo.frontend import leveling_rotation
@@ -269,6 +269,27 @@ def test_pair_profile_is_minimal_at_the_true_focal_on_exact_acs(rng):
         pair_profile(p1, p2, A, None, grid[::-1], 900.0)
 
 
+def test_shifted_profile_predicts_the_focal_length_of_a_moved_principal_point():
+    """The first-order profile with the principal point moved by a pixel lands where the
+    profile re-minimised on the moved points lands (a tenth of the focal's shift), and is the
+    profile itself for no shift."""
+    rng = np.random.default_rng(3)
+    grid = np.log(FOCAL) + np.linspace(-0.5, 0.5, 41)
+    for yaw in (4.0, 6.0, 8.0):
+        p1, p2, A = _pair(rng, yaw, sigma=0.3)
+        w = np.ones(len(p1))
+        prof = pair_profile(p1, p2, A, None, grid, 900.0, noise=(0.5, 0.01))
+        assert np.array_equal(shifted_profile(p1, p2, A, w, grid, prof, 0.0), prof.cost)
+        moved = np.array([1.0, 0.0])
+        again = pair_profile(p1 - moved, p2 - moved, A, None, grid, 900.0, noise=(0.5, 0.01))
+        f0, fr, fl = (np.exp(combine_profiles([c] * 3, grid)[0]) for c in (
+            prof.cost, again.cost, shifted_profile(p1, p2, A, w, grid, prof, 1.0)))
+        assert abs(fr - f0) > 2.0                           # the focal moves: 4-6 px per px
+        assert abs((fl - f0) - (fr - f0)) < 0.1 * abs(fr - f0), (yaw, f0, fr, fl)
+    with pytest.raises(ConfigError, match=r'shift, step: expected finite pixels and step > 0'):
+        shifted_profile(p1, p2, A, w, grid, prof, 1.0, step=0.0)
+
+
 def test_pair_profile_of_straight_driving_does_not_pin_the_focal(rng):
     syn = shared_motion_acs(rng, 300, 0.3, alpha=0.0, beta=-np.pi / 2)
     pp = np.asarray(PAPER_PRINCIPAL_POINT)
@@ -342,14 +363,14 @@ def test_focal_work_is_stepwise_bounded_and_deterministic(rng):
     assert not cal.offer(5, *pairs[3]) and cal.dropped == 1  # the queue is full: counted
     assert not cal.offer(5, *[x[:59] for x in pairs[3]])    # too few ACs (3 x min_inliers)
     assert cal.work(0.0) == 0 and cal.pending == 3
-    # One pair is 14 steps: a vote and 6 chunks of grid focal lengths, twice (the principal
-    # point shifted for the second profile).
-    assert cal.work(13, 7) == 13 and cal.pairs == 0
+    # One pair is 8 steps: a vote, 6 chunks of grid focal lengths and the first-order profile
+    # with the principal point shifted.
+    assert cal.work(7, 7) == 7 and cal.pairs == 0
     assert cal.work(1, 8) == 1 and cal.pairs == 1 and cal.pending == 2
     # Fractional steps carry over: 0.25 steps a frame run one step every fourth frame, counted
     # in steps (not seconds), so the same frames give the same calibration at any load.
     steps = [cal.work(0.25) for _ in range(40)]
-    assert steps == [0, 0, 0, 1] * 10 and cal.steps == 14 + 10
+    assert steps == [0, 0, 0, 1] * 10 and cal.steps == 8 + 10
     # Nothing is saved up while the queue is empty.
     cal.work(100)
     assert cal.pending == 0 and cal.work(5.0) == 0

@@ -5,7 +5,8 @@
   behind ``VotingConfig(method='ransac')`` for comparison (`ransac`).
 - `vote_planar_motion_focal`: the same with an unknown common focal length (1ACf; `focal`);
   `pair_profile` / `combine_profiles`: a pair's profile cost over trial focal lengths and the
-  minimiser of many pairs' (self-calibration over a drive).
+  minimiser of many pairs' (self-calibration over a drive); `shifted_profile`: a profile with
+  the principal point moved, to first order.
 - `VotingConfig`: every option of these estimators with its default (`options`).
 """
 
@@ -15,6 +16,7 @@ from planar_vo.core.robust.focal import (
     PairProfile,
     combine_profiles,
     pair_profile,
+    shifted_profile,
     vote_planar_motion_focal,
 )
 from planar_vo.core.robust.options import VotingConfig
@@ -28,6 +30,7 @@ __all__ = [
     'VotingStats',
     'combine_profiles',
     'pair_profile',
+    'shifted_profile',
     'vote_planar_motion',
     'vote_planar_motion_focal',
 ]

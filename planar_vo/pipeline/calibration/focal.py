@@ -24,7 +24,7 @@ import numpy as np
 
 from planar_vo.config.sections import CameraConfig
 from planar_vo.core.robust import VotingConfig
-from planar_vo.core.robust.focal import combine_profiles, profile_steps
+from planar_vo.core.robust.focal import combine_profiles, profile_steps, shifted_profile
 from planar_vo.core.robust.stats import few_cluster_factor
 from planar_vo.core.robust.types import check_inputs
 from planar_vo.errors import ConfigError, InputError
@@ -46,11 +46,12 @@ _GRID = (0.25, 2.5, 41)
 _PRIOR_SIGMA = 0.45
 # Principal point: an assumed one (the image centre) is typically within 1-2 % of the width of
 # the true one (KITTI: 0.9 %); the focal is sensitive to it (KITTI 05: 3-7 px of focal per px
-# of cx, measured), so each pair's profile is also computed with cx shifted by this share of
-# the width, and |df/dcx| pp_std enters the standard deviation.
+# of cx, measured), so each pair's profile is also evaluated, to first order, with cx shifted by
+# this share of the width (`shifted_profile`), and |df/dcx| pp_std enters the standard
+# deviation.
 _PP_STEP = 0.01
 # Grid points per work step (measured on KITTI 05 pairs of 1,100-1,350 ACs: steps of 9 ms
-# median, 16 ms at most; a pair is 14 steps).
+# median, 16 ms at most; a pair is 8 steps: the vote, 6 chunks and the shifted profile).
 _CHUNK = 8
 
 
@@ -125,10 +126,11 @@ class OnlineFocalCalibrator:
 
     Each informative pair (`TurnPairSelector`) is `offer`-ed: its ACs (at most ``max_acs``,
     evenly picked) wait in a queue of at most ``max_queue`` pairs. `work` turns them into
-    profiles (`pair_profile`, the cost on a fixed log-focal grid; a second one with the
-    principal point shifted by 1 % of the width) in small steps: the profiles cost about
-    100 ms per pair of 1,300 ACs (14 steps), far more than a frame may spend, so the pipeline
-    calls ``work(camera.focal_steps)`` every frame and a pair is done a few frames later.
+    profiles (`pair_profile`, the cost on a fixed log-focal grid, and `shifted_profile`, the
+    same to first order with the principal point shifted by 1 % of the width) in small steps:
+    about 60 ms per pair of 1,200 ACs (8 steps), far more than a frame may spend, so the
+    pipeline calls ``work(camera.focal_steps)`` every frame and a pair is done a few frames
+    later.
 
     Profiles are summed per block of ``block_frames`` frames (pairs within about a second share
     scenery and wobble: one cluster); at most ``max_blocks`` blocks are kept (the least
@@ -289,8 +291,9 @@ class OnlineFocalCalibrator:
             self._job = None
 
     def _pair_job(self, pair: _Pair):
-        """The steps of one pair: its profile, the principal-point-shifted one, then the
-        blocks and the adoption (at the frame of the `work` call that finishes it)."""
+        """The steps of one pair: its profile, then (one step) its profile with the principal
+        point shifted (`shifted_profile`), the blocks and the adoption (at the frame of the
+        `work` call that finishes it)."""
         f_ref = self.provisional
         prof = yield from profile_steps(pair.p1, pair.p2, pair.A, pair.w, self.log_grid, f_ref,
                                         self.config, chunk=_CHUNK)
@@ -300,14 +303,9 @@ class OnlineFocalCalibrator:
         shifted = None
         if self.pp_std > 0:
             yield
-            shift = np.array([self.pp_step, 0.0])
-            shifted = yield from profile_steps(pair.p1 - shift, pair.p2 - shift, pair.A, pair.w,
-                                               self.log_grid, f_ref, self.config,
-                                               (prof.point_std, prof.affine_std), _CHUNK)
-            if shifted is None:
-                self.rejected += 1
-                return
-        self._add(pair.frame, prof.cost, None if shifted is None else shifted.cost)
+            shifted = shifted_profile(pair.p1, pair.p2, pair.A, pair.w, self.log_grid, prof,
+                                      self.pp_step)
+        self._add(pair.frame, prof.cost, shifted)
         self.update_adoption(pair.frame if self._frame is None else self._frame)
 
     def _add(self, frame: int, cost: np.ndarray, shifted: np.ndarray | None) -> None:
