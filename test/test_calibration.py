@@ -343,6 +343,28 @@ def test_focal_calibration_uncertainty_is_honest_on_noisy_pairs():
                                          f'{100 * std / f:.1f} %, adopted at 2 %)')
 
 
+def test_provisional_focal_uses_the_calibration_from_two_blocks_on():
+    """Before adoption (4 blocks) the provisional focal length combines the prior with the
+    calibration as soon as two blocks give a sandwich (its one degree of freedom widened by
+    `few_cluster_factor`): during a first turn the odometry stops running on the prior."""
+    rng = np.random.default_rng(5)
+    cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, nominal=1000.0, pp_std=1.0)
+    for b in range(2):
+        for k in range(2):
+            assert cal.offer(10 * b + 3 * k + 1, *_pair(rng, rng.uniform(5.0, 8.0), sigma=0.7))
+            cal.work(1000, 10 * b + 3 * k + 1)
+        if b == 0:                                          # one block: the prior alone
+            assert cal.provisional == pytest.approx(1000.0) and cal.blocks == 1
+    assert cal.blocks == 2 and cal.adopted is None
+    assert '(provisional, 2 of 4 blocks)' in cal.status()
+    f = cal.provisional
+    # The prior (1000 px) is left behind: most of the way to the truth, and the uncertainty
+    # (1 sigma, log-normal) covers what is left.
+    assert abs(math.log(f / FOCAL)) < 0.25 * math.log(1000.0 / FOCAL), f
+    assert abs(math.log(f / FOCAL)) <= 3.0 * math.log1p(cal.relative_std)
+    assert cal.relative_std < math.exp(0.45) - 1.0
+
+
 def test_focal_calibration_stays_provisional_without_turns(rng):
     cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX)
     assert cal.provisional == 600.0 and cal.relative_std == pytest.approx(math.exp(0.45) - 1)
