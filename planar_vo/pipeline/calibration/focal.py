@@ -150,9 +150,9 @@ class OnlineFocalCalibrator:
     yaw error 0.131 -> 0.068 deg per frame, a dev script). A drive without enough turning stays
     uncalibrated and says so (`status`).
 
-    Measured on KITTI 05 (one 90-deg turn, principal point at the image centre): 628 +- 78 px
-    (truth 707: -1.0 sigma), not adopted; the same pairs gave the former per-AC calibrator
-    603.7 +- 4.4 px adopted (-23 sigma).
+    Measured on KITTI 05 (one 90-deg turn, principal point at the image centre; `planar_vo bench
+    drives`): 600.4 +- 52.5 px (truth 707.1: -2.0 sigma), not adopted; an earlier version's
+    per-AC calibrator gave 603.7 +- 4.4 px there, adopted (-23 sigma).
 
     Args:
         width, height: image size (pixels).
