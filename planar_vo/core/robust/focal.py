@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -273,17 +274,23 @@ class _ProfileData:
                        np.stack([z, a4 * U1, z, -U2 - a2 * V1], -1)])
         B2 = np.stack([np.stack([z, U1 * V2, z, -U2 * V1], -1), np.stack([z, z, z, z], -1),
                        np.stack([z, z, z, z], -1)])
-        parts = [B.reshape(-1, 4) for B in (B0, B1, B2)]
-        self.parts_t = [np.ascontiguousarray(P.T) for P in parts]               # (4, 3N)
-        outer = [[np.einsum('ri,rj->rij', Ba, Bb).reshape(-1, 16) for Bb in parts]
-                 for Ba in parts]
-        self.products = np.concatenate([outer[0][0], outer[0][1] + outer[1][0],
-                                        outer[1][1] + outer[0][2] + outer[2][0],
-                                        outer[1][2] + outer[2][1], outer[2][2]], 1)  # (3N, 80)
+        self._parts = [B.reshape(-1, 4) for B in (B0, B1, B2)]
+        self.parts_t = [np.ascontiguousarray(P.T) for P in self._parts]         # (4, 3N)
         self.U1, self.V1, self.U2 = U1, V1, U2
         self.sq = dict(V1=V1 * V1, V2=V2 * V2, a1=a1 * a1, a2=a2 * a2, a3=a3 * a3, a4=a4 * a4)
         self.w = w
         self.n = len(w)
+
+    @functools.cached_property
+    def products(self) -> np.ndarray:
+        """``(3N, 80)``: the parts' outer products, built on first use (`normal_matrices`
+        needs them; the costs alone, as in `shifted_profile`, do not)."""
+        parts = self._parts
+        outer = [[np.einsum('ri,rj->rij', Ba, Bb).reshape(-1, 16) for Bb in parts]
+                 for Ba in parts]
+        return np.concatenate([outer[0][0], outer[0][1] + outer[1][0],
+                               outer[1][1] + outer[0][2] + outer[2][0],
+                               outer[1][2] + outer[2][1], outer[2][2]], 1)
 
     def robust_cost(self, k: np.ndarray, theta: np.ndarray, beta: np.ndarray,
                     point_std: float, affine_std: float) -> np.ndarray:
