@@ -109,6 +109,11 @@ def test_twist_matches_ground_truth_speed():
     wz = np.array([r.twist[5] for r in results[2:]])
     assert np.median(np.abs(vx - twists[2:, 0])) < 0.05
     assert np.median(np.abs(wz - twists[2:, 5])) < np.deg2rad(0.2)
+    # In base_link at the stamp: a car turning at a steady rate moves straight ahead in its own
+    # frame (the chord since the keyframe would have it slide sideways by v sin(yaw / 2)).
+    turning = np.abs(twists[2:, 5]) > 0.1
+    vy = np.array([r.twist[1] for r in results[2:]])
+    assert np.median(np.abs(vy[turning] - twists[2:, 1][turning])) < 0.01
 
 
 # ---------------------------------------------------------------------------------------------
@@ -380,6 +385,11 @@ def test_a_confirmed_forward_gap_restarts_tracking():
     assert second.reason is DropReason.REINITIALISED
     assert second.tracking is TrackingState.REINITIALISED
     assert third.ok and third.tracking is TrackingState.TRACKING
+    # The last velocity (8 m/s) says nothing about the ten minutes across a new time base: the
+    # pose is held (carried on, it would be 4.8 km ahead), the covariance grown with the time.
+    assert np.allclose(second.pose, last.pose)
+    assert np.linalg.norm(third.pose[:3, 3] - last.pose[:3, 3]) < 2.0
+    assert np.sqrt(second.pose_covariance[0, 0]) > 100.0
 
 
 def test_time_jumping_back_resets_tracking_and_keeps_counters():

@@ -47,6 +47,7 @@ from planar_vo.core.conventions import (
     planar_motion_from_pose,
     rotation_rpy,
     se3,
+    se3_log,
     so3_log,
 )
 from planar_vo.core.correspondences import AffineCorrespondences
@@ -153,6 +154,7 @@ class VisualOdometry:
         self._lost = 0
         self._restart = False
         self._time_reset = False
+        self._new_time_base = False
         self._state = TrackingState.INITIALISING
         self._clock.reset()
         self._estimator.reset()
@@ -255,9 +257,10 @@ class VisualOdometry:
             self._clock.check(stamp)
             self._time_reset = True
         elif check is StampCheck.NEW_TIME_BASE:
-            log.warning('time moved on by %.3f s: tracking restarts', stamp - last)
+            log.warning('time moved on by %.3f s: tracking restarts, the pose held (the '
+                        'motion across a new time base is unknown)', stamp - last)
             self._keyframes.clear()
-            self._restart = True
+            self._restart = self._new_time_base = True
         t = time.perf_counter()
         try:
             gray = _gray(image)
@@ -623,7 +626,12 @@ class VisualOdometry:
         """The first keyframe of a chain: after start-up or a reset at the origin; after lost
         tracking at the pose extrapolated from the last output (`_extrapolate`)."""
         reason, message = DropReason.FIRST_FRAME, 'reference keyframe set'
-        if self._restart:
+        if self._restart and self._new_time_base:
+            self._extrapolate(stamp, hold=True)
+            reason, message = (DropReason.REINITIALISED,
+                               'new keyframe chain after the time base moved on (pose held, '
+                               'its covariance grown with the time since the last output)')
+        elif self._restart:
             self._extrapolate(stamp)
             reason, message = (DropReason.REINITIALISED,
                                'new keyframe chain after lost tracking (pose extrapolated)')
@@ -634,36 +642,46 @@ class VisualOdometry:
         self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov)
         self._state = (TrackingState.TRACKING if reason is DropReason.FIRST_FRAME
                        else TrackingState.REINITIALISED)
-        self._restart = self._time_reset = False
+        self._restart = self._time_reset = self._new_time_base = False
         self._lost = 0
         if self._last_out is None:
             self._last_out = (stamp, self.camera_pose.copy())
         return self._drop(stamp, reason, message)
 
-    def _extrapolate(self, stamp: float) -> None:
+    def _extrapolate(self, stamp: float, hold: bool = False) -> None:
         """The pose across a gap in tracking: the last velocity carried on, its turn rate
         decaying (a long gap does not spin the pose), and the covariance grown with the time
-        of the gap (not with the frames in it)."""
+        of the gap (not with the frames in it). With ``hold`` (the time base moved on: the
+        stamps before and after belong to different clocks or a pause of unknown length, so
+        the last velocity says nothing about the motion across it) the pose is held and only
+        the covariance grows."""
         cfg = self.config.odometry
         last_stamp, last_pose = self._last_out if self._last_out else (stamp, self.camera_pose)
         dt = max(stamp - last_stamp, 0.0)
         T_bc = self._T_base_camera
         v, w = self._twist[:3], self._twist[3:]
-        yaw = yaw_rate_decay(float(w[2]), dt, cfg.turn_rate_time_constant)
-        step_base = se3(rotation_rpy(0.0, 0.0, yaw), v * dt)
-        self.camera_pose = last_pose @ (invert(T_bc) @ step_base @ T_bc)
+        if hold:
+            self.camera_pose = last_pose.copy()
+        else:
+            yaw = yaw_rate_decay(float(w[2]), dt, cfg.turn_rate_time_constant)
+            step_base = se3(rotation_rpy(0.0, 0.0, yaw), v * dt)
+            self.camera_pose = last_pose @ (invert(T_bc) @ step_base @ T_bc)
         grow = np.diag([(cfg.lost_turn_rate_std * dt) ** 2] * 3
                        + [(cfg.lost_speed_std * dt) ** 2] * 3)
         Ad = adjoint(invert(T_bc))
         self._camera_cov = self._camera_cov + Ad @ grow @ Ad.T
 
     def _update_twist(self, keyframe: Keyframe, stamp: float, step_cov: np.ndarray) -> None:
-        """The body-frame velocity over the step since the keyframe, with its covariance."""
+        """The body-frame velocity over the step since the keyframe, with its covariance: the
+        constant body twist that moves the keyframe's base onto the current one (``log`` of
+        the relative motion over ``dt``), so that a car turning at a steady rate has no lateral
+        velocity (the chord over ``dt`` would give it ``v sin(yaw / 2)``)."""
         dt = stamp - keyframe.stamp
         if dt > 0:
             T_bc = self._T_base_camera
             rel = T_bc @ invert(keyframe.pose) @ self.camera_pose @ invert(T_bc)
-            self._twist = np.concatenate([rel[:3, 3], so3_log(rel[:3, :3])]) / dt
+            xi = se3_log(rel)                                       # [phi, rho]
+            self._twist = np.concatenate([xi[3:], xi[:3]]) / dt
             Ad = adjoint(T_bc)
             self._twist_cov = ros_twist_covariance(Ad @ step_cov @ Ad.T, dt)
         self._last_out = (stamp, self.camera_pose.copy())
