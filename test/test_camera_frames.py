@@ -70,6 +70,28 @@ def test_camera_info_duck_typed():
     assert CameraModel.from_camera_info(msg) == CAMERAS['plumb_bob']
 
 
+def test_camera_info_binning_and_roi_give_the_images_model():
+    """REP-104: K and the size are the full sensor's; the images are its ROI, binned."""
+    full = np.array([[1414.2, 0.0, 1203.8], [0.0, 1414.2, 366.2], [0.0, 0.0, 1.0]])
+    roi = SimpleNamespace(x_offset=0, y_offset=0, width=0, height=0, do_rectify=False)
+    msg = SimpleNamespace(width=2452, height=740, k=full.ravel(), d=[], distortion_model='',
+                          binning_x=2, binning_y=2, roi=roi)
+    cam = CameraModel.from_camera_info(msg)
+    assert cam.size == (1226, 370)
+    assert np.allclose([cam.fx, cam.fy, cam.cx, cam.cy], [707.1, 707.1, 601.9, 183.1])
+    # A 1000x400 window at (400, 100), not binned.
+    msg.binning_x = msg.binning_y = 0
+    msg.roi = SimpleNamespace(x_offset=400, y_offset=100, width=1000, height=400,
+                              do_rectify=False)
+    cam = CameraModel.from_camera_info(msg)
+    assert cam.size == (1000, 400)
+    assert np.allclose([cam.fx, cam.cx, cam.cy], [1414.2, 803.8, 266.2])
+    msg.roi.x_offset = 1500
+    with pytest.raises(CameraModelError, match=r'region of interest 1000x400 at \(1500, 100\) '
+                                               r'does not fit the 2452x740 sensor'):
+        CameraModel.from_camera_info(msg)
+
+
 @pytest.mark.parametrize(('changes', 'match'), [
     ({'k': np.zeros(9)}, r'K is all zeros \(uncalibrated camera\)'),
     ({'distortion_model': 'rational_polynomial', 'd': [0.1] * 8},

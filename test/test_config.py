@@ -71,6 +71,14 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
     ({'camera': {'distortion': [0.1, 'a']}}, r"camera.distortion\[1\]: expected float"),
     ({'ros': {'odom_frame': 'x', 'base_frame': 'x'}}, r'ros.base_frame: expected a frame id '
      r'other than odom_frame'),
+    # tf2 refuses a leading slash; whitespace makes ids that look alike differ
+    ({'ros': {'odom_frame': '/odom'}}, r"ros.odom_frame: expected a frame id without a leading "
+                                       r"slash or whitespace, e.g. odom, got '/odom'"),
+    ({'ros': {'base_frame': 'base link'}}, r"ros.base_frame: expected a frame id without"),
+    ({'ros': {'odom_frame': ' odom'}}, r"ros.odom_frame: expected a frame id without"),
+    ({'ros': {'odom_frame': ''}}, r"ros.odom_frame: expected a frame id without"),
+    ({'camera': {'mono16_bits': 17}}, r'camera.mono16_bits: expected an integer number of bits '
+                                      r'in 8..16, got 17'),
     ({'voting': 3}, r'voting: expected a mapping, got int'),
     # a YAML integer of 400 digits is a Python int: a ConfigError, not OverflowError
     ({'mount': {'height': 10**400}}, r'mount.height: expected float, got an int of 1329 bits '

@@ -681,6 +681,113 @@ def test_tracking_states_lost_and_reinitialised_are_logged_once_each(local_node,
     assert float(statuses(node)[-1]['focal_px']) == 500.0
 
 
+def _bag_messages(bag: Path, count: int):
+    """The CameraInfo and the first ``count`` Image messages of ``bag`` as rclpy messages."""
+    from sensor_msgs.msg import CameraInfo, Image
+
+    with open_bag(bag) as reader:
+        messages = [(m.topic, reader.deserialize(m)) for m in
+                    reader.messages([CAMERA_INFO_TOPIC, IMAGE_TOPIC])]
+    info = next(to_rclpy(m, CameraInfo) for t, m in messages if t == CAMERA_INFO_TOPIC)
+    images = [to_rclpy(m, Image) for t, m in messages if t == IMAGE_TOPIC][:count]
+    return info, images
+
+
+def _diagnostics(monkeypatch, node) -> list:
+    sent = []
+    monkeypatch.setattr(node._diagnostics_pub, 'publish', sent.append)
+    return sent
+
+
+def test_a_new_frame_rate_is_learned_not_counted_as_lost_frames(local_node):
+    """10 Hz, then 5 Hz for good (a driver reconfigured): the first intervals at the new rate
+    look like lost frames until three in a row agree; then they are taken off the counts. A
+    real gap later is still counted."""
+    node = local_node(MOUNT_PARAMS)
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    stamps = [100_000_000 * i for i in range(10)]
+    stamps += [stamps[-1] + 200_000_000 * i for i in range(1, 11)]
+    for stamp in stamps:
+        node._note_gap(stamp)
+    assert (node._counters['gaps'], node._counters['missing_frames']) == (0, 0)
+    assert sum('image rate changed from 10.0 to 5.0 Hz' in ln for _, ln in lines) == 1
+    node._note_gap(stamps[-1] + 600_000_000)               # two frames lost at 5 Hz
+    assert (node._counters['gaps'], node._counters['missing_frames']) == (1, 2)
+
+
+@pytest.mark.timeout(60)
+def test_diagnostics_warn_when_images_give_no_odometry(monkeypatch, local_node, drive_bag):
+    """The driver switches to an encoding the node cannot read: the tracking state still says
+    tracking, but /diagnostics warns that no image gave odometry."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    node = local_node(MOUNT_PARAMS)
+    sent = _diagnostics(monkeypatch, node)
+    info, images = _bag_messages(drive_bag, 10)
+    node._on_camera_info(info)
+    for msg in images[:5]:
+        node._on_image(msg)
+    node._on_diagnostics_timer()
+    for msg in images[5:]:
+        msg.encoding = 'bayer_rggb8'
+        node._on_image(msg)
+    node._on_diagnostics_timer()
+    first, second = (d.status[0] for d in sent)
+    assert first.level == DiagnosticStatus.OK, first.message
+    assert second.level == DiagnosticStatus.WARN
+    assert second.message == 'tracking; no odometry from 5 images in the last 1 s (bad_image: 5)'
+
+
+@pytest.mark.timeout(60)
+def test_a_speed_topic_on_another_clock_is_reported(monkeypatch, local_node, drive_bag):
+    """scale.source speed with speed samples 1000 s away from the image stamps: the odometry
+    falls back to unit steps, and /diagnostics and the log say why."""
+    from bagdata import twist_msg
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from geometry_msgs.msg import TwistStamped
+
+    node = local_node({**MOUNT_PARAMS, 'scale.source': 'speed'})
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    sent = _diagnostics(monkeypatch, node)
+    info, images = _bag_messages(drive_bag, 6)
+    node._on_camera_info(info)
+    for msg in images:
+        stamp = stamp_to_ns(msg.header.stamp) + 1000 * 10 ** 9
+        node._on_speed(to_rclpy(twist_msg(stamp, 8.0), TwistStamped))
+        node._on_image(msg)
+    node._on_diagnostics_timer()
+    status = sent[-1].status[0]
+    assert status.level == DiagnosticStatus.WARN
+    expected = ('no step from scale.source speed in the last 1 s (steps: unit 5); 6 speed '
+                'messages so far, none covering the image stamps')
+    assert expected in status.message
+    assert sum(level == 'warning' and expected in ln for level, ln in lines) == 1
+
+
+@pytest.mark.timeout(60)
+def test_twelve_bit_mono16_images_with_camera_mono16_bits(local_node, drive_bag):
+    """A 12-bit camera publishing mono16 (values 0-4095): with camera.mono16_bits 12 it tracks
+    like the 8-bit images; read as 16-bit values they are nearly black (0-15)."""
+    outcomes = {}
+    for bits in (12, 16):
+        node = local_node({**MOUNT_PARAMS, 'camera.mono16_bits': bits})
+        info, images = _bag_messages(drive_bag, 6)
+        node._on_camera_info(info)
+        for msg in images:
+            pixels = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)
+            wide = (pixels[:, :msg.width].astype('<u2') << 4)
+            msg.encoding, msg.is_bigendian, msg.step = 'mono16', 0, 2 * msg.width
+            msg.data = wide.tobytes()
+            node._on_image(msg)
+        outcomes[bits] = dict(node.outcomes)
+    assert outcomes[12] == {'first_frame': 1, 'ok': 5}
+    assert outcomes[16].get('ok', 0) == 0
+
+
 class _Recorder:
     """A logger that records (level, line) instead of logging."""
 

@@ -70,6 +70,10 @@ class CameraConfig(Options):
         focal_min_blocks: blocks (clusters) needed before a self-calibrated focal length may
             be adopted (fewer make the variance itself unreliable).
         focal_max_blocks: blocks kept (memory bound; the least informative is dropped).
+        mono16_bits: significant bits of 16-bit grey images (``mono16``, ``16UC1``, 16-bit
+            PNG): 16 for values filling the 16 bits, 12 for a 12-bit sensor whose values are
+            stored as 0-4095 (10 likewise); they are shifted down by ``mono16_bits - 8`` to 8
+            bits, a fixed mapping, so that brightness stays comparable between frames.
     """
 
     fx: float = bounded(0.0, 0.0, expected='fx, fy >= 0 (0 = from CameraInfo)')
@@ -87,6 +91,7 @@ class CameraConfig(Options):
     focal_block_frames: int = bounded(10, 1)
     focal_min_blocks: int = bounded(4, 2)
     focal_max_blocks: int = bounded(32, 2)
+    mono16_bits: int = bounded(16, 8, 16, expected='an integer number of bits in 8..16')
 
     def validate(self) -> None:
         self._require(finite(*self.distortion), 'distortion', 'finite coefficients')
@@ -382,8 +387,13 @@ class RosConfig(Options):
                                    expected='a positive number of seconds')
 
     def validate(self) -> None:
-        self._require(bool(self.odom_frame.strip()), 'odom_frame', 'a non-empty frame id')
-        self._require(bool(self.base_frame.strip()), 'base_frame', 'a non-empty frame id')
+        # tf2 refuses frame ids with a leading slash; whitespace makes ids that look equal
+        # differ.
+        for name in ('odom_frame', 'base_frame'):
+            frame = getattr(self, name)
+            self._require(bool(frame) and not frame.startswith('/')
+                          and not any(c.isspace() for c in frame), name,
+                          'a frame id without a leading slash or whitespace, e.g. odom')
         self._require(self.odom_frame != self.base_frame, 'base_frame', 'a frame id other than '
                       'odom_frame')
 

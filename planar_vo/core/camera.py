@@ -116,17 +116,38 @@ class CameraModel:
         An empty distortion model with all-zero ``d`` is read as ``'none'``; ``rational_polynomial``
         and other models are rejected with `CameraModelError`, and so are implausible intrinsics
         (`check_plausible`).
+
+        Binning and region of interest (REP-104): ``width``, ``height`` and ``K`` describe the
+        full-resolution sensor, the images are its ``roi`` (0 width: all of it) binned by
+        ``binning_x``, ``binning_y`` (0 or 1: none). The model is that of the images, as
+        ``image_geometry`` computes it: ``fx / binning_x``, ``(cx - roi.x_offset) /
+        binning_x`` (likewise in y), the ROI's size over the binning; the distortion, defined
+        on normalised coordinates, is unchanged.
         """
         try:
             k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
             d = tuple(float(v) for v in msg.d)
             model = str(msg.distortion_model or '').strip()
             width, height = int(msg.width), int(msg.height)
+            bx, by = (max(int(getattr(msg, f'binning_{a}', 0) or 0), 1) for a in 'xy')
+            roi = getattr(msg, 'roi', None)
+            x0, y0, roi_w, roi_h = ((int(roi.x_offset), int(roi.y_offset), int(roi.width),
+                                     int(roi.height)) if roi is not None else (0, 0, 0, 0))
         except (AttributeError, TypeError, ValueError) as err:
             raise CameraModelError(f'camera_info: not a CameraInfo message ({err})') from err
         if not np.any(k):
             raise CameraModelError('camera_info: K is all zeros (uncalibrated camera); set the '
                                    'camera.fx/fy/cx/cy parameters or enable camera.estimate_focal')
+        if roi_w == 0 or roi_h == 0:                      # REP-104: the full image
+            x0, y0, roi_w, roi_h = 0, 0, width, height
+        if min(x0, y0) < 0 or x0 + roi_w > width or y0 + roi_h > height:
+            raise CameraModelError(f'camera_info: region of interest {roi_w}x{roi_h} at ({x0}, '
+                                   f'{y0}) does not fit the {width}x{height} sensor')
+        if (bx, by, x0, y0, roi_w, roi_h) != (1, 1, 0, 0, width, height):
+            k = np.diag([1.0 / bx, 1.0 / by, 1.0]) @ (k - np.array([[0.0, 0.0, x0],
+                                                                    [0.0, 0.0, y0],
+                                                                    [0.0, 0.0, 0.0]]) * k[2, 2])
+            width, height = roi_w // bx, roi_h // by
         if model == '' or (model == 'plumb_bob' and not any(d)):
             if any(d):
                 raise CameraModelError(f'camera_info: distortion coefficients {list(d)} given '

@@ -71,10 +71,14 @@ class CameraFrameDecoder:
     """Turns the image and CameraInfo messages of a bag into `CameraFrame` s, in stream order.
 
     Used by `iter_camera_frames` and by replay (which interleaves other topics in one pass).
+    ``mono16_shift``: the right shift of 16-bit grey images to 8 bits (``camera.mono16_bits -
+    8``).
     """
 
-    def __init__(self, bag: BagReader, image_topic: str, camera_info_topic: str | None) -> None:
+    def __init__(self, bag: BagReader, image_topic: str, camera_info_topic: str | None,
+                 mono16_shift: int = 8) -> None:
         self.bag = bag
+        self.mono16_shift = mono16_shift
         self.image_topic = image_topic
         self.camera_info_topic = camera_info_topic
         self.camera: CameraModel | None = None
@@ -118,9 +122,9 @@ class CameraFrameDecoder:
             msg = self.bag.deserialize(message)
             stamp_ns, frame_id = stamp_to_ns(msg.header.stamp), str(msg.header.frame_id)
             if message.msgtype == COMPRESSED_IMAGE_TYPE:
-                image = compressed_to_array(msg)
+                image = compressed_to_array(msg, mono16_shift=self.mono16_shift)
             else:
-                image = image_to_array(msg)
+                image = image_to_array(msg, mono16_shift=self.mono16_shift)
         except (BagError, ImageError) as err:
             error = str(err)
         frame = CameraFrame(self._index, message.topic, message.log_time_ns, stamp_ns, frame_id,

@@ -34,6 +34,7 @@ rejected. `LIVE_PARAMETERS` may change at run time; the others are read at start
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import signal
@@ -136,6 +137,8 @@ _MESSAGE_TYPES = {
 # A stamp interval this many times the nominal frame period is a gap (frames lost on the way).
 _GAP_FACTOR = 1.8
 _PERIOD_WINDOW = 20
+# Gaps in a row of lengths within this share of their median are a new frame rate.
+_RATE_CHANGE_GAPS, _RATE_CHANGE_SPREAD = 3, 0.2
 _INT64_MAX = 2 ** 63 - 1
 # The parameters `usage` lists (the parameter file has them all).
 _MAIN_PARAMETERS = ('scale.source', 'mount.height', 'mount.pitch', 'camera.fx',
@@ -196,6 +199,7 @@ class PlanarVoNode(Node):
         ros = self.config.ros
 
         self._vo = VisualOdometry(self.config)
+        self._mono16_shift = self.config.camera.mono16_bits - 8
         self._camera: CameraModel | None = None
         self._throttle = WarningThrottle(ros.warn_period)
         self.outcomes: Counter[str] = Counter()
@@ -206,6 +210,7 @@ class PlanarVoNode(Node):
         self._stamps = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
         self._last_stamp_ns: int | None = None
         self._intervals: deque[int] = deque(maxlen=_PERIOD_WINDOW)
+        self._gaps_in_a_row: deque[tuple[int, int]] = deque(maxlen=_RATE_CHANGE_GAPS)
         self._path: deque[PoseStamped] = deque(maxlen=ros.path_max_length)
         self._path_tip: PoseStamped | None = None     # the latest pose, when not kept
         self._path_published = -math.inf
@@ -214,6 +219,7 @@ class PlanarVoNode(Node):
         self._focal_state = ''
         self._last_frame_id = ''
         self._period: Counter[str] = Counter()           # outcomes since the last diagnostics
+        self._period_scale: Counter[str] = Counter()     # scale sources of its odometry
         self._period_time: list[float] = []
         self._started = self._last_image = time.monotonic()
 
@@ -381,19 +387,21 @@ class PlanarVoNode(Node):
         if not enabled:
             self._tf = None
         elif TransformBroadcaster is None:
-            self.get_logger().info('ros.publish_tf: tf2_ros is not installed (it comes with ROS, '
-                                   'not PyPI); the odom -> base_link transform is not broadcast, '
-                                   'odom and path are still published')
+            self.get_logger().warning('ros.publish_tf: tf2_ros is not installed (ROS package '
+                                      'tf2_ros_py; it is not on PyPI); the odom -> base_link '
+                                      'transform is not broadcast, odom and path are still '
+                                      'published')
         elif self._tf is None:
             self._tf = TransformBroadcaster(self)
 
     # -- inputs --------------------------------------------------------------------------------
 
     def _on_image(self, msg: Image) -> None:
-        self._image(msg, image_to_array)
+        self._image(msg, functools.partial(image_to_array, mono16_shift=self._mono16_shift))
 
     def _on_compressed(self, msg: CompressedImage) -> None:
-        self._image(msg, compressed_to_array)
+        self._image(msg, functools.partial(compressed_to_array,
+                                           mono16_shift=self._mono16_shift))
 
     def _image(self, msg: Image | CompressedImage, decode) -> None:
         """Until the first CameraInfo has arrived, an image waits in one slot for it: a driver
@@ -471,6 +479,8 @@ class PlanarVoNode(Node):
         key = 'ok' if result.ok else result.reason.value
         self.outcomes[key] += 1
         self._period[key] += 1
+        if result.ok:
+            self._period_scale[result.scale_source] += 1
         self._note_tracking(stamp_ns, result)
         path_time = 0.0
         if result.ok:
@@ -514,6 +524,7 @@ class PlanarVoNode(Node):
         last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
         if check in (StampCheck.JUMP_BACK, StampCheck.NEW_TIME_BASE) or last is None:
             self._intervals.clear()
+            self._gaps_in_a_row.clear()
             return
         dt = stamp_ns - last
         if len(self._intervals) >= 3:
@@ -525,8 +536,32 @@ class PlanarVoNode(Node):
                 self._warn('gap', f'gap of {dt / 1e6:.0f} ms in the image stamps before '
                                   f'{_format_stamp(stamp_ns)} (about {missing} frame(s) missing at '
                                   f'{1e9 / period:.1f} Hz); odometry bridges it')
-                return          # the gap does not update the nominal period
+                self._rate_change(dt, missing, period)
+                return          # a gap does not update the nominal period
+        self._gaps_in_a_row.clear()
         self._intervals.append(dt)
+
+    def _rate_change(self, dt: int, missing: int, period: float) -> None:
+        """`_RATE_CHANGE_GAPS` gaps in a row of about one length are the camera's new frame rate
+        (a driver reconfigured, auto-exposure at dusk, a throttled topic), not lost frames:
+        the nominal period becomes theirs and they are taken off the counts."""
+        run = self._gaps_in_a_row
+        run.append((dt, missing))
+        if len(run) < _RATE_CHANGE_GAPS:
+            return
+        lengths = np.array([g for g, _ in run], dtype=np.float64)
+        if np.ptp(lengths) > _RATE_CHANGE_SPREAD * float(np.median(lengths)):
+            run.popleft()
+            return
+        self._counters['gaps'] -= len(run)
+        self._counters['missing_frames'] -= sum(m for _, m in run)
+        self._intervals.clear()
+        self._intervals.extend(int(g) for g in lengths)
+        run.clear()
+        self.get_logger().info(
+            f'image rate changed from {1e9 / period:.1f} to {1e9 / float(np.median(lengths)):.1f}'
+            f' Hz: the last {_RATE_CHANGE_GAPS} intervals were the new rate, not lost frames '
+            f'(taken off the gap counts)')
 
     def _note_tracking(self, stamp_ns: int, result: FrameResult) -> None:
         """One log line per change of the tracking state (warnings for lost and reinitialised);
@@ -719,6 +754,17 @@ class PlanarVoNode(Node):
         elif self._period[DropReason.PIPELINE_ERROR.value]:
             status.level = DiagnosticStatus.ERROR
             status.message = f'{state.value}; pipeline errors'
+        elif frames and not self._period['ok']:
+            # Images arrive but none gives odometry (say, a driver switched to an encoding the
+            # node cannot read): the tracking state may still say tracking.
+            reason, count = max(self._period.items(), key=lambda kv: kv[1])
+            status.level = DiagnosticStatus.WARN
+            status.message = (f'{state.value}; no odometry from {frames} images in the last '
+                              f'{period:g} s ({reason}: {count})')
+        elif (unscaled := self._unscaled_period()) is not None:
+            status.level = DiagnosticStatus.WARN
+            status.message = f'{state.value}; {unscaled}'
+            self._warn('scale', unscaled)
         else:
             status.level = (DiagnosticStatus.OK if state is TrackingState.TRACKING
                             else DiagnosticStatus.WARN)
@@ -746,7 +792,27 @@ class PlanarVoNode(Node):
         array.status = [status]
         self._diagnostics_pub.publish(array)
         self._period.clear()
+        self._period_scale.clear()
         self._period_time.clear()
+
+    def _unscaled_period(self) -> str | None:
+        """Why the odometry of the last diagnostics period had no step from the configured
+        scale source (only fallbacks: held or unit steps), or None when it had (or stood
+        still). A speed topic whose samples never cover the image stamps (another clock) is
+        named as such."""
+        source = self.config.scale.source
+        scales = self._period_scale
+        if source == 'unit' or not scales or scales[source] or scales['stationary']:
+            return None
+        used = ', '.join(f'{k} {v}' for k, v in sorted(scales.items()))
+        line = (f'no step from scale.source {source} in the last '
+                f'{self.config.ros.diagnostics_period:g} s (steps: {used})')
+        if source == 'speed':
+            received = self._counters['speed_messages']
+            line += (f'; {received} speed messages so far, none covering the image stamps '
+                     f'(check the speed topic\'s stamps and clock)' if received else
+                     f'; no speed message received on {self._speed_sub.topic_name}')
+        return line
 
     def _warn(self, key: str, message: str) -> None:
         held = self._throttle.admit(key)

@@ -27,6 +27,7 @@ from typing import Protocol
 
 import numpy as np
 
+from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import BagError, InputError, OutputError
 from planar_vo.io.images import CameraFrameDecoder, resolve_camera_topics
@@ -203,7 +204,10 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         next_speed = 0
         dropped: Counter[str] = Counter()
         poses = _Poses()
-        decoder = CameraFrameDecoder(bag, image_topic, info_topic)
+        # 16-bit grey images as the processor's configuration reads them (camera.mono16_bits).
+        config = getattr(processor, 'config', None)
+        shift = config.camera.mono16_bits - 8 if isinstance(config, PlanarVoConfig) else 8
+        decoder = CameraFrameDecoder(bag, image_topic, info_topic, mono16_shift=shift)
         decoder.prime()
         bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
                    disable=not progress, leave=False)

@@ -154,6 +154,18 @@ class OnlineFocalCalibrator:
     drives`): 600.4 +- 52.5 px (truth 707.1: -2.0 sigma), not adopted; an earlier version's
     per-AC calibrator gave 603.7 +- 4.4 px there, adopted (-23 sigma).
 
+    Where that bias comes from (dev scripts on the 19 KITTI 05 pairs): about half is the
+    principal point (with the true one configured: 649.8 px, -8 %); the rest follows each
+    turning pair's own rotation axis, tilted 1-14 deg from the vertical by the car's roll and
+    pitch in the turn (the pipeline's per-pair estimates of that tilt agree with the ground
+    truth's within 1.6 deg). At the true focal length the ground-truth motion explains a
+    pair's ACs far better than the best planar one (robust cost 121 against 630 on one pair).
+    Tried and not kept, because none moved the estimate reliably towards the truth: only pairs
+    tilted less than 3-5 deg (the same focal length); profiles about each pair's estimated
+    tilted axis (+3 % or -14 %, depending on how the roll is carried to other trial focal
+    lengths); first-order re-levelling (moves it the wrong way); more Lucas-Kanade iterations
+    in the front-end (+0.5 %).
+
     Args:
         width, height: image size (pixels).
         nominal: provisional focal before any information (default ``max(width, height)``,
