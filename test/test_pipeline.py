@@ -155,6 +155,39 @@ def test_covariance_is_derived_and_grows_along_the_drive():
     assert covs[-1, 5, 5] > 0.0 and covs[-1, 3, 3] > 0.0 and covs[-1, 4, 4] > 0.0
 
 
+def test_yaw_covariance_covers_errors_the_estimator_does_not_predict(monkeypatch):
+    """Every estimate's yaw disturbed by 0.05 deg of noise its covariance does not know about
+    (errors shared by all ACs of a frame, as on real roads): after a few steps the published
+    yaw variance includes it, measured from the steps' yaw-rate changes (no ground truth)."""
+    import dataclasses
+
+    from planar_vo.core.conventions import rotation_y
+
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    rng = np.random.default_rng(7)
+    real = vo._estimate
+
+    def disturbed(acs, camera):
+        est = real(acs, camera)
+        R_lc = vo._estimator.R_lc
+        noise = R_lc.T @ rotation_y(np.deg2rad(0.05) * rng.standard_normal()) @ R_lc
+        return dataclasses.replace(est, R=noise @ est.R)
+
+    monkeypatch.setattr(vo, '_estimate', disturbed)
+    results = [vo.process(image, float(stamp)) for stamp, image in
+               zip(trajectory.stamps, images)]
+    assert all(r.ok for r in results[1:])
+    truth = [invert(trajectory.poses[0]) @ P for P in trajectory.poses]
+    yaw_true = np.unwrap([yaw_of(P[:3, :3]) for P in truth])
+    yaw_est = np.unwrap([yaw_of(r.pose[:3, :3]) for r in results])
+    error = np.diff(yaw_est - yaw_true)[12:]
+    variance = np.diff([r.pose_covariance[5, 5] for r in results])[12:]
+    nees = error ** 2 / variance
+    assert len(nees) >= 15
+    assert 0.3 < np.mean(nees) < 3.0, (np.mean(nees), np.rad2deg(np.sqrt(variance)))
+
+
 def test_flat_output_keeps_x_y_yaw_and_states_the_flat_world():
     config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
                                        'odometry': {'output': 'flat'}})
