@@ -50,3 +50,47 @@ def test_python_dash_m_entry_point():
     proc = subprocess.run([sys.executable, '-m', 'planar_vo', '--version'],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and __version__ in proc.stdout
+
+
+def test_every_help_page_prints(capsys):
+    """Help strings are %-formatted by argparse: a bare '%' in one broke `bench --help`."""
+    from planar_vo.cli.bench import BENCHES
+
+    for argv in (['bench', '--help'], *(['bench', name, '--help'] for name in BENCHES),
+                 *([name, '--help'] for name in ('demo', 'replay', 'eval', 'import-kitti'))):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 0, argv
+    assert 'flat within 5 percent' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(('argv', 'message'), [
+    (['demo', '--seed', '-1', '--frames', '3'],
+     'planar_vo demo: error: --seed: expected an integer in [0, 2^32), got -1'),
+    (['bench', 'paper', '--quick', '--seed', '-1'],
+     'planar_vo bench: error: --seed: expected an integer of at least 0, got -1'),
+    (['bench', 'paper', '--quick', '--jobs', '0'],
+     'planar_vo bench: error: --jobs: expected an integer of at least 1, got 0'),
+    (['bench', 'frontend', '--asift-pairs', '-1'],
+     'planar_vo bench: error: --asift-pairs: expected an integer of at least 0, got -1'),
+])
+def test_bad_options_are_refused_before_any_work(tmp_path, monkeypatch, capsys, argv, message):
+    """One line and exit code 1, and nothing touched: a previous demo folder survives a bad
+    seed, a benchmark's output folder is checked before minutes of work."""
+    monkeypatch.chdir(tmp_path)
+    demo = tmp_path / 'planar_vo_demo'
+    demo.mkdir()
+    (demo / 'odometry.tum').write_text('kept\n')
+    assert main(argv) == 1
+    assert capsys.readouterr().err.strip() == message
+    assert (demo / 'odometry.tum').read_text() == 'kept\n'
+
+
+def test_bench_output_folder_is_checked_first(tmp_path, capsys):
+    (tmp_path / 'file').write_text('')
+    assert main(['bench', 'paper', '--quick', '--out', str(tmp_path / 'file')]) == 1
+    assert capsys.readouterr().err.strip() == (f"planar_vo bench: error: --out: "
+                                               f"'{tmp_path / 'file'}' exists and is not a folder")
+    assert main(['bench', 'fleet', '--work', str(tmp_path / 'file'),
+                 '--out', str(tmp_path / 'o')]) == 1
+    assert "--work: '" in capsys.readouterr().err

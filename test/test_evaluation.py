@@ -70,6 +70,11 @@ GOOD = '1.0 0 0 0 0 0 0 1'
     ([GOOD, '1.0 1 2 3 0 0 0 1'], r't\.tum line 2: expected increasing timestamps, got 1\.0 '
                                   r'after 1\.000000000'),
     (['# nothing here'], r"tum: '.*t\.tum' contains no poses"),
+    # nanoseconds written as seconds: beyond ROS time (int64 nanoseconds)
+    ([GOOD, '10000000000 1 2 3 0 0 0 1'], r't\.tum line 2: expected a timestamp in seconds '
+                                          r'within \+-9\.2e9 s'),
+    # squaring such a coordinate overflows the alignment
+    ([GOOD, '2.0 1e308 2 3 0 0 0 1'], r't\.tum line 2: expected positions within 1e\+09 m'),
 ])
 def test_tum_errors_name_the_line(tmp_path, lines, match):
     (tmp_path / 't.tum').write_text('\n'.join(lines) + '\n')
@@ -123,6 +128,10 @@ def test_umeyama_never_returns_a_reflection(rng):
         umeyama(np.zeros((5, 3)), rng.normal(size=(5, 3)))
     with pytest.raises(InputError, match=r'arguments must have the same number of items'):
         umeyama(src, src[:5])
+    huge = src.copy()
+    huge[3] = 1e300                # LAPACK's SVD may never return on the overflowed products
+    with pytest.raises(InputError, match=r'src, dst: coordinates too large to align'):
+        umeyama(huge, src)
 
 
 # -- metrics on exact synthetic trajectories ----------------------------------------------------

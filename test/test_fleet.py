@@ -468,6 +468,29 @@ def test_without_ray_one_line_and_exit_1(drives, tmp_path, capsys, monkeypatch):
     assert not (tmp_path / 'o').exists()
 
 
+def test_an_unreachable_head_address_is_one_line_and_exit_1(drives, tmp_path, capsys):
+    """Ray would retry a host:port head that does not answer for ever; nothing listens on
+    port 1 of this machine."""
+    args = ['fleet', 'run', str(drives['drive_a']), '--out', str(tmp_path / 'o'), '--address',
+            '127.0.0.1:1']
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("planar_vo fleet: error: address: cannot reach Ray at '127.0.0.1:1' "
+                          'within 5 s') and '\n' not in err
+    assert main(args[:-1] + ['head-without-port']) == 1
+    assert "expected 'auto', 'host:port' or 'ray://host:port'" in capsys.readouterr().err
+
+
+@pytest.mark.timeout(180)
+def test_a_fleet_whose_every_run_failed_exits_1(drives, tmp_path, capsys):
+    args = ['fleet', 'run', str(drives['truncated']), str(drives['missing']), '--out',
+            str(tmp_path / 'o'), '--workers', '1', '--no-progress']
+    assert main(args) == 1
+    captured = capsys.readouterr()
+    assert '0 ok, 2 failed' in captured.out
+    assert captured.err.strip() == 'planar_vo fleet: error: all 2 runs failed'
+
+
 def test_replay_and_the_node_never_import_ray(drives, tmp_path):
     code = (
         'import sys\n'

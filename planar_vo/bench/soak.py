@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-HELP = 'memory and time per frame over a long drive through the node (flat within 5 %)'
+HELP = 'memory and time per frame over a long drive through the node (flat within 5 percent)'
 EXAMPLES = """examples:
   planar_vo bench soak --frames 10000 --out planar_vo/bench/results/soak
   planar_vo bench soak --frames 2000 --every 250

@@ -48,8 +48,37 @@ def register(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
+def _check_common(args: argparse.Namespace) -> None:
+    """The options several benchmarks share, checked before any work (a benchmark runs for
+    minutes and writes its report at the end): the output folder can be written, seeds are
+    non-negative, counts are positive."""
+    import os
+    from pathlib import Path
+
+    from planar_vo.errors import InputError, OutputError
+
+    for name, low in (('seed', 0), ('jobs', 1), ('asift_pairs', 0)):
+        value = getattr(args, name, None)
+        if value is not None and value < low:
+            raise InputError(f'--{name.replace("_", "-")}: expected an integer of at least '
+                             f'{low}, got {value}')
+    work = getattr(args, 'work', None)
+    if work is not None and Path(work).exists() and not Path(work).is_dir():
+        raise InputError(f"--work: '{work}' exists and is not a folder")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out: '{out}' exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"--out: cannot create '{out}' ({err.strerror or err})") from err
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise OutputError(f"--out: '{out}' is not writable")
+
+
 def run(args: argparse.Namespace) -> int:
     args.command = command_argv(['planar_vo', 'bench', args.bench], args.bench_parser, args)
+    _check_common(args)
     try:
         return int(args.bench_module.run(args) or 0)
     except BenchDependencyError as err:

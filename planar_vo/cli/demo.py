@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from planar_vo.errors import InputError
+
 EXAMPLES = """examples:
   planar_vo demo                               everything into ./planar_vo_demo
   planar_vo demo --out /tmp/demo --camera 1241x376
@@ -51,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.cli import show_progress
 
     start = time.perf_counter()
+    if not 0 <= args.seed < 2 ** 32:
+        raise InputError(f'--seed: expected an integer in [0, 2^32), got {args.seed}')
     if args.solvers:
         from planar_vo.bench.solvers import format_accuracy_table, solver_accuracy
 

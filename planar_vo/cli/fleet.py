@@ -13,6 +13,7 @@ Needs Ray: pip install 'planar_vo[fleet]'.
 from __future__ import annotations
 
 import argparse
+import sys
 
 EXAMPLES = """examples:
   planar_vo fleet run drives/*.mcap --out fleet_out               one task per bag, all CPUs
@@ -93,4 +94,10 @@ def run(args: argparse.Namespace) -> int:
                        workers=args.workers, retries=args.retries,
                        progress=show_progress(args), command=command)
     print(result.format())
-    return 130 if result.interrupted else 0
+    if result.interrupted:
+        return 130
+    if result.rows and all(row['status'] == 'failed' for row in result.rows):
+        # Nothing usable came out (every row names its reason above): a script must see it.
+        print(f'planar_vo fleet: error: all {len(result.rows)} runs failed', file=sys.stderr)
+        return 1
+    return 0

@@ -84,6 +84,8 @@ def run_demo(out_dir: str | Path = 'planar_vo_demo', *, camera: str = '640x480',
         raise InputError(f"camera: expected one of {list(CAMERAS)}, got '{camera}'")
     if frames is not None and frames < 3:
         raise InputError(f'frames: expected at least 3, got {frames}')
+    if not 0 <= seed < 2 ** 32:
+        raise InputError(f'seed: expected an integer in [0, 2^32), got {seed}')
     out_dir = Path(out_dir)
     _prepare(out_dir, force)
     try:

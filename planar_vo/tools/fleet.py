@@ -91,6 +91,7 @@ EST_TOPIC = '/odom'
 ALIGN = 'sim3'
 THUMBNAIL_POINTS = 150          # points per trajectory kept for the report's thumbnails
 CLIENT_ATTEMPTS = 3             # connections to a ray:// address whose server fails to start
+CONNECT_TIMEOUT_S = 5.0         # a host:port head must accept a TCP connection within this
 
 
 # -- configurations and jobs ----------------------------------------------------------------------
@@ -475,6 +476,8 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
         return
     workers = default_workers() if workers is None else workers
     common = {'log_to_driver': False, 'logging_level': logging.ERROR}
+    if address:
+        _check_reachable(address)
     try:
         if address:
             for attempt in range(1, CLIENT_ATTEMPTS + 1):
@@ -499,6 +502,25 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
         yield ray
     finally:
         ray.shutdown()
+
+
+def _check_reachable(address: str) -> None:
+    """A ``host:port`` head address must accept a TCP connection within
+    `CONNECT_TIMEOUT_S`: Ray itself retries an unreachable head for ever (every 30 s a log
+    line, no error). ``auto``, ``local`` and ``ray://`` addresses fail on their own."""
+    import socket
+
+    if address in ('auto', 'local') or '://' in address:
+        return
+    host, sep, port = address.rpartition(':')
+    if not sep or not port.isdigit():
+        raise InputError(f"address: expected 'auto', 'host:port' or 'ray://host:port', got "
+                         f"'{address}'")
+    try:
+        socket.create_connection((host.strip('[]'), int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as err:
+        raise InputError(f"address: cannot reach Ray at '{address}' within "
+                         f'{CONNECT_TIMEOUT_S:g} s ({err.strerror or err})') from err
 
 
 def default_workers() -> int:

@@ -54,12 +54,16 @@ def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = False
     src = as_array('src', src, (None, 3), min_items=2)
     dst = as_array('dst', dst, (None, 3), min_items=2)
     same_length(src=src, dst=dst)
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    xs, xd = src - mu_s, dst - mu_d
-    var_s = float(np.mean(np.sum(xs * xs, axis=1)))
+    with np.errstate(over='ignore', invalid='ignore'):     # overflow is checked below
+        mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+        xs, xd = src - mu_s, dst - mu_d
+        var_s = float(np.mean(np.sum(xs * xs, axis=1)))
+        sigma = xd.T @ xs / src.shape[0]
     if var_s <= 1e-24:
         raise InputError('src: expected points that are not all identical, got a single point')
-    sigma = xd.T @ xs / src.shape[0]
+    if not (np.isfinite(var_s) and np.isfinite(sigma).all()):
+        # LAPACK's SVD may not return on infinite input (coordinates near 1e308 overflow).
+        raise InputError('src, dst: coordinates too large to align (their products overflow)')
     U, D, Vt = np.linalg.svd(sigma)
     S = np.ones(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:

@@ -37,6 +37,12 @@ POSE_TYPES = (
 
 # -- TUM files ----------------------------------------------------------------------------------
 
+# The int64 nanoseconds of ROS time, and positions no odometry reaches (a trajectory 1e9 m
+# long circles the Earth 25,000 times; squaring larger values overflows the alignment).
+_MAX_STAMP_NS = 2 ** 63 - 1
+_MAX_COORDINATE = 1e9
+
+
 def _parse_stamp(text: str) -> int:
     value = Decimal(text)
     if not value.is_finite():
@@ -72,6 +78,12 @@ def read_tum(path: str | Path) -> Trajectory:
             raise InputError(f'{where}: expected 8 numbers, got {line.strip()[:80]!r}') from None
         if not all(np.isfinite(values)):
             raise InputError(f'{where}: expected finite values, got {line.strip()[:80]!r}')
+        if not -_MAX_STAMP_NS <= stamp <= _MAX_STAMP_NS:
+            raise InputError(f'{where}: expected a timestamp in seconds within +-9.2e9 s (ROS '
+                             f'time, int64 nanoseconds), got {tokens[0]} (nanoseconds?)')
+        if max(abs(v) for v in values[:3]) > _MAX_COORDINATE:
+            raise InputError(f'{where}: expected positions within {_MAX_COORDINATE:.0e} m, got '
+                             f'{line.strip()[:80]!r}')
         if not any(values[3:]):
             raise InputError(f'{where}: expected a non-zero quaternion, got 0 0 0 0')
         if stamps and stamp <= stamps[-1]:

@@ -240,7 +240,12 @@ class Evaluation:
     def format_table(self) -> str:
         """Markdown table of the main numbers."""
         m = self.metrics()
-        rows = [('matched poses', f"{m['poses']['matched']}"),
+        poses = m['poses']
+        matched = f"{poses['matched']}"
+        if 'estimate_unmatched' in poses:
+            matched += (f" (unmatched: {poses['estimate_unmatched']} estimated, "
+                        f"{poses['reference_unmatched']} reference)")
+        rows = [('matched poses', matched),
                 ('path length (m)', f"{m['path_length_m']:.3f}"),
                 ('alignment', f"{self.alignment.method} (scale {self.alignment.scale:.6f})")]
         for key, label in (('ate_m', 'ATE (m)'),):
