@@ -26,7 +26,8 @@ def test_yaml_file_mirrors_dataclass_defaults():
 
 
 def test_generated_yaml_round_trips(tmp_path):
-    config = PlanarVoConfig.from_dict({'voting': {'bins': 360}, 'camera': {'distortion': [0.1]}})
+    config = PlanarVoConfig.from_dict({'voting': {'bins': 360}, 'camera': {
+        'distortion_model': 'plumb_bob', 'distortion': [0.1, -0.05, 0.0, 0.0, 0.01]}})
     path = tmp_path / 'p.yaml'
     path.write_text(to_ros_yaml(config))
     assert load_config(path) == config
@@ -50,6 +51,16 @@ def test_plain_nested_yaml(tmp_path):
     path.write_text('voting:\n  bins: 180\nmount:\n  height: 1.65\n')
     config = load_config(path)
     assert config.voting.bins == 180 and config.mount.height == 1.65
+
+
+def test_exponents_without_a_dot_are_numbers_as_in_ros_parameter_files(tmp_path):
+    """PyYAML (YAML 1.1) reads 2e-2 as text; ROS 2 reads it as a double."""
+    path = tmp_path / 'c.yaml'
+    path.write_text('camera:\n  focal_tolerance: 2e-2\nvoting:\n  point_noise: 1.5e-3\n')
+    config = load_config(path)
+    assert (config.camera.focal_tolerance, config.voting.point_noise) == (0.02, 0.0015)
+    with pytest.raises(ConfigError, match=r"mount.height: expected float, got str '1.6 m'"):
+        PlanarVoConfig.from_dict({'mount': {'height': '1.6 m'}})
 
 
 def test_int_is_accepted_for_float_but_not_bool_for_int():
@@ -79,6 +90,12 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
     ({'ros': {'odom_frame': ''}}, r"ros.odom_frame: expected a frame id without"),
     ({'camera': {'mono16_bits': 17}}, r'camera.mono16_bits: expected an integer number of bits '
                                       r'in 8..16, got 17'),
+    # checked with the configuration, not frame by frame in the pipeline
+    ({'camera': {'distortion_model': 'plumb_bob', 'distortion': [0.1]}},
+     r"camera.distortion: expected 5 coefficients for distortion_model 'plumb_bob' \(or 4: "
+     r"k3 = 0\), got \(0.1,\)"),
+    ({'camera': {'distortion': [0.1, 0.0]}},
+     r"camera.distortion: expected 0 coefficients for distortion_model 'none'"),
     ({'voting': 3}, r'voting: expected a mapping, got int'),
     # a YAML integer of 400 digits is a Python int: a ConfigError, not OverflowError
     ({'mount': {'height': 10**400}}, r'mount.height: expected float, got an int of 1329 bits '

@@ -136,6 +136,16 @@ def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
      r"poses\.txt line 2: expected a 3x4 pose as 12 numbers, got '1 2 3'"),
     (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n'),
      r'poses\.txt: expected one pose per image \(4\), got 1'),
+    # a scaled, a zero and a mirrored rotation block
+    (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n' * 3
+                                            + '2 0 0 0 0 2 0 0 0 0 2 0\n'),
+     r'poses\.txt line 4: expected a rotation matrix in the first 3x3 block \(orthonormal, '
+     r'determinant \+1\), got R\^T R off the identity by 3 and determinant 8'),
+    (lambda d: (d / 'poses.txt').write_text('0 0 0 0 0 0 0 0 0 0 0 0\n'
+                                            + '1 0 0 0 0 1 0 0 0 0 1 0\n' * 3),
+     r'poses\.txt line 1: expected a rotation matrix'),
+    (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 -1 0\n' * 4),
+     r'poses\.txt line 1: expected a rotation matrix .* determinant -1'),
     (lambda d: cv2.imwrite(str(d / 'image_0' / '000002.png'), np.zeros((31, 40), np.uint8)),
      r"images: expected every image 40x30, got 40x31 for '000002\.png'"),
     (lambda d: (d / 'image_0' / '000001.png').write_bytes(b'not a png'),

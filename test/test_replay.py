@@ -80,6 +80,30 @@ def test_replay_refuses_to_overwrite_and_reports_bad_input(tmp_path, capsys, dri
     assert err.startswith('planar_vo replay: error:') and '\n' not in err
 
 
+def test_replay_says_once_why_frames_are_dropped(tmp_path, caplog, drive_bags):
+    """A camera model whose size is not the images' (configured for another resolution): every
+    frame is dropped; the first drop of the kind says why, the summary counts them all."""
+    from planar_vo.config import PlanarVoConfig
+    from planar_vo.pipeline import VisualOdometry
+    from planar_vo.tools.replay import replay_bag
+
+    _, bags = drive_bags
+    config = PlanarVoConfig.from_flat({'camera.fx': 700.0, 'camera.cx': 612.0,
+                                       'camera.cy': 185.0, 'mount.height': 1.5})
+    wrong = CameraModel.pinhole(1226, 370, 700.0)
+
+    class OtherCamera(VisualOdometry):
+        def process(self, image, stamp, camera=None):
+            return super().process(image, stamp, wrong)
+
+    with caplog.at_level('WARNING', logger='planar_vo.tools.replay'):
+        summary = replay_bag(bags['mcap'], tmp_path / 'o', OtherCamera(config), progress=False)
+    assert summary.format().count('size_changed') == 1
+    lines = [r.getMessage() for r in caplog.records if 'dropped' in r.getMessage()]
+    assert len(lines) == 1
+    assert 'size_changed: image is 640x480 but the camera model is 1226x370' in lines[0]
+
+
 def test_demo_writes_everything(tmp_path):
     result = run_demo(tmp_path / 'demo', frames=25, progress=False, log=lambda *_: None)
     for name in ('drive', 'odometry', 'tum', 'metrics', 'trajectory', 'ate', 'yaw_heading'):

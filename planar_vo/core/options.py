@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from typing import Any, ClassVar
@@ -17,6 +18,10 @@ from typing import Any, ClassVar
 from planar_vo.errors import ConfigError
 
 __all__ = ['Options', 'Range', 'bounded', 'finite']
+
+# A number with an exponent (2e-2, 1.5e3, -1E3): YAML 1.1 (PyYAML) reads it as text unless it has
+# a dot and a signed exponent; YAML 1.2 and ROS 2's parameter files read it as a number.
+_YAML12_FLOAT = re.compile(r'[-+]?([0-9]+(\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,6 +161,10 @@ def _coerce(key: str, raw: Any, hint: Any) -> Any:
                                   f'(at most 64)')
             return raw
     elif hint is float:
+        if isinstance(raw, str) and _YAML12_FLOAT.fullmatch(raw.strip()):
+            # YAML 1.1 (PyYAML) reads 2e-2 as a string, YAML 1.2 and ROS 2's parameter files
+            # as a number: a file ROS accepts must not be refused here.
+            raw = float(raw)
         if isinstance(raw, (int, float)) and not isinstance(raw, bool):
             try:
                 return float(raw)

@@ -140,6 +140,10 @@ def _read_speeds(bag: BagReader, topic: str) -> tuple[list[int], list[float]]:
     return [s[0] for s in samples], [s[1] for s in samples]
 
 
+# Drops that are part of every replay (the first frame sets the reference), not worth a warning.
+_EXPECTED_DROPS = frozenset({'first_frame'})
+
+
 def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProcessor, *,
                image_topic: str | None = None, camera_info_topic: str | None = None,
                speed_topic: str | None = None, copy_topics: Iterable[str] | None = None,
@@ -245,6 +249,11 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                         poses.add(frame.stamp_ns, result.pose)
                     else:
                         dropped[reason] += 1
+                        if dropped[reason] == 1 and reason not in _EXPECTED_DROPS:
+                            # The first of each kind says why; the summary counts them all.
+                            log.warning('frame %d (%d ns) dropped, %s: %s (further %s frames '
+                                        'are counted in the summary)', frame.index,
+                                        frame.stamp_ns, reason, result.message, reason)
                     log.debug('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
                               reason or 'odometry')
         except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
