@@ -73,6 +73,8 @@ def test_every_help_page_prints(capsys):
      'planar_vo bench: error: --jobs: expected an integer of at least 1, got 0'),
     (['bench', 'frontend', '--asift-pairs', '-1'],
      'planar_vo bench: error: --asift-pairs: expected an integer of at least 0, got -1'),
+    (['demo', '--solvers', '--sigmas', 'inf'],
+     'planar_vo demo: error: sigmas: expected finite non-negative noise levels, got [inf]'),
 ])
 def test_bad_options_are_refused_before_any_work(tmp_path, monkeypatch, capsys, argv, message):
     """One line and exit code 1, and nothing touched: a previous demo folder survives a bad

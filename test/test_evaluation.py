@@ -419,3 +419,8 @@ def test_se2_drift_ignores_height_roll_and_pitch():
     metrics = evaluate(ref, est).metrics()
     assert metrics['kitti_se2']['r_rel_deg_per_100m'] < 1e-9
     assert metrics['kitti']['segments'] == 21 + 11 + 1
+
+
+def test_tum_with_a_byte_order_mark_reads_like_without(tmp_path):
+    (tmp_path / 't.tum').write_text('\ufeff' + GOOD + '\n2.0 1 2 3 0 0 0 1\n', encoding='utf-8')
+    assert len(read_tum(tmp_path / 't.tum')) == 2

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import csv
 import logging
+import math
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -148,8 +149,8 @@ def run_experiments(sigmas: Sequence[float], *, runs: int, samples: int, seed: i
     if runs < 1 or samples < 1:
         raise InputError(f'runs and samples: expected at least 1, got runs={runs}, '
                          f'samples={samples}')
-    if not sigmas or any(not (s >= 0.0) for s in sigmas):
-        raise InputError(f'sigmas: expected non-negative noise levels, got {list(sigmas)}')
+    if not sigmas or any(not (0.0 <= s < math.inf) for s in sigmas):
+        raise InputError(f'sigmas: expected finite non-negative noise levels, got {list(sigmas)}')
     names = [m.name for m in METHODS] if methods is None else list(methods)
     cells = [(i, j, sc, s) for i, sc in enumerate(SCENARIOS) for j, s in enumerate(sigmas)]
     tasks = [(sc, names, float(s), runs, samples, (seed, i, j)) for i, j, sc, s in cells]

@@ -12,6 +12,7 @@ Errors are absolute angle differences in degrees; the focal error is relative.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -41,8 +42,8 @@ def solver_accuracy(sigmas: Sequence[float], *, trials: int = 200, seed: int = 0
     """
     if trials < 1:
         raise InputError(f'trials: expected at least 1, got {trials}')
-    if any(not (s >= 0.0) for s in sigmas):
-        raise InputError(f'sigmas: expected non-negative noise levels, got {list(sigmas)}')
+    if any(not (0.0 <= s < math.inf) for s in sigmas):
+        raise InputError(f'sigmas: expected finite non-negative noise levels, got {list(sigmas)}')
     rng = np.random.default_rng(seed)
     rows = []
     for sigma in sigmas:

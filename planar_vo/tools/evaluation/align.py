@@ -60,7 +60,8 @@ def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = False
         var_s = float(np.mean(np.sum(xs * xs, axis=1)))
         sigma = xd.T @ xs / src.shape[0]
     if var_s <= 1e-24:
-        raise InputError('src: expected points that are not all identical, got a single point')
+        raise InputError(f'src: expected points that are not all identical (a trajectory that '
+                         f'moves), got {len(src)} identical points')
     if not (np.isfinite(var_s) and np.isfinite(sigma).all()):
         # LAPACK's SVD may not return on infinite input (coordinates near 1e308 overflow).
         raise InputError('src, dst: coordinates too large to align (their products overflow)')

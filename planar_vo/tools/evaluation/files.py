@@ -59,7 +59,7 @@ def read_tum(path: str | Path) -> Trajectory:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding='utf-8')
+        text = path.read_text(encoding='utf-8-sig')      # a byte-order mark is not data
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"tum: cannot read '{path}' ({err})") from err
     stamps, rows = [], []
