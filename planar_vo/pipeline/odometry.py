@@ -463,7 +463,9 @@ class VisualOdometry:
     def _motion_covariance(self, est: FrameEstimate, dt: float) -> np.ndarray:
         """The estimator's 5x5 covariance, widened by the focal length's uncertainty while it
         is self-calibrated (a relative focal error ``e`` scales every rotation angle by about
-        ``1 + e``) and by the yaw error the estimator's own covariance misses (`_yaw_excess`)."""
+        ``1 + e``) and by the yaw error the estimator's own covariance misses (`_yaw_excess`,
+        measured before this step; the step's yaw rate and predicted variance then join its
+        history)."""
         cov = est.cov.copy()
         if self._focal is not None and self._camera is None:
             rel = min(self._focal.relative_std, 1.0)
