@@ -129,7 +129,7 @@ def test_paper_experiments_do_not_depend_on_the_number_of_workers():
     assert len(rows1) == 4 * 2 * 2 + 2 * 2                  # 1ACf: untilted+tilted general
     np.testing.assert_array_equal(free1['forward']['2PC']['rot'], free2['forward']['2PC']['rot'])
     assert max(free1['general']['1AC']['rot']) < 1e-9
-    with pytest.raises(InputError, match='sigmas: expected non-negative noise levels'):
+    with pytest.raises(InputError, match='sigmas: expected finite non-negative noise levels'):
         run_experiments([-1.0], **kwargs)
 
 

@@ -440,7 +440,8 @@ def test_run_time_parameter_changes_are_validated_and_described(prefix, ros_env,
     from rclpy.parameter import Parameter
 
     # An integer for a float parameter and a list for the empty-list default are accepted.
-    args = node_args(prefix, {'mount.height': 2, 'camera.distortion': '[0.1, -0.01, 0.0, 0.0]'})
+    args = node_args(prefix, {'mount.height': 2, 'camera.distortion_model': 'plumb_bob',
+                              'camera.distortion': '[0.1, -0.01, 0.0, 0.0]'})
     with Probe(ros_env) as probe, NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
         probe.subscribe('/status', DiagnosticArray)
         probe.wait_for_publisher('/status', alive=[node])
@@ -492,7 +493,8 @@ def test_run_time_parameter_changes_are_validated_and_described(prefix, ros_env,
         output = node.output()
     start = [ln for ln in output.splitlines() if 'listening on' in ln]
     assert len(start) == 1 and start[0].startswith('[INFO]'), output
-    assert '2 set: camera.distortion = [0.1, -0.01, 0.0, 0.0], mount.height = 2.0' in start[0]
+    assert ("3 set: camera.distortion_model = 'plumb_bob', camera.distortion = [0.1, -0.01, "
+            "0.0, 0.0], mount.height = 2.0") in start[0]
     assert 'voting.bins = ' not in output           # the full dump is at DEBUG level
 
 
