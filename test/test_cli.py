@@ -73,6 +73,8 @@ def test_every_help_page_prints(capsys):
      'planar_vo bench: error: --jobs: expected an integer of at least 1, got 0'),
     (['bench', 'frontend', '--asift-pairs', '-1'],
      'planar_vo bench: error: --asift-pairs: expected an integer of at least 0, got -1'),
+    (['demo', '--frames', '100000'],
+     'planar_vo demo: error: frames: expected at most 392 (the demo drive), got 100000'),
     (['demo', '--solvers', '--sigmas', 'inf'],
      'planar_vo demo: error: sigmas: expected finite non-negative noise levels, got [inf]'),
 ])

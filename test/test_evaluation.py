@@ -319,6 +319,18 @@ def test_read_bag_trajectory_exact_and_errors(tmp_path, rng):
         read_bag_trajectory(path, '/gt', role='gt-topic')
 
 
+def test_a_bad_pose_in_a_bag_names_the_bag_topic_and_stamp(tmp_path):
+    from bagdata import odometry_msg, write_bag
+
+    entries = [('/gt', 'nav_msgs/msg/Odometry', 1_000_000_000 + k * 100_000_000,
+                odometry_msg(1_000_000_000 + k * 100_000_000, float('nan') if k == 2 else k))
+               for k in range(4)]
+    path = write_bag(tmp_path / 'gt_nan', 'mcap', entries)
+    with pytest.raises(InputError, match=r"gt-topic: '/gt' in '.*gt_nan', the message stamped "
+                                         r'1\.200000000 s: .*finite'):
+        read_bag_trajectory(path, '/gt', role='gt-topic')
+
+
 def test_cli_eval_tum_files_writes_metrics_and_plots(tmp_path, rng, capsys):
     gt = _drive(rng)
     est = _noisy_estimate(rng, gt, scale=1.0)

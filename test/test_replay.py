@@ -104,6 +104,20 @@ def test_replay_says_once_why_frames_are_dropped(tmp_path, caplog, drive_bags):
     assert 'size_changed: image is 640x480 but the camera model is 1226x370' in lines[0]
 
 
+def test_replay_checks_the_tum_path_before_replaying(tmp_path, capsys, drive_bags):
+    _, bags = drive_bags
+    out = tmp_path / 'o'
+    assert main(['replay', str(bags['mcap']), '--out', str(out), '--tum',
+                 str(tmp_path / 'missing' / 'x.tum')]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == (f"planar_vo replay: error: tum: cannot write '{tmp_path / 'missing' / 'x.tum'}'"
+                   f" (its folder '{tmp_path / 'missing'}' does not exist or is not writable)")
+    assert not out.exists()
+    assert main(['replay', str(bags['mcap']), '--out', str(out), '--tum', str(out)]) == 1
+    assert "is also the output bag's path" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_demo_writes_everything(tmp_path):
     result = run_demo(tmp_path / 'demo', frames=25, progress=False, log=lambda *_: None)
     for name in ('drive', 'odometry', 'tum', 'metrics', 'trajectory', 'ate', 'yaw_heading'):

@@ -86,6 +86,12 @@ def run_demo(out_dir: str | Path = 'planar_vo_demo', *, camera: str = '640x480',
         raise InputError(f'frames: expected at least 3, got {frames}')
     if not 0 <= seed < 2 ** 32:
         raise InputError(f'seed: expected an integer in [0, 2^32), got {seed}')
+    if frames is not None:
+        from planar_vo.sim.drive import demo_drive
+
+        total = len(demo_drive())
+        if frames > total:
+            raise InputError(f'frames: expected at most {total} (the demo drive), got {frames}')
     out_dir = Path(out_dir)
     _prepare(out_dir, force)
     try:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import bisect
 import logging
+import os
 import sys
 import time
 from collections import Counter
@@ -185,8 +186,17 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
 
     start = time.perf_counter()
     out_path = Path(out_path)
-    if tum_path is not None and Path(tum_path).exists():
-        raise BagError(f"tum: '{tum_path}' already exists; refusing to overwrite it")
+    if tum_path is not None:
+        tum = Path(tum_path)
+        if tum.exists():
+            raise BagError(f"tum: '{tum_path}' already exists; refusing to overwrite it")
+        if tum.resolve() == out_path.resolve():
+            raise BagError(f"tum: '{tum_path}' is also the output bag's path")
+        folder = tum.parent
+        if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+            # Found now, not after the whole replay.
+            raise OutputError(f"tum: cannot write '{tum_path}' (its folder '{folder}' does not "
+                              f'exist or is not writable)')
     summary = ReplaySummary(str(in_path), str(out_path), None if tum_path is None else
                             str(tum_path))
     writer = OdometryBagWriter(out_path, storage=storage, topic=odom_topic,

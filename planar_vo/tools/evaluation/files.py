@@ -143,7 +143,11 @@ def read_bag_trajectory(path: str | Path, topic: str, *, role: str = 'topic') ->
     with open_bag(path) as bag:
         for item in iter_messages(bag, topic, POSE_TYPES, role=role):
             stamps.append(item.stamp_ns)
-            poses.append(pose_from_message(item.msg))
+            try:
+                poses.append(pose_from_message(item.msg))
+            except InputError as err:
+                raise InputError(f"{role}: '{topic}' in '{path}', the message stamped "
+                                 f'{_format_ns(item.stamp_ns)} s: {err}') from err
     if not poses:
         raise InputError(f"{role}: '{topic}' in '{path}' has no messages")
     stamps_arr = np.array(stamps, dtype=np.int64)
