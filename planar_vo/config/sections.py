@@ -22,7 +22,7 @@ import math
 import typing
 from typing import Any
 
-from planar_vo.core.camera import DISTORTION_MODELS
+from planar_vo.core.camera import DISTORTION_MODELS, fits_distortion_model
 from planar_vo.core.options import Options, bounded, finite
 from planar_vo.core.robust.options import EstimatorConfig, VotingConfig
 from planar_vo.errors import ConfigError
@@ -97,9 +97,7 @@ class CameraConfig(Options):
     def validate(self) -> None:
         self._require(finite(*self.distortion), 'distortion', 'finite coefficients')
         count = DISTORTION_MODELS[self.distortion_model]
-        self._require(len(self.distortion) == count
-                      or (self.distortion_model == 'plumb_bob' and len(self.distortion) == 4)
-                      or (count == 0 and not any(self.distortion)), 'distortion',
+        self._require(fits_distortion_model(self.distortion_model, self.distortion), 'distortion',
                       f"{count} coefficients for distortion_model '{self.distortion_model}'"
                       + (' (or 4: k3 = 0)' if self.distortion_model == 'plumb_bob' else ''))
         self._require(self.focal_max_blocks >= self.focal_min_blocks, 'focal_max_blocks',

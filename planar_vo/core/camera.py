@@ -27,6 +27,7 @@ from planar_vo.errors import CameraModelError
 __all__ = [
     'DISTORTION_MODELS',
     'CameraModel',
+    'fits_distortion_model',
     'intrinsic_matrix',
     'normalize_affines',
     'normalize_points',
@@ -44,6 +45,13 @@ DISTORTION_MODELS = {'none': 0, 'plumb_bob': 5, 'equidistant': 4}
 MIN_FIELD_OF_VIEW_DEG = 3.0
 MAX_FIELD_OF_VIEW_DEG = {'none': 160.0, 'plumb_bob': 160.0, 'equidistant': 280.0}
 _UNDISTORT_ITERATIONS = 20
+
+
+def fits_distortion_model(model: str, D) -> bool:
+    """Whether the coefficients ``D`` suit the distortion model (`DISTORTION_MODELS`): their
+    count, 4 also for ``plumb_bob`` (k3 = 0), and any all-zero list for ``none``."""
+    n = DISTORTION_MODELS[model]
+    return len(D) == n or (model == 'plumb_bob' and len(D) == 4) or (n == 0 and not any(D))
 
 
 @dataclass(frozen=True)
@@ -78,11 +86,11 @@ class CameraModel:
             raise CameraModelError(f'D: expected real coefficients, got {type(self.D).__name__} '
                                    f'({err})') from err
         n = DISTORTION_MODELS[self.distortion_model]
-        if self.distortion_model == 'plumb_bob' and len(D) in (4, 5):
-            D = D + (0.0,) * (5 - len(D))
-        if len(D) != n and not (n == 0 and not any(D)):
+        if not fits_distortion_model(self.distortion_model, D):
             raise CameraModelError(f"D: expected {n} coefficients for '{self.distortion_model}', "
                                    f'got {len(D)}')
+        if self.distortion_model == 'plumb_bob':
+            D = D + (0.0,) * (5 - len(D))
         if not np.all(np.isfinite(D)):
             raise CameraModelError(f'D: expected finite coefficients, got {list(D)}')
         K = K.copy()

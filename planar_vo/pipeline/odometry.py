@@ -690,12 +690,11 @@ class VisualOdometry:
         last_stamp, last_pose = self._last_out if self._last_out else (stamp, self.camera_pose)
         dt = max(stamp - last_stamp, 0.0)
         T_bc = self._T_base_camera
-        v, w = self._twist[:3], self._twist[3:]
         if hold:
             self.camera_pose = last_pose.copy()
         else:
-            yaw = yaw_rate_decay(float(w[2]), dt, cfg.turn_rate_time_constant)
-            step_base = se3(rotation_rpy(0.0, 0.0, yaw), v * dt)
+            yaw = yaw_rate_decay(float(self._twist[5]), dt, cfg.turn_rate_time_constant)
+            step_base = se3(rotation_rpy(0.0, 0.0, yaw), self._twist[:3] * dt)
             self.camera_pose = last_pose @ (invert(T_bc) @ step_base @ T_bc)
         grow = np.diag([(cfg.lost_turn_rate_std * dt) ** 2] * 3
                        + [(cfg.lost_speed_std * dt) ** 2] * 3)
