@@ -45,6 +45,7 @@ from planar_vo.frontend.affine_lk import (
 )
 from planar_vo.frontend.asift import asift_views, keypoint_frames
 from planar_vo.frontend.flow import (
+    _PARALLEL_MIN_PATCHES,
     flow_downscale,
     flow_jacobian,
     neighbour_predictions,
@@ -292,7 +293,7 @@ def test_flow_acs_do_not_depend_on_the_opencv_thread_count():
     finally:
         cv2.setNumThreads(previous)
     one, two = runs
-    assert len(one) > 500
+    assert len(one) >= _PARALLEL_MIN_PATCHES            # enough patches to run in two halves
     for name in ('p1', 'p2', 'A', 'weights'):
         np.testing.assert_array_equal(getattr(one, name), getattr(two, name), err_msg=name)
 
@@ -433,6 +434,13 @@ def test_texture_grid_one_point_per_cell_inside_the_margin(mild_pair):
     # The cap enlarges the cells instead of dropping well-spread points.
     capped = texture_grid(g1, 16, 12, 1.0, 50)
     assert 25 <= len(capped) <= 50
+    # It counts the textured cells only: with half the image blank, the same budget buys a
+    # grid twice as fine in area (about as many points, all on the textured half).
+    half_blank = g1.copy()
+    half_blank[:, W // 2:] = 90
+    both = texture_grid(half_blank, 16, 12, 1.0, 50)
+    assert 25 <= len(both) <= 50 and np.all(both.points[:, 0] < W // 2 + 16)
+    assert both.shape[0] * both.shape[1] > 1.5 * capped.shape[0] * capped.shape[1]
 
 
 def test_neighbour_predictions_extrapolate_the_neighbours_affine(mild_pair):
@@ -685,12 +693,14 @@ def test_flow_acs_on_the_rendered_street_match_the_exact_acs(street):
     points, affines, near_ground = [], [], []
     for k in range(len(images) - 1):
         acs = extractor.extract(images[k], images[k + 1])
-        # At least 1,000 ACs per frame, spread over the image: most of a 4 x 3 grid of image
-        # regions hold 20 or more (the sky and the ground leaving the view hold fewer).
-        assert len(acs) >= 1000
+        # Over half the per-frame budget, spread over the image: most of a 4 x 3 grid of image
+        # regions hold at least a third of their even share (the sky and the ground leaving
+        # the view hold fewer).
+        budget = extractor.config.max_correspondences
+        assert 0.5 * budget <= len(acs) <= budget
         cells, _, _ = np.histogram2d(acs.p1[:, 0], acs.p1[:, 1], bins=(4, 3),
                                      range=((0, 640), (0, 480)))
-        assert np.count_nonzero(cells >= 20) >= 9
+        assert np.count_nonzero(cells >= len(acs) / 36) >= 9
         exact, valid = exact_acs(world, poses[k], poses[k + 1], RENDER_CAMERA, acs.p1)
         assert valid.mean() > 0.95            # hardly any AC on an occluded or exiting point
         acs, exact = acs.subset(valid), exact.subset(valid)
@@ -704,7 +714,8 @@ def test_flow_acs_on_the_rendered_street_match_the_exact_acs(street):
     assert np.median(affines) < 0.03
     # The ground within ~4 m is covered; its rendering is less consistent between frames
     # (texture level of detail, lens blur under strong foreshortening), so the bound is looser.
-    assert near_ground.sum() >= 20 * (len(images) - 1)
+    # (At least 2 % of the ACs: about the share of the image it covers at an even spread.)
+    assert near_ground.sum() >= 0.02 * len(points)
     assert np.median(affines[near_ground]) < 0.06
 
 
@@ -739,7 +750,7 @@ def test_distorted_pitched_camera_corrects_to_the_ideal_level_camera():
         acs = correct_acs(extractor.extract(images[k], images[k + 1]), camera, pitch, roll)
         exact, valid = exact_acs(world, level[k], level[k + 1], ideal, acs.p1)
         # Distortion widens the view: some corrected points fall outside the ideal image.
-        assert valid.mean() > 0.85 and valid.sum() >= 800
+        assert valid.mean() > 0.85 and valid.sum() >= 0.4 * extractor.config.max_correspondences
         good, truth = acs.subset(valid), exact.subset(valid)
         assert np.median(np.linalg.norm(good.p2 - truth.p2, axis=1)) < 0.15
         assert np.median(np.linalg.norm(good.A - truth.A, axis=(1, 2))) < 0.03

@@ -150,8 +150,12 @@ def test_covariance_is_derived_and_grows_along_the_drive():
     xx = covs[:, 0, 0]
     assert xx[-1] > xx[0] > 0.0                              # grows with distance
     assert np.all(np.linalg.eigvalsh(covs[-1]) > 0)           # positive definite
-    # 3D: height, roll and pitch are estimated, their variances grow like the others.
-    assert np.all(np.diff(covs[:, 2, 2]) >= 0) and covs[-1, 2, 2] > covs[0, 2, 2] > 0.0
+    # 3D: height, roll and pitch are estimated, their variances grow like the others. In a
+    # turn the height's variance may dip a little: the new step's height error, from the tilt
+    # error carried along, is anti-correlated with the height error the same tilt error made
+    # while the car was heading elsewhere.
+    zz = covs[:, 2, 2]
+    assert np.all(np.diff(zz) >= -0.01 * zz[:-1]) and zz[-1] > 5 * zz[0] > 0.0
     assert covs[-1, 5, 5] > 0.0 and covs[-1, 3, 3] > 0.0 and covs[-1, 4, 4] > 0.0
 
 

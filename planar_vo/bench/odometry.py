@@ -23,6 +23,7 @@ from planar_vo.errors import InputError
 
 __all__ = [
     'FIVE_POINT',
+    'PEER_GRID_STEP',
     'POSELIB_DEFAULTS',
     'SOURCES',
     'THRESHOLD_PX',
@@ -35,6 +36,10 @@ THRESHOLD_PX = 1.0
 # PoseLib's own RANSAC defaults (poselib.RansacOptions): success probability 0.9999, at least
 # 1,000 and at most 100,000 iterations.
 POSELIB_DEFAULTS = {'confidence': 0.9999, 'min_iters': 1000, 'max_iters': 100000}
+# The peers' DIS points: one per 12-pixel cell with texture (the front-end's grid before its
+# per-frame budget; about 1,300 points on a KITTI frame), however many there are.
+PEER_GRID_STEP = 12
+_PEER_MAX_POINTS = 30000
 
 FIVE_POINT = {
     'opencv': 'OpenCV five-point (findEssentialMat + recoverPose)',
@@ -130,8 +135,9 @@ class PeerOdometry:
 
     Per consecutive frame pair, each source's correspondences are extracted once: ``'frontend'``
     (the point parts of planar_vo's front-end ACs, `ACExtractor` with the given front-end
-    configuration) and ``'dis'`` (DIS 'fast' flow sampled at the front-end's candidate grid,
-    `planar_vo.frontend.flow.flow_candidates`: ``p2 = p1 + flow(p1)``); every five-point
+    configuration) and ``'dis'`` (DIS 'fast' flow sampled at the front-end's candidate points,
+    `planar_vo.frontend.flow.flow_candidates`, on a `PEER_GRID_STEP` grid without the
+    front-end's per-frame cap: ``p2 = p1 + flow(p1)``); every five-point
     estimator of `FIVE_POINT` runs on them with a 1 px threshold; the motion is scaled by the
     step length given with the frame. With ``focal``, PoseLib's shared-focal six-point runs on
     the front-end points in pixels about the image centre (what an uncalibrated user assumes).
@@ -157,6 +163,10 @@ class PeerOdometry:
         self.estimators, self.sources, self.focal = tuple(estimators), tuple(sources), focal
         self.config = FrontendConfig() if config is None else config
         self._extractor = ACExtractor(self.config)
+        # The DIS points: our grid without our per-frame budget (more points only help a
+        # five-point RANSAC; the peers are not timed against a frame budget).
+        self._dense = self.config.replace(grid_step=PEER_GRID_STEP,
+                                          max_correspondences=_PEER_MAX_POINTS)
         self._dis = None
         self._previous: np.ndarray | None = None
         self._frames = 0
@@ -206,7 +216,7 @@ class PeerOdometry:
         if self._dis is None:
             self._dis = cv2.DISOpticalFlow_create(DIS_PRESETS['fast'])
         flow = self._dis.calc(previous, image, None)
-        p1 = flow_candidates(previous, self.config).points
+        p1 = flow_candidates(previous, self._dense).points
         p2 = p1 + flow[p1[:, 1], p1[:, 0]].astype(np.float64)
         q1, _ = camera.pixel_to_normalized(p1.astype(np.float64))
         q2, _ = camera.pixel_to_normalized(p2)

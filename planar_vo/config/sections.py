@@ -154,7 +154,13 @@ class FrontendConfig(Options):
         method: ``'flow'`` (DIS optical flow + per-patch affine refinement; the default),
             ``'klt'`` (KLT tracks refined by affine Lucas-Kanade) or ``'asift'`` (faithful to
             the paper, about 2 s per frame pair).
-        max_correspondences: cap on ACs per frame pair.
+        max_correspondences: cap on ACs per frame pair, the front-end's per-frame budget. For
+            ``flow``, on the candidates: the grid's cells grow until at most this many have
+            enough texture (the points stay spread over the image, the faint road included),
+            so a richly textured scene costs no more per frame than a plain one. On KITTI
+            05 and 06, budgets from 700 to 4000 gave per-frame yaw errors within 2 % and 3D
+            rotation drift within 4 % of each other, with no trend: only the time per frame
+            grew with the budget.
         grid_step: spacing in pixels of the candidate grid (one candidate per cell) for
             ``flow``, minimum corner distance for ``klt``.
         patch_radius: half-size in pixels of the patch an affine is fitted on.
@@ -191,7 +197,7 @@ class FrontendConfig(Options):
 
     method: typing.Literal['flow', 'klt', 'asift'] = 'flow'
     # cv2.remap takes at most 32767 rows: one row per patch.
-    max_correspondences: int = bounded(4000, 1, 30000)
+    max_correspondences: int = bounded(700, 1, 30000)
     grid_step: int = bounded(10, 2, expected='at least 2 pixels')
     patch_radius: int = bounded(9, 2, expected='at least 2 pixels')
     patch_stride: int = bounded(3, 1, expected='between 1 and patch_radius pixels')

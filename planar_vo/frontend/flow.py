@@ -6,7 +6,8 @@
    check is enabled, from image 2 to image 1.
 2. Candidate points on a regular grid: in each ``grid_step`` cell, the pixel with the most
    texture (smaller eigenvalue of the structure tensor), kept if above ``min_texture``. One
-   candidate per cell keeps the ACs spread over the image.
+   candidate per cell keeps the ACs spread over the image; the cells grow until at most
+   ``max_correspondences`` of them have enough texture (the per-frame budget).
 3. Optional forward-backward consistency (``fb_threshold > 0``; off by default):
    ``|F(p1) + B(p1 + F(p1))|`` below ``fb_threshold`` pixels. Measured on the rendered street
    and on KITTI, it rejected nothing the refinement's own tests (convergence, residual) did not,
@@ -18,9 +19,8 @@
 6. Re-seeding (``reseed``): failed candidates get a second start from an accepted neighbour's
    affine (the ground close to the car, where DIS fails).
 
-Cost: see ``planar_vo bench frontend`` (`planar_vo/bench/results/frontend/frontend.md`): about
-twice one DIS 'fast' flow on the same frames, for about 1,000 ACs at 640x480 and 800-1,600 at
-KITTI size.
+Cost: ``planar_vo bench frontend`` (`planar_vo/bench/results/frontend/frontend.md`) and, per
+stage of the whole frame, ``planar_vo bench pipeline``.
 """
 
 from __future__ import annotations
@@ -124,32 +124,37 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
     Args:
         gray: 8-bit grey image ``(H, W)``.
         step: cell size in pixels (rounded up to an even number: the search runs at half
-            resolution); enlarged when the image has more than ``max_points`` cells.
+            resolution); enlarged until at most ``max_points`` cells have enough texture.
         margin: pixels kept free along the borders.
         min_texture: smaller structure-tensor eigenvalue required, (grey levels / pixel)^2.
-        max_points: cap on the number of cells.
+        max_points: cap on the number of points. The cells grow rather than the weakest
+            points being dropped: the points stay spread over the image, the faint road
+            included, and a richly textured scene costs no more per frame than a plain one.
 
     Returns:
         A `CandidateGrid` (cells without enough texture have no point), in row-major cell order.
     """
     h, w = gray.shape
-    area = max(h - 2 * margin, 0) * max(w - 2 * margin, 0)
-    step = max(int(step), int(np.ceil(np.sqrt(area / max(max_points, 1)))))
-    half = max((step + 1) // 2, 1)
+    cap = max(int(max_points), 1)
+    step = max(int(step), 1)
     eig = _structure_min_eig(gray)
-    m = (margin + 1) // 2                              # half-resolution margin (even points)
-    rows = (eig.shape[0] - 2 * m) // half
-    cols = (eig.shape[1] - 2 * m) // half
-    # Keep every point's full-resolution margin: 2 * (m + rows*half - 1) <= h - 1 - margin.
-    while rows > 0 and 2 * (m + rows * half - 1) > h - 1 - margin:
-        rows -= 1
-    while cols > 0 and 2 * (m + cols * half - 1) > w - 1 - margin:
-        cols -= 1
-    if rows <= 0 or cols <= 0:
-        empty = np.zeros((0, 2), np.int64)
-        return CandidateGrid(empty, np.zeros(0), empty, (max(rows, 0), max(cols, 0)))
-    cells = eig[m:m + rows * half, m:m + cols * half].reshape(rows, half, cols, half)
-    cells = cells.transpose(0, 2, 1, 3).reshape(rows, cols, half * half)
+    while True:
+        half = max((step + 1) // 2, 1)
+        layout = _cell_layout(eig.shape, h, w, half, margin)
+        rows, cols, m = layout
+        if rows <= 0 or cols <= 0:
+            empty = np.zeros((0, 2), np.int64)
+            return CandidateGrid(empty, np.zeros(0), empty, (max(rows, 0), max(cols, 0)))
+        view = eig[m:m + rows * half, m:m + cols * half]
+        # Each cell's maximum in two contiguous reductions (rows, then columns).
+        peak = view.reshape(rows, half, cols * half).max(axis=1).reshape(rows, cols, half)
+        count = int(np.count_nonzero(peak.max(axis=2) > min_texture))
+        if count <= cap:
+            break
+        # Textured cells fall as 1 / step^2: one enlargement usually fits; then by 2 pixels.
+        step = max(step + 2, int(np.ceil(step * np.sqrt(count / cap))))
+    cells = view.reshape(rows, half, cols, half).transpose(0, 2, 1, 3).reshape(rows, cols,
+                                                                               half * half)
     best = cells.argmax(axis=-1)
     value = np.take_along_axis(cells, best[..., None], axis=-1)[..., 0]
     y = m + np.arange(rows)[:, None] * half + best // half
@@ -158,6 +163,21 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
     points = 2 * np.stack([x[keep], y[keep]], axis=1).astype(np.int64)
     index = np.stack(np.nonzero(keep), axis=1).astype(np.int64)
     return CandidateGrid(points, value[keep].astype(np.float64), index, (rows, cols))
+
+
+def _cell_layout(shape: tuple[int, int], h: int, w: int, half: int, margin: int
+                 ) -> tuple[int, int, int]:
+    """``(rows, cols, m)`` of the cells of ``half`` half-resolution pixels on the
+    half-resolution map ``shape`` of an ``h x w`` image, ``m`` the half-resolution margin."""
+    m = (margin + 1) // 2                              # half-resolution margin (even points)
+    rows = (shape[0] - 2 * m) // half
+    cols = (shape[1] - 2 * m) // half
+    # Keep every point's full-resolution margin: 2 * (m + rows*half - 1) <= h - 1 - margin.
+    while rows > 0 and 2 * (m + rows * half - 1) > h - 1 - margin:
+        rows -= 1
+    while cols > 0 and 2 * (m + cols * half - 1) > w - 1 - margin:
+        cols -= 1
+    return rows, cols, m
 
 
 def _jacobian_baseline(config: FrontendConfig) -> int:
@@ -306,6 +326,20 @@ class FlowExtractor:
         self._backward = cv2.DISOpticalFlow_create(DIS_PRESETS[config.fb_preset])
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix='planar_vo_dis')
         self.stats: dict[str, float] = {}
+        # Image 2 of the last call and its derived images (shrunk for DIS, smoothed for the
+        # refinement): a tracker's image 2 is usually its next image 1 (the new keyframe).
+        self._last: tuple[np.ndarray, int, np.ndarray, np.ndarray | None] | None = None
+
+    def _derived(self, gray: np.ndarray, scale: int
+                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """``gray`` shrunk by ``scale`` for DIS and `smooth_for_refinement`-ed, when ``gray`` is
+        the very array given as image 2 last time (None each otherwise). The reference is held,
+        so its identity cannot pass to another array; the pipeline never modifies an image in
+        place."""
+        last = self._last
+        if last is None or last[0] is not gray:
+            return None, None
+        return (last[2] if last[1] == scale else None), last[3]
 
     def extract(self, gray1: np.ndarray, gray2: np.ndarray) -> AffineCorrespondences:
         """ACs from image 1 to image 2 (grey ``uint8``, same size), pixels; weights in ``[0, 1]``.
@@ -326,17 +360,22 @@ class FlowExtractor:
         use_fb = cfg.fb_threshold > 0.0
         run = self._executor()
         s = flow_downscale(gray1.shape[1], cfg.flow_max_width)
-        small1, small2 = shrink(gray1, s), shrink(gray2, s)
+        small1, smooth1 = self._derived(gray1, s)
+        small1 = shrink(gray1, s) if small1 is None else small1
+        small2 = shrink(gray2, s)
         forward = run(self._forward.calc, small1, small2, None)
         backward = run(self._backward.calc, small2, small1, None) if use_fb else None
         try:
             grid = flow_candidates(gray1, cfg)
             p1, texture = grid.points, grid.texture
             template = image2 = None
-            if cfg.refine_affine and len(p1):
-                template = prepare_template(smooth_for_refinement(gray1), p1,
-                                            patch_offsets(cfg.patch_radius, cfg.patch_stride))
+            if cfg.refine_affine:
                 image2 = smooth_for_refinement(gray2)
+                if len(p1):
+                    smooth1 = smooth_for_refinement(gray1) if smooth1 is None else smooth1
+                    template = prepare_template(
+                        smooth1, p1, patch_offsets(cfg.patch_radius, cfg.patch_stride))
+            self._last = (gray2, s, small2, image2)
             stats['candidates'] = float(len(p1))
             lap('candidates')
             flow = forward.result()
