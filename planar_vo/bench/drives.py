@@ -14,10 +14,12 @@ run it, and the peers run on the same frames:
 - **Five-point peers, frame to frame**: OpenCV (``findEssentialMat`` + ``recoverPose``) and
   PoseLib LO-RANSAC with its nonlinear refinement (PoseLib's own defaults, at least 1,000
   iterations, and the early-stopping options of `planar_vo.bench.peers`), each on (a) the
-  points of the ACs our front-end extracts between consecutive frames and (b) DIS 'fast' optical
-  flow sampled at the front-end's textured grid; 1 px threshold. Their scale is the TRUE step
-  length between consecutive frames (from ``poses.txt``), which planar_vo does not get.
-- **Focal peer**: PoseLib's shared-focal six-point RANSAC and refinement on (a), per frame pair;
+  points of the ACs our front-end extracts between consecutive frames, (b) the same front-end's
+  ACs without its per-frame budget (a 12-pixel grid, every textured cell: more points, which a
+  five-point RANSAC can use) and (c) DIS 'fast' optical flow sampled at (b)'s grid; 1 px
+  threshold. Their scale is the TRUE step length between consecutive frames (from
+  ``poses.txt``), which planar_vo does not get.
+- **Focal peer**: PoseLib's shared-focal six-point RANSAC and refinement on (b), per frame pair;
   the median of its per-pair focal lengths.
 - **Harder conditions** (planar_vo calibrated only, `STRESS`): the same drive driven faster
   (every 2nd and every 3rd frame), with exposure flicker (each frame's brightness scaled by
@@ -51,6 +53,7 @@ import numpy as np
 
 from planar_vo.bench.odometry import (
     FIVE_POINT,
+    PEER_GRID_STEP,
     POSELIB_DEFAULTS,
     SOURCES,
     THRESHOLD_PX,
@@ -740,15 +743,17 @@ def method_notes(height: float) -> str:
         f'principal point is then assumed at the image centre.',
         f'- **Five-point peers**, frame to frame, {THRESHOLD_PX:g} px threshold, on (a) the '
         f'point parts of the ACs our front-end (default FrontendConfig) extracts between '
-        f'consecutive frames and (b) DIS \'fast\' flow sampled at the front-end\'s textured '
-        f'grid (p2 = p1 + flow(p1)). PoseLib defaults: success probability '
+        f'consecutive frames, (b) the same front-end\'s ACs without its per-frame budget '
+        f'(frontend.max_correspondences; a {PEER_GRID_STEP}-pixel grid, every textured cell) '
+        f'and (c) DIS \'fast\' flow sampled at (b)\'s grid (p2 = p1 + flow(p1)). PoseLib '
+        f'defaults: success probability '
         f"{POSELIB_DEFAULTS['confidence']}, {POSELIB_DEFAULTS['min_iters']} to "
         f"{POSELIB_DEFAULTS['max_iters']} iterations; early stop: planar_vo.bench.peers' "
         f'options (0.999, 0 to 1000). **Their scale is the TRUE step length** between '
         f'consecutive frames (poses.txt); planar_vo has no scale input but the camera height. '
         f'A failed pair loses its motion (the camera is held).',
         f'- **Focal peer**: PoseLib shared-focal six-point (PoseLib defaults, {THRESHOLD_PX:g} '
-        f'px) on (a), pixels about the image centre; its per-pair focal lengths are voted by '
+        f'px) on (b), pixels about the image centre; its per-pair focal lengths are voted by '
         f'their **median**.',
         '- **Harder conditions**: the calibrated planar_vo run again on the drive driven '
         'faster (every 2nd / 3rd frame), with exposure flicker (frame i\'s brightness times '

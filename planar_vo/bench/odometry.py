@@ -3,10 +3,11 @@ every method's run is kept in (`OdometryRun`), for the benchmarks on real drives
 
 `PeerOdometry` runs the five-point peers (`planar_vo.bench.peers`: OpenCV and PoseLib) on the
 correspondences of consecutive frames, extracted once per pair and shared between the
-estimators: the point parts of planar_vo's front-end ACs and DIS-flow points on the front-end's
-candidate grid. A peer's motion is scaled by a given step length (the benchmarks give the true
-one) and chained into camera poses (`chain_camera_motions`). With ``focal``, PoseLib's
-shared-focal six-point runs on the same front-end points.
+estimators: the point parts of planar_vo's front-end ACs, the same front-end's ACs without its
+per-frame budget, and DIS-flow points on that dense grid. A peer's motion is scaled by a given
+step length (the benchmarks give the true one) and chained into camera poses
+(`chain_camera_motions`). With ``focal``, PoseLib's shared-focal six-point runs on the dense
+front-end points.
 """
 
 from __future__ import annotations
@@ -36,8 +37,9 @@ THRESHOLD_PX = 1.0
 # PoseLib's own RANSAC defaults (poselib.RansacOptions): success probability 0.9999, at least
 # 1,000 and at most 100,000 iterations.
 POSELIB_DEFAULTS = {'confidence': 0.9999, 'min_iters': 1000, 'max_iters': 100000}
-# The peers' DIS points: one per 12-pixel cell with texture (the front-end's grid before its
-# per-frame budget; about 1,300 points on a KITTI frame), however many there are.
+# The peers' dense ACs and DIS points: one per 12-pixel cell with texture, however many there
+# are (about 1,300 candidates on a KITTI frame; at KITTI size exactly the front-end's grid
+# before it had a per-frame budget).
 PEER_GRID_STEP = 12
 _PEER_MAX_POINTS = 30000
 
@@ -47,9 +49,12 @@ FIVE_POINT = {
     'poselib_early': 'PoseLib five-point LO-RANSAC + refinement, early stop (confidence 0.999, '
                      '<= 1000 iterations)',
 }
-SOURCES = {'frontend': 'front-end AC points', 'dis': 'DIS-flow grid points'}
+SOURCES = {'frontend': 'front-end AC points',
+           'dense': 'front-end AC points without its frame budget',
+           'dis': 'DIS-flow grid points'}
 TRUE_STEP = 'TRUE step length'
-FOCAL_PEER = 'PoseLib shared-focal six-point (PoseLib defaults), front-end AC points'
+FOCAL_PEER = ('PoseLib shared-focal six-point (PoseLib defaults), front-end AC points without '
+              'its frame budget')
 
 
 @dataclass
@@ -135,12 +140,13 @@ class PeerOdometry:
 
     Per consecutive frame pair, each source's correspondences are extracted once: ``'frontend'``
     (the point parts of planar_vo's front-end ACs, `ACExtractor` with the given front-end
-    configuration) and ``'dis'`` (DIS 'fast' flow sampled at the front-end's candidate points,
-    `planar_vo.frontend.flow.flow_candidates`, on a `PEER_GRID_STEP` grid without the
-    front-end's per-frame cap: ``p2 = p1 + flow(p1)``); every five-point
+    configuration), ``'dense'`` (the same front-end on a `PEER_GRID_STEP` grid without its
+    per-frame budget) and ``'dis'`` (DIS 'fast' flow sampled at the dense grid's points,
+    `planar_vo.frontend.flow.flow_candidates`: ``p2 = p1 + flow(p1)``); every five-point
     estimator of `FIVE_POINT` runs on them with a 1 px threshold; the motion is scaled by the
     step length given with the frame. With ``focal``, PoseLib's shared-focal six-point runs on
-    the front-end points in pixels about the image centre (what an uncalibrated user assumes).
+    the dense front-end points in pixels about the image centre (what an uncalibrated user
+    assumes).
 
     Args:
         estimators: keys of `FIVE_POINT`.
@@ -163,10 +169,12 @@ class PeerOdometry:
         self.estimators, self.sources, self.focal = tuple(estimators), tuple(sources), focal
         self.config = FrontendConfig() if config is None else config
         self._extractor = ACExtractor(self.config)
-        # The DIS points: our grid without our per-frame budget (more points only help a
-        # five-point RANSAC; the peers are not timed against a frame budget).
+        # The 'dense' ACs and the DIS points: our grid without our per-frame budget (more
+        # points help a five-point RANSAC; the peers are not held to a frame budget).
         self._dense = self.config.replace(grid_step=PEER_GRID_STEP,
                                           max_correspondences=_PEER_MAX_POINTS)
+        self._dense_extractor = (ACExtractor(self._dense) if 'dense' in self.sources or focal
+                                 else None)
         self._dis = None
         self._previous: np.ndarray | None = None
         self._frames = 0
@@ -188,25 +196,32 @@ class PeerOdometry:
         self._steps.append(float(step))
         usable = previous is not None and image is not None and camera is not None
         acs, acs_seconds = None, 0.0
-        if usable and ('frontend' in self.sources or self.focal):
+        if usable and 'frontend' in self.sources:
             t0 = time.perf_counter()
             acs = self._extractor.extract(previous, image)
             acs_seconds = time.perf_counter() - t0
+        dense, dense_seconds = None, 0.0
+        if usable and ('dense' in self.sources or self.focal):
+            t0 = time.perf_counter()
+            dense = self._dense_extractor.extract(previous, image)
+            dense_seconds = time.perf_counter() - t0
         for source in self.sources:
             t0 = time.perf_counter()
-            q = self._points(source, acs, previous, image, camera) if usable else None
-            seconds = time.perf_counter() - t0 + (acs_seconds if source == 'frontend' else 0.0)
+            given = dense if source == 'dense' else acs
+            q = self._points(source, given, previous, image, camera) if usable else None
+            seconds = time.perf_counter() - t0 + {'frontend': acs_seconds,
+                                                  'dense': dense_seconds}.get(source, 0.0)
             for name in self.estimators:
                 R, t, ok, est_seconds = self._five_point(name, q, camera)
                 self._motions[f'{name}_{source}'].append((R, t, ok))
                 self._seconds[f'{name}_{source}'].append((seconds + est_seconds, est_seconds))
         if self.focal:
-            self._focal_pair(acs, image)
+            self._focal_pair(dense, image)
 
     def _points(self, source: str, acs, previous, image, camera
                 ) -> tuple[np.ndarray, np.ndarray]:
         """Normalised (undistorted) point pairs of one source, ``(N, 2)`` each."""
-        if source == 'frontend':
+        if source in ('frontend', 'dense'):
             norm = acs.normalized(camera)
             return norm.p1, norm.p2
         import cv2
@@ -241,7 +256,8 @@ class PeerOdometry:
         return est.R, est.t, est.ok, time.perf_counter() - t0
 
     def _focal_pair(self, acs, image) -> None:
-        """The focal peer on this pair's front-end points (pixels about the image centre)."""
+        """The focal peer on this pair's dense front-end points (pixels about the image
+        centre)."""
         from planar_vo.bench.peers import estimate_6pc_focal_poselib
 
         if acs is None or len(acs) < 6:
