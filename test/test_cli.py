@@ -77,6 +77,20 @@ def test_every_help_page_prints(capsys):
      'planar_vo demo: error: frames: expected at most 392 (the demo drive), got 100000'),
     (['demo', '--solvers', '--sigmas', 'inf'],
      'planar_vo demo: error: sigmas: expected finite non-negative noise levels, got [inf]'),
+    (['demo', '--out', ''],
+     'planar_vo demo: error: out: an empty path; expected the folder to write the demo to'),
+    (['demo', '--out', '.', '--force'],
+     "planar_vo demo: error: out: '.' is the current folder, one above it or the home folder; "
+     'the demo replaces its folder, so choose another --out'),
+    (['demo', '--out', '..', '--force'],
+     "planar_vo demo: error: out: '..' is the current folder, one above it or the home folder; "
+     'the demo replaces its folder, so choose another --out'),
+    (['replay', 'planar_vo_demo', '--out', ''],
+     'planar_vo replay: error: out: an empty path; expected the folder to write the bag to'),
+    (['eval', 'planar_vo_demo/odometry.tum', '--gt', 'x.tum', '--out-dir', ' '],
+     'planar_vo eval: error: out-dir: an empty path; expected the folder for the report'),
+    (['bench', 'pipeline', '--out', ''],
+     'planar_vo bench: error: --out: an empty path; expected the folder for the report'),
 ])
 def test_bad_options_are_refused_before_any_work(tmp_path, monkeypatch, capsys, argv, message):
     """One line and exit code 1, and nothing touched: a previous demo folder survives a bad

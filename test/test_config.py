@@ -133,6 +133,12 @@ def test_load_config_errors(tmp_path):
     wrong.write_text('planar_vo:\n  ros__parameters:\n    voting:\n      bins: 1\n')
     with pytest.raises(ConfigError, match=r'wrong.yaml: voting.bins: expected in \[36, 100000\]'):
         load_config(wrong)
+    other = tmp_path / 'other.yaml'
+    other.write_text('/other_node:\n  ros__parameters:\n    mount:\n      height: 1.2\n')
+    with pytest.raises(ConfigError, match=r"other.yaml: a ROS parameter file for /other_node, "
+                                          r"not for this node; key its parameters on 'planar_vo' "
+                                          r"or '/planar_vo' or '/\*\*'"):
+        load_config(other)
 
 
 def test_ranges_are_declared_once_and_checked_by_the_config():

@@ -197,13 +197,35 @@ def test_compressed_rclpy_message():
     ('jpeg', b'\xff\xd8 not really a jpeg', r'compressed_image\.data: a JPEG without a readable '
      r'frame header \(20 bytes\)'),
     ('png', b'\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x28\x00\x00\x00\x1e broken',
-     r'compressed_image\.data: expected decodable png data, got 31 bytes OpenCV cannot decode'),
+     r'compressed_image\.data: 31 bytes of png data without its IEND chunk: the image is cut '
+     r'short'),
+    ('png', b'\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x28\x00\x00\x00\x1e broken'
+     b'\x00\x00\x00\x00IEND\xaeB`\x82',
+     r'compressed_image\.data: expected decodable png data, got 43 bytes OpenCV cannot decode'),
     ('png', b'GIF89a', r'expected PNG or JPEG data, got 6 bytes starting with 47 49 46 38 39 61'),
     ('png', b'', r'expected PNG or JPEG data, got 0 bytes$'),
 ])
 def test_compressed_errors(fmt, data, match):
     with pytest.raises(ImageError, match=match):
         compressed_to_array(compressed_msg(data, fmt))
+
+
+@pytest.mark.parametrize('ext', ['.png', '.jpg'])
+def test_compressed_image_cut_short_is_refused_and_padding_is_not(ext, capfd):
+    """A partial write or a truncated message: refused before the decoder (which prints to
+    stderr, and fills a cut JPEG's missing rows with grey); zero padding after a JPEG's
+    end-of-image marker is still an image."""
+    mono = _smooth_rgb()[..., 0]
+    data = cv2.imencode(ext, mono)[1].tobytes()
+    fmt = ext.lstrip('.')
+    with pytest.raises(ImageError, match=rf'{len(data) // 2} bytes of (png|jpeg) data without '
+                                         r'its (IEND chunk|end-of-image marker): the image is cut '
+                                         r'short'):
+        compressed_to_array(compressed_msg(data[:len(data) // 2], fmt))
+    assert capfd.readouterr().err == ''                 # nothing from the decoders
+    if ext == '.jpg':
+        padded = compressed_to_array(compressed_msg(data + bytes(16), fmt))
+        np.testing.assert_array_equal(padded, compressed_to_array(compressed_msg(data, fmt)))
 
 
 @pytest.mark.parametrize('ext, params', [

@@ -65,6 +65,8 @@ def _check_common(args: argparse.Namespace) -> None:
     work = getattr(args, 'work', None)
     if work is not None and Path(work).exists() and not Path(work).is_dir():
         raise InputError(f"--work: '{work}' exists and is not a folder")
+    if not str(args.out).strip():
+        raise InputError('--out: an empty path; expected the folder for the report')
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out: '{out}' exists and is not a folder")

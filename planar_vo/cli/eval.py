@@ -55,6 +55,8 @@ def run(args: argparse.Namespace) -> int:
 
     if any(not (math.isfinite(s) and s > 0) for s in args.segments):
         raise InputError(f'segments: expected positive lengths in metres, got {args.segments}')
+    if args.out_dir is not None and not args.out_dir.strip():
+        raise InputError('out-dir: an empty path; expected the folder for the report')
     est = load_trajectory(args.est, args.est_topic, role='est-topic')
     gt_path = args.gt
     if gt_path is None:

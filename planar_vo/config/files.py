@@ -36,10 +36,18 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
     if data is None:
         return PlanarVoConfig()
     if isinstance(data, dict):
-        for name in (node_name, f'/{node_name}', '/**'):
+        names = (node_name, f'/{node_name}', '/**')
+        for name in names:
             if isinstance(data.get(name), dict) and 'ros__parameters' in data[name]:
                 data = data[name]['ros__parameters']
                 break
+        else:
+            others = [str(k) for k, v in data.items()
+                      if isinstance(v, dict) and 'ros__parameters' in v]
+            if others:
+                raise ConfigError(f"{path}: a ROS parameter file for {', '.join(others)}, not "
+                                  f"for this node; key its parameters on "
+                                  f"{' or '.join(repr(n) for n in names)}")
     try:
         return PlanarVoConfig.from_dict(data)
     except ConfigError as err:

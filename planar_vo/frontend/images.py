@@ -232,7 +232,8 @@ def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
 
     Raises:
         ImageError: unknown format, data that is not PNG or JPEG, a declared size above
-            `MAX_IMAGE_PIXELS`, or data OpenCV cannot decode.
+            `MAX_IMAGE_PIXELS`, data cut short (no PNG IEND chunk, no JPEG end-of-image
+            marker), or data OpenCV cannot decode.
     """
     lower = str(fmt).lower()
     if not any(name in lower for name in ('jpeg', 'jpg', 'png')) or 'compresseddepth' in lower:
@@ -242,6 +243,7 @@ def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
     if width * height > MAX_IMAGE_PIXELS:
         raise ImageError(f'compressed_image.data: the {kind} header declares {width}x{height} '
                          f'pixels, more than the {MAX_IMAGE_PIXELS} accepted; not decoded')
+    _check_complete(buf, kind)
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise ImageError(f"compressed_image.data: expected decodable {fmt} data, got "
@@ -253,6 +255,23 @@ def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
     return img
+
+
+def _check_complete(buf: np.ndarray, kind: str) -> None:
+    """`ImageError` for PNG or JPEG data cut short (a partial write, a truncated file or
+    message): a PNG ends with its IEND chunk, a JPEG with its end-of-image marker (zero padding
+    after it is allowed). Checked before decoding because the decoders print to stderr and
+    OpenCV fills a cut JPEG's missing rows with grey instead of failing."""
+    tail = bytes(buf[-64:])
+    if kind == 'png':
+        complete = tail[-8:-4] == b'IEND'
+        end = 'its IEND chunk'
+    else:
+        complete = tail.rstrip(b'\x00').endswith(b'\xff\xd9')
+        end = 'its end-of-image marker'
+    if not complete:
+        raise ImageError(f'compressed_image.data: {buf.size} bytes of {kind} data without '
+                         f'{end}: the image is cut short')
 
 
 def read_image(path: str | Path) -> np.ndarray:

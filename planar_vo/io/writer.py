@@ -78,6 +78,8 @@ class BagWriter:
     """
 
     def __init__(self, path: str | Path, *, storage: str = 'mcap') -> None:
+        if not str(path).strip():
+            raise BagError('out: an empty path; expected the folder to write the bag to')
         self.path = Path(path)
         if storage not in STORAGES:
             raise BagError(f"storage: expected one of {list(STORAGES)}, got '{storage}'")

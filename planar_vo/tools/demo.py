@@ -42,6 +42,13 @@ def _prepare(out_dir: Path, force: bool) -> None:
         if not (out_dir / MARKER).exists() and not force:
             raise InputError(f"out: '{out_dir}' exists and is not a demo folder; choose another "
                              f"--out or pass --force")
+        where = out_dir.resolve()
+        cwd = Path.cwd().resolve()
+        if where == cwd or where in cwd.parents or where == Path.home().resolve():
+            # --force replaces the folder: never the one the user works in, one above it or
+            # the home folder (``--out . --force`` would otherwise delete the working folder).
+            raise InputError(f"out: '{out_dir}' is the current folder, one above it or the home "
+                             f'folder; the demo replaces its folder, so choose another --out')
     try:
         if out_dir.exists():
             shutil.rmtree(out_dir)
@@ -92,6 +99,8 @@ def run_demo(out_dir: str | Path = 'planar_vo_demo', *, camera: str = '640x480',
         total = len(demo_drive())
         if frames > total:
             raise InputError(f'frames: expected at most {total} (the demo drive), got {frames}')
+    if not str(out_dir).strip():
+        raise InputError('out: an empty path; expected the folder to write the demo to')
     out_dir = Path(out_dir)
     _prepare(out_dir, force)
     try:

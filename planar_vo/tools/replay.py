@@ -185,6 +185,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     from tqdm import tqdm
 
     start = time.perf_counter()
+    if not str(out_path).strip():
+        raise BagError('out: an empty path; expected the folder to write the bag to')
     out_path = Path(out_path)
     if tum_path is not None:
         tum = Path(tum_path)
