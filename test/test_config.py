@@ -137,8 +137,12 @@ def test_load_config_errors(tmp_path):
     other.write_text('/other_node:\n  ros__parameters:\n    mount:\n      height: 1.2\n')
     with pytest.raises(ConfigError, match=r"other.yaml: a ROS parameter file for /other_node, "
                                           r"not for this node; key its parameters on 'planar_vo' "
-                                          r"or '/planar_vo' or '/\*\*'"):
+                                          r"\(with or without a namespace\) or '/\*\*'"):
         load_config(other)
+    for key in ('/car/planar_vo', '/**/planar_vo', 'planar_vo', '/**'):
+        other.write_text(f'/other_node:\n  ros__parameters:\n    mount:\n      height: 3.0\n'
+                         f'{key}:\n  ros__parameters:\n    mount:\n      height: 1.2\n')
+        assert load_config(other).mount.height == 1.2, key
 
 
 def test_ranges_are_declared_once_and_checked_by_the_config():

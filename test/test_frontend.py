@@ -441,6 +441,35 @@ def test_texture_grid_one_point_per_cell_inside_the_margin(mild_pair):
     both = texture_grid(half_blank, 16, 12, 1.0, 50)
     assert 25 <= len(both) <= 50 and np.all(both.points[:, 0] < W // 2 + 16)
     assert both.shape[0] * both.shape[1] > 1.5 * capped.shape[0] * capped.shape[1]
+    # A cap below what the largest cells that fit the image hold: the most textured cells of
+    # those, never none (a textured strip across a wide, low image).
+    strip = np.full((79, 1293), 90, np.uint8)
+    strip[30:50] = g1[100:120, :1].repeat(1293, axis=1) ^ np.arange(1293, dtype=np.uint8) * 37
+    for cap in (24, 5, 1):
+        assert len(texture_grid(strip, 8, 10, 1.0, cap)) == cap
+
+
+def test_flow_extractor_reuses_image_2_only_while_its_pixels_are_the_same(mild_pair):
+    """Image 2's shrunk and smoothed images serve as image 1's in the next call: the ACs equal a
+    fresh extractor's, also when the caller refills one buffer with a new frame in place."""
+    from planar_vo.config import FrontendConfig
+    from planar_vo.frontend.flow import FlowExtractor
+
+    g1, g2 = mild_pair
+    g3 = _homography_pair(MILD @ MILD, seed=1)[1]
+    config = FrontendConfig(flow_max_width=320)              # a shrunk flow: both caches used
+
+    def same(a, b):
+        fields = ('p1', 'p2', 'A', 'weights')
+        return all(np.array_equal(getattr(a, f), getattr(b, f)) for f in fields)
+
+    tracker = FlowExtractor(config)
+    tracker.extract(g1, g2)
+    assert same(tracker.extract(g2, g3), FlowExtractor(config).extract(g2, g3))
+    buffer = g2.copy()
+    tracker.extract(g1, buffer)
+    buffer[:] = g3                                           # the next frame, same array
+    assert same(tracker.extract(buffer, g1), FlowExtractor(config).extract(g3, g1))
 
 
 def test_neighbour_predictions_extrapolate_the_neighbours_affine(mild_pair):

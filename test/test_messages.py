@@ -23,7 +23,7 @@ from bagdata import (
 
 from planar_vo.core.conventions import planar_pose, rotation_rpy, se3
 from planar_vo.errors import ImageError, InputError
-from planar_vo.frontend.images import declared_size
+from planar_vo.frontend.images import _check_complete, declared_size
 from planar_vo.ros.messages import (
     compressed_to_array,
     covariance_to_list,
@@ -223,9 +223,25 @@ def test_compressed_image_cut_short_is_refused_and_padding_is_not(ext, capfd):
                                          r'short'):
         compressed_to_array(compressed_msg(data[:len(data) // 2], fmt))
     assert capfd.readouterr().err == ''                 # nothing from the decoders
-    if ext == '.jpg':
-        padded = compressed_to_array(compressed_msg(data + bytes(16), fmt))
-        np.testing.assert_array_equal(padded, compressed_to_array(compressed_msg(data, fmt)))
+    # Bytes after the end are allowed (padded driver buffers, line ends, vendor trailers).
+    whole = compressed_to_array(compressed_msg(data, fmt))
+    for tail in (bytes(16), bytes(100), b'\r\n', b'\xff' * 8, b'SEFT\xff\xda\x00\x01trailer'):
+        np.testing.assert_array_equal(compressed_to_array(compressed_msg(data + tail, fmt)),
+                                      whole)
+
+
+def test_a_cut_jpeg_is_refused_even_after_a_complete_thumbnail():
+    """An EXIF thumbnail (inside APP1, before the main image) has its own end-of-image marker:
+    the main image cut short is still refused."""
+    mono = _smooth_rgb()[..., 0]
+    main = cv2.imencode('.jpg', mono)[1].tobytes()
+    thumb = cv2.imencode('.jpg', mono[::8, ::8])[1].tobytes()
+    payload = b'Exif\x00\x00' + thumb
+    app1 = b'\xff\xe1' + (len(payload) + 2).to_bytes(2, 'big') + payload
+    data = main[:2] + app1 + main[2:]
+    _check_complete(np.frombuffer(data, np.uint8), 'jpeg')          # complete: no error
+    with pytest.raises(ImageError, match='without its end-of-image marker'):
+        _check_complete(np.frombuffer(data[:len(data) - len(main) // 2], np.uint8), 'jpeg')
 
 
 @pytest.mark.parametrize('ext, params', [

@@ -16,8 +16,8 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
     """Load a configuration file (None: the defaults).
 
     Accepts the plain nested form and the ROS parameter-file form
-    (``<node_name>: {ros__parameters: {...}}``, or ``/**`` as the node name) that
-    ``config/planar_vo.yaml`` uses, so one file serves the node and the CLI.
+    (``<node_name>: {ros__parameters: {...}}``, the node name with or without a namespace, or
+    ``/**``) that ``config/planar_vo.yaml`` uses, so one file serves the node and the CLI.
     """
     if path is None:
         return PlanarVoConfig()
@@ -36,18 +36,18 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
     if data is None:
         return PlanarVoConfig()
     if isinstance(data, dict):
-        names = (node_name, f'/{node_name}', '/**')
-        for name in names:
-            if isinstance(data.get(name), dict) and 'ros__parameters' in data[name]:
-                data = data[name]['ros__parameters']
-                break
-        else:
-            others = [str(k) for k, v in data.items()
-                      if isinstance(v, dict) and 'ros__parameters' in v]
-            if others:
-                raise ConfigError(f"{path}: a ROS parameter file for {', '.join(others)}, not "
-                                  f"for this node; key its parameters on "
-                                  f"{' or '.join(repr(n) for n in names)}")
+        keyed = {str(k): v for k, v in data.items()
+                 if isinstance(v, dict) and 'ros__parameters' in v}
+        # The node's own key, with or without a namespace ('/car/planar_vo', '/**/planar_vo'),
+        # else the wildcard '/**'.
+        ours = [k for k in keyed if k.rsplit('/', 1)[-1] == node_name] or \
+            [k for k in keyed if k == '/**']
+        if ours:
+            data = keyed[ours[0]]['ros__parameters']
+        elif keyed:
+            raise ConfigError(f"{path}: a ROS parameter file for {', '.join(keyed)}, not for "
+                              f"this node; key its parameters on '{node_name}' (with or "
+                              f"without a namespace) or '/**'")
     try:
         return PlanarVoConfig.from_dict(data)
     except ConfigError as err:

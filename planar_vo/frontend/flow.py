@@ -138,21 +138,28 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
     cap = max(int(max_points), 1)
     step = max(int(step), 1)
     eig = _structure_min_eig(gray)
+    half = max((step + 1) // 2, 1)
+    rows, cols, m = _cell_layout(eig.shape, h, w, half, margin)
+    if rows <= 0 or cols <= 0:
+        empty = np.zeros((0, 2), np.int64)
+        return CandidateGrid(empty, np.zeros(0), empty, (max(rows, 0), max(cols, 0)))
     while True:
-        half = max((step + 1) // 2, 1)
-        layout = _cell_layout(eig.shape, h, w, half, margin)
-        rows, cols, m = layout
-        if rows <= 0 or cols <= 0:
-            empty = np.zeros((0, 2), np.int64)
-            return CandidateGrid(empty, np.zeros(0), empty, (max(rows, 0), max(cols, 0)))
         view = eig[m:m + rows * half, m:m + cols * half]
         # Each cell's maximum in two contiguous reductions (rows, then columns).
         peak = view.reshape(rows, half, cols * half).max(axis=1).reshape(rows, cols, half)
         count = int(np.count_nonzero(peak.max(axis=2) > min_texture))
         if count <= cap:
             break
-        # Textured cells fall as 1 / step^2: one enlargement usually fits; then by 2 pixels.
-        step = max(step + 2, int(np.ceil(step * np.sqrt(count / cap))))
+        # Textured cells fall as 1 / step^2: one enlargement usually fits; then by 2 pixels;
+        # halved back while the cells would not fit the image.
+        grown = max(step + 2, int(np.ceil(step * np.sqrt(count / cap))))
+        layout = _cell_layout(eig.shape, h, w, max((grown + 1) // 2, 1), margin)
+        while (layout[0] <= 0 or layout[1] <= 0) and grown > step + 2:
+            grown = max(step + 2, (step + grown) // 2)
+            layout = _cell_layout(eig.shape, h, w, max((grown + 1) // 2, 1), margin)
+        if layout[0] <= 0 or layout[1] <= 0:
+            break               # no larger cell fits the image: the most textured cells below
+        step, half, (rows, cols, m) = grown, max((grown + 1) // 2, 1), layout
     cells = view.reshape(rows, half, cols, half).transpose(0, 2, 1, 3).reshape(rows, cols,
                                                                                half * half)
     best = cells.argmax(axis=-1)
@@ -160,6 +167,12 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
     y = m + np.arange(rows)[:, None] * half + best // half
     x = m + np.arange(cols)[None, :] * half + best % half
     keep = value > min_texture
+    if count > cap:
+        # Cells as large as the image allows still hold too many points: the cap's most
+        # textured ones.
+        order = np.argsort(-np.where(keep, value, -np.inf), axis=None, kind='stable')
+        keep = np.zeros_like(keep)
+        keep.ravel()[order[:cap]] = True
     points = 2 * np.stack([x[keep], y[keep]], axis=1).astype(np.int64)
     index = np.stack(np.nonzero(keep), axis=1).astype(np.int64)
     return CandidateGrid(points, value[keep].astype(np.float64), index, (rows, cols))
@@ -326,18 +339,18 @@ class FlowExtractor:
         self._backward = cv2.DISOpticalFlow_create(DIS_PRESETS[config.fb_preset])
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix='planar_vo_dis')
         self.stats: dict[str, float] = {}
-        # Image 2 of the last call and its derived images (shrunk for DIS, smoothed for the
-        # refinement): a tracker's image 2 is usually its next image 1 (the new keyframe).
+        # A copy of image 2 of the last call and its derived images (shrunk for DIS, smoothed
+        # for the refinement): a tracker's image 2 is usually its next image 1 (the new
+        # keyframe).
         self._last: tuple[np.ndarray, int, np.ndarray, np.ndarray | None] | None = None
 
     def _derived(self, gray: np.ndarray, scale: int
                  ) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """``gray`` shrunk by ``scale`` for DIS and `smooth_for_refinement`-ed, when ``gray`` is
-        the very array given as image 2 last time (None each otherwise). The reference is held,
-        so its identity cannot pass to another array; the pipeline never modifies an image in
-        place."""
+        """``gray`` shrunk by ``scale`` for DIS and `smooth_for_refinement`-ed, when ``gray``
+        holds the pixels given as image 2 last time (None each otherwise). Compared by value,
+        against a copy: a caller may refill one buffer frame after frame."""
         last = self._last
-        if last is None or last[0] is not gray:
+        if last is None or last[0].shape != gray.shape or not np.array_equal(last[0], gray):
             return None, None
         return (last[2] if last[1] == scale else None), last[3]
 
@@ -375,7 +388,7 @@ class FlowExtractor:
                     smooth1 = smooth_for_refinement(gray1) if smooth1 is None else smooth1
                     template = prepare_template(
                         smooth1, p1, patch_offsets(cfg.patch_radius, cfg.patch_stride))
-            self._last = (gray2, s, small2, image2)
+            self._last = (gray2.copy(), s, small2, image2)
             stats['candidates'] = float(len(p1))
             lap('candidates')
             flow = forward.result()

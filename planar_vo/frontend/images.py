@@ -257,21 +257,46 @@ def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
     return img
 
 
+_PNG_END = b'IEND\xaeB`\x82'            # the IEND chunk's type and its (fixed) CRC
+
+
 def _check_complete(buf: np.ndarray, kind: str) -> None:
     """`ImageError` for PNG or JPEG data cut short (a partial write, a truncated file or
-    message): a PNG ends with its IEND chunk, a JPEG with its end-of-image marker (zero padding
-    after it is allowed). Checked before decoding because the decoders print to stderr and
-    OpenCV fills a cut JPEG's missing rows with grey instead of failing."""
-    tail = bytes(buf[-64:])
+    message): a PNG holds its IEND chunk, a JPEG an end-of-image marker after the main image's
+    first start-of-scan (entropy-coded data cannot hold one; an EXIF thumbnail's comes before).
+    Bytes after the end (padding, trailers) are allowed. Checked before decoding because the
+    decoders print to stderr and OpenCV fills a cut JPEG's missing rows with grey instead of
+    failing."""
+    raw = buf.tobytes()
     if kind == 'png':
-        complete = tail[-8:-4] == b'IEND'
-        end = 'its IEND chunk'
-    else:
-        complete = tail.rstrip(b'\x00').endswith(b'\xff\xd9')
-        end = 'its end-of-image marker'
-    if not complete:
-        raise ImageError(f'compressed_image.data: {buf.size} bytes of {kind} data without '
-                         f'{end}: the image is cut short')
+        if raw.rfind(_PNG_END) < 0:
+            raise ImageError(f'compressed_image.data: {buf.size} bytes of png data without '
+                             f'its IEND chunk: the image is cut short')
+        return
+    scan = _jpeg_first_scan(raw)
+    if scan < 0 or raw.find(b'\xff\xd9', scan) < 0:
+        raise ImageError(f'compressed_image.data: {buf.size} bytes of jpeg data without '
+                         f'its end-of-image marker: the image is cut short')
+
+
+def _jpeg_first_scan(raw: bytes) -> int:
+    """Offset of the main image's first start-of-scan marker in JPEG bytes (header segments
+    are skipped by their lengths, so a thumbnail inside APP1 is not entered), or -1."""
+    pos = 2
+    while 0 <= pos and pos + 4 <= len(raw):
+        if raw[pos] != 0xFF:                          # stray bytes before a marker (tolerated)
+            pos = raw.find(b'\xff', pos)
+            continue
+        marker = raw[pos + 1]
+        if marker == 0xDA:
+            return pos
+        if marker == 0xFF:                            # fill byte
+            pos += 1
+        elif marker in _JPEG_NO_LENGTH:
+            pos += 2
+        else:
+            pos += 2 + int.from_bytes(raw[pos + 2:pos + 4], 'big')
+    return -1
 
 
 def read_image(path: str | Path) -> np.ndarray:
