@@ -843,3 +843,37 @@ def test_flow_acs_survive_an_exposure_change(mild_pair, darker):
     assert len(acs) >= 0.9 * len(same)
     assert np.median(point) < 0.05 and np.percentile(point, 95) < 0.15
     assert np.median(affine) < 0.015 and np.percentile(affine, 95) < 0.04
+
+
+def test_extract_more_adds_the_selected_cells_from_the_same_flows(ground_pair):
+    """A budget-capped pair asked for more ACs in a region: its candidates on the grid without
+    the budget's larger cells, tracked on the same flows exactly as an extraction without the
+    budget tracks them; nothing before the first pair; a bad mask is refused."""
+    from planar_vo.frontend.flow import FlowExtractor
+
+    g1, g2 = ground_pair
+    capped = FrontendConfig(max_correspondences=60, reseed=False)
+    tracker = FlowExtractor(capped)
+    assert tracker.extract_more(lambda p: np.ones(len(p), bool)) is None
+    main = tracker.extract(g1, g2)
+
+    def lower(p):
+        return p[:, 1] > 0.6 * H
+
+    more = tracker.extract_more(lower)
+    assert np.all(lower(more.p1)) and len(more) <= 60
+    assert len(more) > 2 * np.count_nonzero(lower(main.p1))
+    free = FlowExtractor(FrontendConfig(max_correspondences=30000, reseed=False)).extract(g1, g2)
+    index = {tuple(p): i for i, p in enumerate(free.p1)}
+    same = np.array([index[tuple(p)] for p in more.p1])
+    # The same up to the order of floating-point sums over the batch of patches.
+    np.testing.assert_allclose(more.p2, free.p2[same], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(more.A, free.A[same], rtol=0, atol=1e-8)
+    with pytest.raises(InputError, match='select'):
+        tracker.extract_more(lambda p: np.ones(3, bool))
+    klt = ACExtractor(FrontendConfig(method='klt'))
+    klt.extract(g1, g2)
+    assert klt.extract_more(lower) is None
+    flow = ACExtractor(capped)
+    flow.extract(g1, g2)
+    assert len(flow.extract_more(lower)) == len(more)

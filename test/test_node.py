@@ -964,6 +964,7 @@ def test_renamed_node_with_the_shipped_parameter_file_resets_and_publishes_diagn
     assert values['tracking'] == 'tracking' and values['image_topic'] == '/camera/image_raw'
     assert values['listening_on'] == '/camera/image_raw /camera/camera_info'
     assert float(values['focal_px']) == 500.0 and values['scale_source'] == 'ground'
+    assert int(values['road_top_ups']) >= 0
     assert ours[-1].level == DiagnosticStatus.OK
 
 

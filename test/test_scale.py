@@ -12,7 +12,7 @@ import pytest
 from planar_vo.core.conventions import normal_from_tilt, rotation_rpy
 from planar_vo.core.homography import apply_homography, homography_jacobian
 from planar_vo.errors import ConfigError, InputError
-from planar_vo.pipeline.scale import SpeedIntegrator, road_scale
+from planar_vo.pipeline.scale import SpeedIntegrator, road_rays, road_scale
 
 HEIGHT = 1.65
 PITCH, ROLL = np.deg2rad(1.2), np.deg2rad(-0.7)     # the camera against the road
@@ -334,3 +334,18 @@ def test_speed_integrator_errors():
 def test_rotation_helper_matches_rpy():
     # _small_rotation about the x axis is the rpy roll: the helpers agree on the convention.
     assert np.allclose(_small_rotation(0.1, 0.0, 0.0), rotation_rpy(0.1, 0.0, 0.0))
+
+
+def test_road_rays_are_those_meeting_the_road_below_the_horizon_within_the_depth():
+    """Level camera 1.65 m above the road: a ray meets it at depth 1.65 / y along the optical
+    axis, times the ray's length along the ray."""
+    n = normal_from_tilt(0.0, 0.0)
+    q = np.array([[0.0, 0.1], [0.0, 0.05], [0.0, -0.1], [0.0, 0.015], [0.5, 0.1], [0.9, 0.09]])
+    # Depths along the rays: 16.6 m, 33 m, above the horizon, within 1 deg of it, 18.5 m, 24.7 m
+    np.testing.assert_array_equal(road_rays(q, n, 1.65, max_depth=30.0),
+                                  [True, False, False, False, True, True])
+    assert not road_rays(q, n, 1.65, max_depth=15.0).any()
+    # Pitched down 10 deg, the horizon rises: the ray along the optical axis meets the road.
+    assert road_rays(np.zeros((1, 2)), normal_from_tilt(np.deg2rad(10.0), 0.0), 1.65)[0]
+    with pytest.raises(InputError):
+        road_rays(np.zeros((2, 3)), n, 1.65)

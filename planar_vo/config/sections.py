@@ -282,6 +282,11 @@ class ScaleConfig(Options):
         ground_normal_frames: frame pairs of road ACs kept by the road-normal calibration.
         ground_normal_acs: road ACs kept per frame pair for it (evenly picked).
         ground_normal_refit: the road normal is refitted after this many new frame pairs.
+        ground_top_up: when a frame's ACs hold too few road ACs for the ground scale, the
+            flow front-end adds ACs on the road within ``ground_max_depth`` from the same
+            flows, on its grid without the per-frame budget's larger cells (at most
+            ``frontend.max_correspondences`` more; `FlowExtractor.extract_more`). A fast car
+            sees little near road, and the budget's cells leave few candidates on it.
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
@@ -305,6 +310,7 @@ class ScaleConfig(Options):
     ground_normal_frames: int = bounded(200, 2)
     ground_normal_acs: int = bounded(60, 10)
     ground_normal_refit: int = bounded(10, 1)
+    ground_top_up: bool = True
 
 
 @dataclasses.dataclass(frozen=True)

@@ -39,6 +39,7 @@ class ACExtractor:
     def __init__(self, config: FrontendConfig | None = None) -> None:
         self.config = FrontendConfig() if config is None else config
         self._extractors: dict[str, object] = {}
+        self._last = None                   # the extractor of the last pair
         self.stats: dict[str, float] = {}
 
     def _extractor(self, method: str):
@@ -60,9 +61,18 @@ class ACExtractor:
             raise InputError(f"method: expected one of {list(METHODS)}, got {method!r}")
         gray1, gray2 = check_pair(image1, image2)
         extractor = self._extractor(method)
+        self._last = None
         acs = extractor.extract(gray1, gray2)
+        self._last = extractor
         self.stats = dict(extractor.stats)
         return acs
+
+    def extract_more(self, select) -> AffineCorrespondences | None:
+        """More ACs on the last pair where ``select(points) -> bool mask`` keeps candidates,
+        without the per-frame budget's larger cells (`FlowExtractor.extract_more`); None when
+        the last pair's method cannot (``'klt'``, ``'asift'``) or there was no pair."""
+        more = getattr(self._last, 'extract_more', None)
+        return None if more is None else more(select)
 
 
 _local = threading.local()

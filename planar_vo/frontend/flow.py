@@ -25,6 +25,7 @@ stage of the whole frame, ``planar_vo bench pipeline``.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -35,6 +36,7 @@ import numpy as np
 
 from planar_vo.config import FrontendConfig
 from planar_vo.core.correspondences import AffineCorrespondences
+from planar_vo.errors import InputError
 from planar_vo.frontend.affine_lk import (
     MAX_STEP,
     PatchRefinement,
@@ -320,6 +322,20 @@ def neighbour_predictions(grid: CandidateGrid, accepted: np.ndarray, retry: np.n
     return index, q, A[neighbour].copy()
 
 
+@dataclass(frozen=True)
+class _PairState:
+    """What `FlowExtractor.extract_more` reuses of the last pair: a copy of image 1, the flow
+    scale, the forward and backward (or None) flows, image 2 and image 1 smoothed for the
+    refinement (None when not used)."""
+
+    gray1: np.ndarray
+    scale: int
+    flow: np.ndarray
+    back: np.ndarray | None
+    image2: np.ndarray | None
+    smooth1: np.ndarray | None
+
+
 class FlowExtractor:
     """DIS-flow affine correspondences.
 
@@ -343,6 +359,7 @@ class FlowExtractor:
         # for the refinement): a tracker's image 2 is usually its next image 1 (the new
         # keyframe).
         self._last: tuple[np.ndarray, int, np.ndarray, np.ndarray | None] | None = None
+        self._pair: _PairState | None = None       # the last pair, for `extract_more`
 
     def _derived(self, gray: np.ndarray, scale: int
                  ) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -370,6 +387,7 @@ class FlowExtractor:
             stats[f'seconds_{name}'] = now - clock[0]
             clock[0] = now
 
+        self._pair = None
         use_fb = cfg.fb_threshold > 0.0
         run = self._executor()
         s = flow_downscale(gray1.shape[1], cfg.flow_max_width)
@@ -380,7 +398,7 @@ class FlowExtractor:
         backward = run(self._backward.calc, small2, small1, None) if use_fb else None
         try:
             grid = flow_candidates(gray1, cfg)
-            p1, texture = grid.points, grid.texture
+            p1 = grid.points
             template = image2 = None
             if cfg.refine_affine:
                 image2 = smooth_for_refinement(gray2)
@@ -399,6 +417,64 @@ class FlowExtractor:
             if backward is not None:
                 backward.cancel()
         lap('flow')
+        self._pair = _PairState(gray1.copy(), s, flow, back, image2, smooth1)
+        acs = self._track(grid, template, stats)
+        lap('refine')
+        self.stats = stats
+        return acs
+
+    def extract_more(self, select) -> AffineCorrespondences | None:
+        """More ACs on the image pair of the last `extract`, from its flows: candidates on the
+        configured grid without the per-frame budget (``max_correspondences`` counts the
+        selected ones only), those ``select`` keeps, evenly thinned to the budget.
+
+        For a consumer that needs ACs in one region that the budget's larger cells left too
+        sparse (the ground scale on the road close to a fast car); costs the candidate search
+        and the refinement of the new points, not another flow.
+
+        Args:
+            select: ``select(points) -> (N,) bool`` for ``(N, 2)`` pixel points of image 1.
+
+        Returns:
+            The ACs (pixels; as `extract`, re-seeding among the selected points), or None before
+            the first `extract`.
+        """
+        pair = self._pair
+        if pair is None:
+            return None
+        cfg = self.config
+        margin = cfg.patch_radius + 1 + _jacobian_baseline(cfg)
+        grid = texture_grid(pair.gray1, cfg.grid_step, margin, cfg.min_texture,
+                            pair.gray1.size)
+        keep = np.asarray(select(grid.points.astype(np.float64)), dtype=bool)
+        if keep.shape != (len(grid.points),):
+            raise InputError(f'select: expected a ({len(grid.points)},) mask, got shape '
+                             f'{keep.shape}')
+        index = np.flatnonzero(keep)
+        cap = max(int(cfg.max_correspondences), 1)
+        if index.size > cap:
+            index = index[np.linspace(0, index.size - 1, cap).astype(np.intp)]
+        grid = CandidateGrid(grid.points[index], grid.texture[index], grid.cells[index],
+                             grid.shape)
+        template = None
+        if cfg.refine_affine and len(grid.points):
+            smooth1 = pair.smooth1
+            if smooth1 is None:
+                smooth1 = smooth_for_refinement(pair.gray1)
+                self._pair = dataclasses.replace(pair, smooth1=smooth1)
+            template = prepare_template(smooth1, grid.points,
+                                        patch_offsets(cfg.patch_radius, cfg.patch_stride))
+        stats: dict[str, float] = {'candidates': float(len(grid.points))}
+        return self._track(grid, template, stats)
+
+    def _track(self, grid: CandidateGrid, template: Template | None, stats: dict[str, float]
+               ) -> AffineCorrespondences:
+        """Steps 3-6 for the candidates ``grid`` on the stored pair (`_PairState`)."""
+        cfg = self.config
+        pair = self._pair
+        flow, back, s, image2 = pair.flow, pair.back, pair.scale, pair.image2
+        p1, texture = grid.points, grid.texture
+        use_fb = back is not None
         if s == 1:
             forward_flow = flow[p1[:, 1], p1[:, 0]].astype(np.float64)
         else:
@@ -436,8 +512,6 @@ class FlowExtractor:
             acs = AffineCorrespondences(p1[keep].astype(np.float64), p2[keep], A[keep],
                                         weights[keep])
         stats['accepted'] = float(len(acs))
-        lap('refine')
-        self.stats = stats
         return acs
 
     def _executor(self):

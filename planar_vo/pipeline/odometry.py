@@ -74,7 +74,7 @@ from planar_vo.pipeline.motion import (
     to_base,
     yaw_rate_decay,
 )
-from planar_vo.pipeline.scale import RoadScale, SpeedIntegrator, road_scale
+from planar_vo.pipeline.scale import RoadScale, SpeedIntegrator, road_rays, road_scale
 from planar_vo.pipeline.types import DropReason, FrameResult, TrackingState
 from planar_vo.pipeline.window import RotationWindow
 
@@ -134,6 +134,8 @@ class VisualOdometry:
         self._window = (RotationWindow(self.config.odometry.window_size)
                         if self.config.odometry.window_lags > 1 else None)
         self.counters: dict[str, int] = {}
+        # Frames whose ground scale asked the front-end for more road ACs (`_road_acs`).
+        self.road_top_ups = 0
         odometry = self.config.odometry
         self._clock = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
         # (yaw rate, its predicted variance) of the recent steps, for `_yaw_excess`; kept
@@ -532,7 +534,12 @@ class VisualOdometry:
                 if d is not None:
                     return self._metric(d, (cfg.speed_std * dt) ** 2, 'speed', stamp, dt)
             elif source == 'ground':
-                step = self._road_step(camera, est)
+                step = self._road_step(camera, est, self._norm)
+                if step is None and cfg.ground_top_up:
+                    more = self._road_acs(camera)
+                    if more is not None and len(more):
+                        self.road_top_ups += 1
+                        step = self._road_step(camera, est, more)
                 if step is not None:
                     return self._metric(*step, 'ground', stamp, dt)
             elif source == 'fixed':
@@ -552,7 +559,25 @@ class VisualOdometry:
             self._held = (distance / dt, math.sqrt(variance) / dt, stamp)
         return distance, variance, source
 
-    def _road_step(self, camera: CameraModel, est: FrameEstimate
+    def _road_acs(self, camera: CameraModel) -> AffineCorrespondences | None:
+        """ACs of this frame pair on the road ahead (rays meeting the road within
+        ``scale.ground_max_depth`` at the current road normal, `road_rays`), from the front-end
+        without its per-frame budget's larger cells (`ACExtractor.extract_more`), normalised;
+        None when the front-end cannot (``'klt'``, ``'asift'``)."""
+        pitch, roll, _ = self.road_normal
+        n = normal_from_tilt(pitch, roll)
+        height, max_depth = self.config.mount.height, self.config.scale.ground_max_depth
+
+        def select(points: np.ndarray) -> np.ndarray:
+            q, _ = camera.pixel_to_normalized(points)
+            ok = np.isfinite(q).all(axis=1)
+            ok[ok] = road_rays(q[ok], n, height, max_depth)
+            return ok
+
+        more = self._extractor.extract_more(select)
+        return None if more is None else more.normalized(camera)
+
+    def _road_step(self, camera: CameraModel, est: FrameEstimate, norm: AffineCorrespondences
                    ) -> tuple[float, float] | None:
         """The step length (m) and its variance from the road ACs at the camera height
         (`road_scale`: the refined general motion, the road normal in the camera frame), or None
@@ -570,7 +595,6 @@ class VisualOdometry:
         median error 3.9 % before, 2.6 % after; errors in units of the reported standard
         deviation, RMS 1.63 before, 1.10 after)."""
         cfg = self.config.scale
-        norm = self._norm
 
         def measure(pitch: float, roll: float, normal_std: float) -> RoadScale:
             return road_scale(norm.p1, norm.p2, norm.A, est.R, est.t,

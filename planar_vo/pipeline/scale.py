@@ -32,6 +32,7 @@ from planar_vo.errors import ConfigError, InputError
 __all__ = [
     'RoadScale',
     'SpeedIntegrator',
+    'road_rays',
     'road_scale',
     'step_factors',
 ]
@@ -337,12 +338,30 @@ def _sensitivities(wn, lam, r, b, bb, u2, v2, s_i, q1, dn, n):
     return d_rot, np.asarray(d_normal, dtype=np.float64)
 
 
+# Rays at least this far below the horizon (n . Q, about 1 deg) can meet the road.
+_MIN_ELEVATION = 0.02
+
+
+def road_rays(q: np.ndarray, n: np.ndarray, height: float,
+              max_depth: float = ScaleConfig.ground_max_depth,
+              min_elevation: float = _MIN_ELEVATION) -> np.ndarray:
+    """``(N,)`` bool: the normalised points ``q`` ``(N, 2)`` whose rays meet the road
+    ``n . X = height`` (``n`` pointing down, normalised here) below ``min_elevation`` and within
+    ``max_depth`` metres along the ray: where `road_scale` can use an AC."""
+    q = as_array('q', q, (None, 2), min_items=0)
+    n = _unit('n', n)
+    dn = n[0] * q[:, 0] + n[1] * q[:, 1] + n[2]
+    with np.errstate(divide='ignore'):
+        depth = height / np.where(dn > 0, dn, np.inf) * np.sqrt(1.0 + (q * q).sum(axis=1))
+    return (dn >= min_elevation) & (depth <= max_depth)
+
+
 def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: np.ndarray,
                n: np.ndarray, height: float, *, point_sigma: float,
                weights: np.ndarray | None = None, clusters: np.ndarray | None = None,
                sigma_rot: float = 0.0, sigma_normal: float = 0.0,
                max_depth: float = ScaleConfig.ground_max_depth,
-               min_elevation: float = 0.02,
+               min_elevation: float = _MIN_ELEVATION,
                affine_sigma: float = ScaleConfig.ground_affine_std,
                gate: float = ScaleConfig.ground_gate,
                min_count: int = ScaleConfig.ground_min_correspondences,

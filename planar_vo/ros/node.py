@@ -780,6 +780,7 @@ class PlanarVoNode(Node):
             'image_topic': image_topic,
             'listening_on': ' '.join(self.listened_topics()),
             'scale_source': (last.scale_source if last.ok else 'none') if last else 'none',
+            'road_top_ups': self._vo.road_top_ups,
             'focal_px': self._focal(),
             'focal': self._vo.focal_status(),
             'path_poses': len(self._path) + (self._path_tip is not None),
