@@ -25,7 +25,6 @@ stage of the whole frame, ``planar_vo bench pipeline``.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -59,6 +58,7 @@ __all__ = [
     'sample_field',
     'shrink',
     'shrunk_points',
+    'structure_texture',
     'texture_grid',
 ]
 
@@ -83,7 +83,7 @@ DIS_PRESETS = {
 }
 
 
-def _structure_min_eig(gray: np.ndarray) -> np.ndarray:
+def structure_texture(gray: np.ndarray) -> np.ndarray:
     """Smaller eigenvalue of the 3x3-averaged structure tensor of the half-resolution image.
 
     Returned on the half-resolution grid, in (grey levels per full-resolution pixel)^2: the Sobel
@@ -120,11 +120,11 @@ class CandidateGrid:
 
 
 def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
-                 max_points: int) -> CandidateGrid:
+                 max_points: int, texture: np.ndarray | None = None) -> CandidateGrid:
     """Well-spread textured points: the most textured pixel of each ``step x step`` cell.
 
     Args:
-        gray: 8-bit grey image ``(H, W)``.
+        gray: 8-bit grey image ``(H, W)`` (only its shape is read when ``texture`` is given).
         step: cell size in pixels (rounded up to an even number: the search runs at half
             resolution); enlarged until at most ``max_points`` cells have enough texture.
         margin: pixels kept free along the borders.
@@ -132,6 +132,8 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
         max_points: cap on the number of points. The cells grow rather than the weakest
             points being dropped: the points stay spread over the image, the faint road
             included, and a richly textured scene costs no more per frame than a plain one.
+        texture: the image's half-resolution texture map, when already computed
+            (`structure_texture`); computed from ``gray`` when None.
 
     Returns:
         A `CandidateGrid` (cells without enough texture have no point), in row-major cell order.
@@ -139,7 +141,7 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
     h, w = gray.shape
     cap = max(int(max_points), 1)
     step = max(int(step), 1)
-    eig = _structure_min_eig(gray)
+    eig = structure_texture(gray) if texture is None else texture
     half = max((step + 1) // 2, 1)
     rows, cols, m = _cell_layout(eig.shape, h, w, half, margin)
     if rows <= 0 or cols <= 0:
@@ -200,7 +202,8 @@ def _jacobian_baseline(config: FrontendConfig) -> int:
     return max(config.patch_radius // 2, 1)
 
 
-def flow_candidates(gray: np.ndarray, config: FrontendConfig) -> CandidateGrid:
+def flow_candidates(gray: np.ndarray, config: FrontendConfig,
+                    texture: np.ndarray | None = None) -> CandidateGrid:
     """The flow front-end's candidate points in image 1: `texture_grid` with the configured grid
     step, texture threshold and cap, and the border margin its patches and flow Jacobian need.
 
@@ -209,7 +212,7 @@ def flow_candidates(gray: np.ndarray, config: FrontendConfig) -> CandidateGrid:
     """
     margin = config.patch_radius + 1 + _jacobian_baseline(config)
     return texture_grid(gray, config.grid_step, margin, config.min_texture,
-                        config.max_correspondences)
+                        config.max_correspondences, texture)
 
 
 def sample_field(field: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -324,11 +327,13 @@ def neighbour_predictions(grid: CandidateGrid, accepted: np.ndarray, retry: np.n
 
 @dataclass(frozen=True)
 class _PairState:
-    """What `FlowExtractor.extract_more` reuses of the last pair: a copy of image 1, the flow
-    scale, the forward and backward (or None) flows, image 2 and image 1 smoothed for the
-    refinement (None when not used)."""
+    """What `FlowExtractor.extract_more` reuses of the last pair: image 1's size and texture
+    map (`structure_texture`), the flow scale, the forward and backward (or None) flows, image 2
+    and image 1 smoothed for the refinement (None when not used). Arrays the extractor made
+    itself: nothing of the caller's (who may refill its buffers) is kept."""
 
-    gray1: np.ndarray
+    shape: tuple[int, int]
+    texture: np.ndarray
     scale: int
     flow: np.ndarray
     back: np.ndarray | None
@@ -397,13 +402,14 @@ class FlowExtractor:
         forward = run(self._forward.calc, small1, small2, None)
         backward = run(self._backward.calc, small2, small1, None) if use_fb else None
         try:
-            grid = flow_candidates(gray1, cfg)
+            texture = structure_texture(gray1)
+            grid = flow_candidates(gray1, cfg, texture)
             p1 = grid.points
             template = image2 = None
             if cfg.refine_affine:
                 image2 = smooth_for_refinement(gray2)
+                smooth1 = smooth_for_refinement(gray1) if smooth1 is None else smooth1
                 if len(p1):
-                    smooth1 = smooth_for_refinement(gray1) if smooth1 is None else smooth1
                     template = prepare_template(
                         smooth1, p1, patch_offsets(cfg.patch_radius, cfg.patch_stride))
             self._last = (gray2.copy(), s, small2, image2)
@@ -417,7 +423,7 @@ class FlowExtractor:
             if backward is not None:
                 backward.cancel()
         lap('flow')
-        self._pair = _PairState(gray1.copy(), s, flow, back, image2, smooth1)
+        self._pair = _PairState(gray1.shape, texture, s, flow, back, image2, smooth1)
         acs = self._track(grid, template, stats)
         lap('refine')
         self.stats = stats
@@ -444,8 +450,8 @@ class FlowExtractor:
             return None
         cfg = self.config
         margin = cfg.patch_radius + 1 + _jacobian_baseline(cfg)
-        grid = texture_grid(pair.gray1, cfg.grid_step, margin, cfg.min_texture,
-                            pair.gray1.size)
+        grid = texture_grid(np.broadcast_to(np.uint8(0), pair.shape), cfg.grid_step, margin,
+                            cfg.min_texture, pair.shape[0] * pair.shape[1], pair.texture)
         keep = np.asarray(select(grid.points.astype(np.float64)), dtype=bool)
         if keep.shape != (len(grid.points),):
             raise InputError(f'select: expected a ({len(grid.points)},) mask, got shape '
@@ -458,11 +464,7 @@ class FlowExtractor:
                              grid.shape)
         template = None
         if cfg.refine_affine and len(grid.points):
-            smooth1 = pair.smooth1
-            if smooth1 is None:
-                smooth1 = smooth_for_refinement(pair.gray1)
-                self._pair = dataclasses.replace(pair, smooth1=smooth1)
-            template = prepare_template(smooth1, grid.points,
+            template = prepare_template(pair.smooth1, grid.points,
                                         patch_offsets(cfg.patch_radius, cfg.patch_stride))
         stats: dict[str, float] = {'candidates': float(len(grid.points))}
         return self._track(grid, template, stats)
