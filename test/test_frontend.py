@@ -877,3 +877,29 @@ def test_extract_more_adds_the_selected_cells_from_the_same_flows(ground_pair):
     flow = ACExtractor(capped)
     flow.extract(g1, g2)
     assert len(flow.extract_more(lower)) == len(more)
+
+
+def test_extract_more_refuses_masks_and_texture_maps_that_do_not_fit(mild_pair):
+    """A score or index array is not a mask; a texture map of another image is refused; a
+    failed extraction leaves no pair to add to."""
+    from planar_vo.frontend.flow import FlowExtractor, structure_texture
+
+    g1, g2 = mild_pair
+    tracker = FlowExtractor(FrontendConfig(max_correspondences=60))
+    tracker.extract(g1, g2)
+    with pytest.raises(InputError, match='bool mask'):
+        tracker.extract_more(lambda p: p[:, 1].astype(np.float64))
+    with pytest.raises(InputError, match='bool mask'):
+        tracker.extract_more(lambda p: np.arange(len(p)))
+    for bad in (structure_texture(cv2.resize(g1, (2 * W, 2 * H))), structure_texture(g1).T,
+                g1[::2, ::2]):
+        with pytest.raises(InputError, match='texture'):
+            texture_grid(g1, 12, 10, 1.0, 100, bad)
+    assert len(texture_grid(g1, 12, 10, 1.0, 100, structure_texture(g1)).points) == \
+        len(texture_grid(g1, 12, 10, 1.0, 100).points)
+    extractor = ACExtractor(FrontendConfig(max_correspondences=60))
+    extractor.extract(g1, g2)
+    assert extractor.extract_more(lambda p: np.ones(len(p), bool)) is not None
+    with pytest.raises(ImageError):
+        extractor.extract(g1, g2[:-5])
+    assert extractor.extract_more(lambda p: np.ones(len(p), bool)) is None

@@ -349,3 +349,6 @@ def test_road_rays_are_those_meeting_the_road_below_the_horizon_within_the_depth
     assert road_rays(np.zeros((1, 2)), normal_from_tilt(np.deg2rad(10.0), 0.0), 1.65)[0]
     with pytest.raises(InputError):
         road_rays(np.zeros((2, 3)), n, 1.65)
+    for height, depth in ((-1.65, 30.0), (0.0, 30.0), (1.65, 0.0), (1.65, math.inf)):
+        with pytest.raises(ConfigError):
+            road_rays(q, n, height, max_depth=depth)

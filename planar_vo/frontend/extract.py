@@ -56,12 +56,12 @@ class ACExtractor:
     def extract(self, image1: np.ndarray, image2: np.ndarray, method: str | None = None
                 ) -> AffineCorrespondences:
         """ACs from ``image1`` to ``image2`` in pixels (see `extract_acs`)."""
+        self._last = None
         method = self.config.method if method is None else method
         if method not in METHODS:
             raise InputError(f"method: expected one of {list(METHODS)}, got {method!r}")
         gray1, gray2 = check_pair(image1, image2)
         extractor = self._extractor(method)
-        self._last = None
         acs = extractor.extract(gray1, gray2)
         self._last = extractor
         self.stats = dict(extractor.stats)

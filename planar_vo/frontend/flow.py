@@ -141,7 +141,14 @@ def texture_grid(gray: np.ndarray, step: int, margin: int, min_texture: float,
     h, w = gray.shape
     cap = max(int(max_points), 1)
     step = max(int(step), 1)
-    eig = structure_texture(gray) if texture is None else texture
+    if texture is None:
+        eig = structure_texture(gray)
+    else:
+        eig = np.asarray(texture)
+        half_shape = ((h + 1) // 2, (w + 1) // 2)           # cv2.pyrDown's
+        if eig.shape != half_shape or not np.issubdtype(eig.dtype, np.floating):
+            raise InputError(f'texture: expected the float texture map of the {w}x{h} image, '
+                             f'shape {half_shape}, got {eig.dtype} {eig.shape}')
     half = max((step + 1) // 2, 1)
     rows, cols, m = _cell_layout(eig.shape, h, w, half, margin)
     if rows <= 0 or cols <= 0:
@@ -452,10 +459,10 @@ class FlowExtractor:
         margin = cfg.patch_radius + 1 + _jacobian_baseline(cfg)
         grid = texture_grid(np.broadcast_to(np.uint8(0), pair.shape), cfg.grid_step, margin,
                             cfg.min_texture, pair.shape[0] * pair.shape[1], pair.texture)
-        keep = np.asarray(select(grid.points.astype(np.float64)), dtype=bool)
-        if keep.shape != (len(grid.points),):
-            raise InputError(f'select: expected a ({len(grid.points)},) mask, got shape '
-                             f'{keep.shape}')
+        keep = np.asarray(select(grid.points.astype(np.float64)))
+        if keep.dtype != bool or keep.shape != (len(grid.points),):
+            raise InputError(f'select: expected a bool mask of shape ({len(grid.points)},), got '
+                             f'{keep.dtype} {keep.shape}')
         index = np.flatnonzero(keep)
         cap = max(int(cfg.max_correspondences), 1)
         if index.size > cap:

@@ -136,6 +136,7 @@ class VisualOdometry:
         self.counters: dict[str, int] = {}
         # Frames whose ground scale asked the front-end for more road ACs (`_road_acs`).
         self.road_top_ups = 0
+        self._road_fed = False          # this frame's pair went to the road-normal calibration
         odometry = self.config.odometry
         self._clock = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
         # (yaw rate, its predicted variance) of the recent steps, for `_yaw_excess`; kept
@@ -534,12 +535,14 @@ class VisualOdometry:
                 if d is not None:
                     return self._metric(d, (cfg.speed_std * dt) ** 2, 'speed', stamp, dt)
             elif source == 'ground':
+                self._road_fed = False
                 step = self._road_step(camera, est, self._norm)
                 if step is None and cfg.ground_top_up:
                     more = self._road_acs(camera)
                     if more is not None and len(more):
                         self.road_top_ups += 1
-                        step = self._road_step(camera, est, more)
+                        # The road-normal calibration takes one frame pair once.
+                        step = self._road_step(camera, est, more, feed=not self._road_fed)
                 if step is not None:
                     return self._metric(*step, 'ground', stamp, dt)
             elif source == 'fixed':
@@ -577,8 +580,8 @@ class VisualOdometry:
         more = self._extractor.extract_more(select)
         return None if more is None else more.normalized(camera)
 
-    def _road_step(self, camera: CameraModel, est: FrameEstimate, norm: AffineCorrespondences
-                   ) -> tuple[float, float] | None:
+    def _road_step(self, camera: CameraModel, est: FrameEstimate, norm: AffineCorrespondences,
+                   feed: bool = True) -> tuple[float, float] | None:
         """The step length (m) and its variance from the road ACs at the camera height
         (`road_scale`: the refined general motion, the road normal in the camera frame), or None
         without enough road ACs. The variance adds the rotation's uncertainty (the estimator's
@@ -593,7 +596,10 @@ class VisualOdometry:
         the first step 26 % long), and the car's pitch on its suspension moved every step
         (KITTI 05, frames 0-299, with the step length from the road against the ground truth:
         median error 3.9 % before, 2.6 % after; errors in units of the reported standard
-        deviation, RMS 1.63 before, 1.10 after)."""
+        deviation, RMS 1.63 before, 1.10 after).
+
+        ``norm``: the pair's normalised ACs; ``feed`` False keeps them from the drive's
+        road-normal calibration (a top-up of a pair it already took: one pair counts once)."""
         cfg = self.config.scale
 
         def measure(pitch: float, roll: float, normal_std: float) -> RoadScale:
@@ -609,13 +615,14 @@ class VisualOdometry:
 
         before = self.road_normal
         rs = measure(before[0], before[1], math.hypot(before[2], cfg.ground_normal_std))
-        if self._road is not None and rs.count and \
-                self._road.add(norm.p1, norm.p2, est.R, est.t, rs.mask, norm.weights):
-            fit = self._road.update(before[0], before[1])
-            if fit is not None:
-                std = math.hypot(fit.pitch_std, fit.roll_std)
-                if math.isfinite(std):
-                    self._road_fit = (fit.pitch, fit.roll, std)
+        if self._road is not None and rs.count:
+            if feed and self._road.add(norm.p1, norm.p2, est.R, est.t, rs.mask, norm.weights):
+                self._road_fed = True
+                fit = self._road.update(before[0], before[1])
+                if fit is not None:
+                    std = math.hypot(fit.pitch_std, fit.roll_std)
+                    if math.isfinite(std):
+                        self._road_fit = (fit.pitch, fit.roll, std)
             pitch, roll, normal_std = self.road_normal
             # This pair's road departs from the average road by the car's pitch on its
             # suspension and the road's camber and slope changes (``ground_normal_std``): its

@@ -350,6 +350,11 @@ def road_rays(q: np.ndarray, n: np.ndarray, height: float,
     ``max_depth`` metres along the ray: where `road_scale` can use an AC."""
     q = as_array('q', q, (None, 2), min_items=0)
     n = _unit('n', n)
+    for name, value in (('height', height), ('max_depth', max_depth)):
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(f'{name}: expected a positive number of metres, got {value}')
+    if not math.isfinite(min_elevation):
+        raise ConfigError(f'min_elevation: expected a finite number, got {min_elevation}')
     dn = n[0] * q[:, 0] + n[1] * q[:, 1] + n[2]
     with np.errstate(divide='ignore'):
         depth = height / np.where(dn > 0, dn, np.inf) * np.sqrt(1.0 + (q * q).sum(axis=1))
