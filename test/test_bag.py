@@ -342,6 +342,9 @@ def test_replay_writes_odometry_counts_drops_and_copies_ground_truth(
     assert summary.image_topic == '/cam/image_raw'
     assert summary.camera_info_topic == '/cam/camera_info'
     assert summary.throughput > 0 and 'frames/s' in summary.format()
+    # The double's steps have the default source; it has no road top-ups to count.
+    assert summary.scale_sources == {'unit': 8} and summary.road_top_ups is None
+    assert '  step lengths       unit 8\n' in summary.format()
     assert 'replay' in capsys.readouterr().err                     # the progress bar
 
     # the processor saw decoded images, the camera, and exactly the speeds stamped before

@@ -45,6 +45,12 @@ def test_replay_evaluate_and_evo(tmp_path, capsys, drive_bags, evo_env, storage)
     frames = len(trajectory)
     assert f'frames in          {frames}' in text
     assert f'odometry out       {frames - 1}' in text and 'first_frame 1' in text
+    # Every odometry message's step length has a named source; the drive's are mostly metric.
+    line = next(x for x in text.splitlines() if x.startswith('  step lengths'))
+    counts = dict(item.rsplit(' ', 1) for item in
+                  line.split('step lengths', 1)[1].split('(')[0].strip().split(', '))
+    assert sum(map(int, counts.values())) == frames - 1 and int(counts['ground']) > frames / 2
+    assert '(road top-ups ' in line
     # Every odometry message carries its image's header stamp, exactly.
     with open_bag(out) as bag:
         topics = set(bag.topics)

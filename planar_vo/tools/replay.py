@@ -84,6 +84,10 @@ class ReplaySummary:
         wall_time: seconds from opening the input to closing the output.
         focal: the focal length in use at the end and where it came from (the processor's
             ``focal_status()``: CameraInfo, configured, or self-calibrated / provisional).
+        scale_sources: odometry messages by the source of their step length (``ground``,
+            ``speed``, ``hold``, ``unit``, ``stationary``, ...).
+        road_top_ups: frames whose ground scale asked the front-end for more road ACs (the
+            processor's ``road_top_ups``; None if it has none).
     """
 
     input: str
@@ -100,6 +104,8 @@ class ReplaySummary:
     camera_info_errors: int = 0
     wall_time: float = 0.0
     focal: str = ''
+    scale_sources: dict[str, int] = field(default_factory=dict)
+    road_top_ups: int | None = None
 
     @property
     def throughput(self) -> float:
@@ -110,6 +116,7 @@ class ReplaySummary:
         """A human-readable multi-line report."""
         dropped = ', '.join(f'{k} {v}' for k, v in sorted(self.dropped.items())) or 'none'
         copied = ', '.join(f'{k} {v}' for k, v in sorted(self.copied.items())) or 'none'
+        sources = ', '.join(f'{k} {v}' for k, v in sorted(self.scale_sources.items())) or 'none'
         lines = [
             f'replay {self.input} -> {self.output}',
             f'  image topic        {self.image_topic} (camera info: '
@@ -121,6 +128,8 @@ class ReplaySummary:
             f'  speed messages     {self.speed_messages}',
             f'  camera info errors {self.camera_info_errors}',
             f'  camera             {self.focal or "unknown"}',
+            f'  step lengths       {sources}'
+            + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups})'),
             f'  wall time          {self.wall_time:.2f} s',
             f'  throughput         {self.throughput:.1f} frames/s',
         ]
@@ -219,6 +228,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             stamps_ns, speeds = _read_speeds(bag, speed_topic)
         next_speed = 0
         dropped: Counter[str] = Counter()
+        sources: Counter[str] = Counter()
         poses = _Poses()
         # 16-bit grey images as the processor's configuration reads them (camera.mono16_bits).
         config = getattr(processor, 'config', None)
@@ -259,6 +269,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                                      result.twist, result.twist_covariance,
                                      log_time_ns=frame.log_time_ns)
                         poses.add(frame.stamp_ns, result.pose)
+                        sources[str(getattr(result, 'scale_source', 'unknown'))] += 1
                     else:
                         dropped[reason] += 1
                         if dropped[reason] == 1 and reason not in _EXPECTED_DROPS:
@@ -286,6 +297,9 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     summary.camera_info_errors = decoder.camera_errors
     status = getattr(processor, 'focal_status', None)
     summary.focal = status() if callable(status) else ''
+    summary.scale_sources = dict(sources)
+    top_ups = getattr(processor, 'road_top_ups', None)
+    summary.road_top_ups = top_ups if isinstance(top_ups, int) else None
     summary.wall_time = time.perf_counter() - start
     return summary
 
