@@ -481,18 +481,17 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
     failed = RoadScale(float('nan'), float('inf'), float('inf'), 0.0, 0.0, 0,
                        np.zeros(count, bool), np.zeros(3), np.zeros(2))
     h = float(height)
-    dn_all = n[0] * q1[:, 0] + n[1] * q1[:, 1] + n[2]          # n . Q1
-    # Only rays below the horizon can meet the road: the rest of the maths runs on those.
-    below = np.flatnonzero((dn_all >= min_elevation) & (w > 0))
+    # Only rays that meet the road within max_depth count: the rest of the maths runs on those.
+    below = np.flatnonzero(road_rays(q1, n, h, max_depth, min_elevation) & (w > 0))
     if below.size < min_count:
         return failed
-    dn = dn_all[below]
+    dn = n[0] * q1[below, 0] + n[1] * q1[below, 1] + n[2]      # n . Q1
     u1, v1, u2, v2 = q1[below, 0], q1[below, 1], q2[below, 0], q2[below, 1]
     r, b, bb, c = _step_terms(u1, v1, u2, v2, R, t)
     lam = h / dn                                                # depth along Q1 (z of X1)
     s_i = lam * c
     depth = lam * np.sqrt(1.0 + u1 * u1 + v1 * v1)
-    idx = np.flatnonzero((depth <= max_depth) & (s_i > 0))
+    idx = np.flatnonzero(s_i > 0)
     if idx.size < min_count:
         return failed
     ws, labels = w[below], labels[below]
