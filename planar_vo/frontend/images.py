@@ -191,23 +191,10 @@ def declared_size(data: np.ndarray) -> tuple[str, int, int]:
         return 'png', int.from_bytes(head[16:20], 'big'), int.from_bytes(head[20:24], 'big')
     if head.startswith(b'\xff\xd8'):
         raw = data.tobytes()
-        pos = 2
-        while 0 <= pos and pos + 4 <= len(raw):      # one step per header segment (a handful)
-            if raw[pos] != 0xFF:                      # stray bytes before a marker (tolerated)
-                pos = raw.find(b'\xff', pos)
-                continue
-            marker = raw[pos + 1]
-            if marker == 0xFF:                        # fill byte
-                pos += 1
-            elif marker in _JPEG_NO_LENGTH:
-                pos += 2
-            elif marker in _JPEG_SOF and pos + 9 <= len(raw):
+        for pos, marker in _jpeg_markers(raw):       # one step per header segment (a handful)
+            if marker in _JPEG_SOF and pos + 9 <= len(raw):
                 return ('jpeg', int.from_bytes(raw[pos + 7:pos + 9], 'big'),
                         int.from_bytes(raw[pos + 5:pos + 7], 'big'))
-            elif marker == 0xDA:                      # start of scan without a frame header
-                break
-            else:
-                pos += 2 + int.from_bytes(raw[pos + 2:pos + 4], 'big')
         raise ImageError(f'compressed_image.data: a JPEG without a readable frame header '
                          f'({data.size} bytes)')
     start = f' starting with {head[:8].hex(" ")}' if head else ''
@@ -279,24 +266,28 @@ def _check_complete(buf: np.ndarray, kind: str) -> None:
                          f'its end-of-image marker: the image is cut short')
 
 
-def _jpeg_first_scan(raw: bytes) -> int:
-    """Offset of the main image's first start-of-scan marker in JPEG bytes (header segments
-    are skipped by their lengths, so a thumbnail inside APP1 is not entered), or -1."""
+def _jpeg_markers(raw: bytes):
+    """``(offset, marker)`` of each JPEG header segment in order, up to and including the first
+    start-of-scan. Segments are skipped by their lengths, so a thumbnail inside APP1 is not
+    entered; stray bytes before a marker and fill bytes are tolerated."""
     pos = 2
     while 0 <= pos and pos + 4 <= len(raw):
-        if raw[pos] != 0xFF:                          # stray bytes before a marker (tolerated)
+        if raw[pos] != 0xFF:                          # stray bytes before a marker
             pos = raw.find(b'\xff', pos)
             continue
         marker = raw[pos + 1]
-        if marker == 0xDA:
-            return pos
         if marker == 0xFF:                            # fill byte
             pos += 1
-        elif marker in _JPEG_NO_LENGTH:
-            pos += 2
-        else:
-            pos += 2 + int.from_bytes(raw[pos + 2:pos + 4], 'big')
-    return -1
+            continue
+        yield pos, marker
+        if marker == 0xDA:
+            return
+        pos += 2 if marker in _JPEG_NO_LENGTH else 2 + int.from_bytes(raw[pos + 2:pos + 4], 'big')
+
+
+def _jpeg_first_scan(raw: bytes) -> int:
+    """Offset of the main image's first start-of-scan marker in JPEG bytes, or -1."""
+    return next((pos for pos, marker in _jpeg_markers(raw) if marker == 0xDA), -1)
 
 
 def read_image(path: str | Path) -> np.ndarray:
