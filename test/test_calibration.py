@@ -385,19 +385,24 @@ def test_focal_work_is_stepwise_bounded_and_deterministic(rng):
     assert not cal.offer(5, *pairs[3]) and cal.dropped == 1  # the queue is full: counted
     assert not cal.offer(5, *[x[:59] for x in pairs[3]])    # too few ACs (3 x min_inliers)
     assert cal.work(0.0) == 0 and cal.pending == 3
-    # One pair is 8 steps: a vote, 6 chunks of grid focal lengths and the first-order profile
-    # with the principal point shifted.
-    assert cal.work(7, 7) == 7 and cal.pairs == 0
+    # A step is about 10,000 AC evaluations: a pair of 60 ACs is 3 steps (a vote, all 41 grid
+    # focal lengths, the first-order profile with the principal point shifted).
+    assert cal.work(2, 7) == 2 and cal.pairs == 0
     assert cal.work(1, 8) == 1 and cal.pairs == 1 and cal.pending == 2
     # Fractional steps carry over: 0.25 steps a frame run one step every fourth frame, counted
     # in steps (not seconds), so the same frames give the same calibration at any load.
-    steps = [cal.work(0.25) for _ in range(40)]
-    assert steps == [0, 0, 0, 1] * 10 and cal.steps == 8 + 10
+    steps = [cal.work(0.25) for _ in range(24)]
+    assert steps == [0, 0, 0, 1] * 6 and cal.steps == 3 + 6 and cal.pairs == 3
     # Nothing is saved up while the queue is empty.
     cal.work(100)
     assert cal.pending == 0 and cal.work(5.0) == 0
     cal.offer(50, *pairs[3])
     assert cal.work(0.5) == 0 and cal.work(0.5) == 1
+    # A pair of 1,250 ACs takes 8 grid focal lengths a step: a vote, 6 chunks, the shifted
+    # profile.
+    cal.work(100)
+    cal.offer(60, *_pair(rng, 6.0, n=1250))
+    assert cal.work(100) == 8 and cal.pairs == 5
     with pytest.raises(InputError, match=r'steps: expected a non-negative number of work steps'):
         cal.work(-1.0)
 
@@ -406,7 +411,7 @@ def test_focal_blocks_are_bounded(rng):
     cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, pp_std=0.0, min_blocks=2, max_blocks=2)
     for b in range(4):
         cal.offer(10 * b, *_pair(rng, 6.0, n=120))
-        assert cal.work(100) == 7                           # one profile: 7 steps
+        assert cal.work(100) == 2                 # one profile of 120 ACs: the vote, the grid
     assert cal.blocks == 2 and cal.pairs == 4
 
 

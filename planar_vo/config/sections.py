@@ -57,8 +57,9 @@ class CameraConfig(Options):
             (reported so that the error stays within 3 of them) is below this; until then a
             provisional focal length is used and its uncertainty enters the covariance.
         focal_steps: work steps of the focal calibration per frame while turning pairs wait
-            (each a vote, 8 focal lengths of one pair's profile or its shifted profile, about
-            5-15 ms on KITTI frames; a pair is 8 steps); in steps rather than seconds, so that
+            (each a vote, a chunk of one pair's profile sized by its ACs, or its shifted
+            profile, about 5-15 ms on KITTI frames; a pair of 400 ACs is 4 steps, of 1,200 ACs
+            8); in steps rather than seconds, so that
             results do not depend on the machine's speed or load.
         focal_max_acs: ACs per turning pair kept for its focal profile (evenly picked), a
             memory bound; fewer cost less but lose information (800 instead of 1,300 widened

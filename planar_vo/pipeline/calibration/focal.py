@@ -50,9 +50,16 @@ _PRIOR_SIGMA = 0.45
 # this share of the width (`shifted_profile`), and |df/dcx| pp_std enters the standard
 # deviation.
 _PP_STEP = 0.01
-# Grid points per work step (measured on KITTI 05 pairs of 1,100-1,350 ACs: steps of 9 ms
-# median, 16 ms at most; a pair is 8 steps: the vote, 6 chunks and the shifted profile).
-_CHUNK = 8
+# Work per step of a pair's profile, in ACs times grid focal lengths: a pair of N ACs takes
+# ``max(1, _STEP_WORK // N)`` grid points per step, so a step costs about the same whatever the
+# pair's size (KITTI 05 turning pairs: 8 grid points of 1,100-1,350 ACs took 9 ms median, 16 ms
+# at most; 24 of 180-470 ACs, 8 ms median, 11 ms at most) and small pairs take fewer steps: a
+# pair of the budgeted front-end (about 400 ACs) is 4 steps (the vote, 2 chunks, the shifted
+# profile), one every other frame at the default 2 steps per frame, which keeps pace with the
+# turn (`TurnPairSelector` offers a pair every ``stride`` = 2 keyframes). With a fixed 8 grid
+# points such pairs took 8 steps, the queue grew through the turn and the provisional focal
+# length lagged it by up to 25 frames.
+_STEP_WORK = 10_000
 
 
 class TurnPairSelector:
@@ -128,9 +135,9 @@ class OnlineFocalCalibrator:
     evenly picked) wait in a queue of at most ``max_queue`` pairs. `work` turns them into
     profiles (`pair_profile`, the cost on a fixed log-focal grid, and `shifted_profile`, the
     same to first order with the principal point shifted by 1 % of the width) in small steps:
-    about 60 ms per pair of 1,200 ACs (8 steps), far more than a frame may spend, so the
-    pipeline calls ``work(camera.focal_steps)`` every frame and a pair is done a few frames
-    later.
+    about 60 ms per pair of 1,200 ACs (8 steps of about 9 ms; a pair of 400 ACs takes 4),
+    far more than a frame may spend, so the pipeline calls ``work(camera.focal_steps)`` every
+    frame and a pair is done a few frames later.
 
     Profiles are summed per block of ``block_frames`` frames (pairs within about a second share
     scenery and wobble: one cluster); at most ``max_blocks`` blocks are kept (the least
@@ -151,7 +158,7 @@ class OnlineFocalCalibrator:
     uncalibrated and says so (`status`).
 
     Measured on KITTI 05 (one 90-deg turn, principal point at the image centre; `planar_vo bench
-    drives`): 600.4 +- 52.5 px (truth 707.1: -2.0 sigma), not adopted; an earlier version's
+    drives`): 617.2 +- 78.3 px (truth 707.1: -1.15 sigma), not adopted; an earlier version's
     per-AC calibrator gave 603.7 +- 4.4 px there, adopted (-23 sigma).
 
     Where that bias comes from (dev scripts on the 19 KITTI 05 pairs): about half is the
@@ -270,8 +277,9 @@ class OnlineFocalCalibrator:
         return True
 
     def work(self, steps: float, frame: int | None = None) -> int:
-        """Advance the queued profiles by ``steps`` work steps (a vote, or 8 grid focal lengths
-        of one profile: 5-15 ms each on KITTI pairs); returns the number of steps run.
+        """Advance the queued profiles by ``steps`` work steps (a vote, a chunk of one profile's
+        grid focal lengths sized by the pair's ACs, or the shifted profile: 5-15 ms each on
+        KITTI pairs); returns the number of steps run.
 
         A fractional remainder carries over to the next call (``camera.focal_steps`` 0.5 runs a
         step every other frame); nothing is saved up while the queue is empty. Counted in steps,
@@ -311,7 +319,7 @@ class OnlineFocalCalibrator:
         `work` call that finishes it)."""
         f_ref = self.provisional
         prof = yield from profile_steps(pair.p1, pair.p2, pair.A, pair.w, self.log_grid, f_ref,
-                                        self.config, chunk=_CHUNK)
+                                        self.config, chunk=max(1, _STEP_WORK // len(pair.p1)))
         if prof is None:
             self.rejected += 1
             return
