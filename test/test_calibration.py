@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from planar_vo.config.sections import CameraConfig
 from planar_vo.core.conventions import normal_from_tilt, rotation_y
 from planar_vo.core.homography import apply_homography
 from planar_vo.core.robust import combine_profiles, pair_profile, shifted_profile
@@ -405,6 +406,22 @@ def test_focal_work_is_stepwise_bounded_and_deterministic(rng):
     assert cal.work(100) == 8 and cal.pairs == 5
     with pytest.raises(InputError, match=r'steps: expected a non-negative number of work steps'):
         cal.work(-1.0)
+
+
+def test_focal_work_keeps_pace_with_a_turn(rng):
+    """A turn offers a pair of about 400 ACs every other frame (`TurnPairSelector`'s stride);
+    at the default 2 steps a frame each is profiled before the next arrives, so the provisional
+    focal length follows the turn instead of a growing queue (with 8 grid focal lengths a step,
+    such pairs took 8 steps and the queue grew by one pair every 4 frames)."""
+    cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX)
+    pending = []
+    for frame in range(40):
+        if frame % 2 == 0:
+            assert cal.offer(frame, *_pair(rng, 6.0, n=400))
+        cal.work(CameraConfig.focal_steps, frame)
+        pending.append(cal.pending)
+    assert max(pending) == 1 and cal.pending == 0 and cal.pairs == 20 and cal.dropped == 0
+    assert abs(cal.provisional / FOCAL - 1.0) < 0.02
 
 
 def test_focal_blocks_are_bounded(rng):
