@@ -404,6 +404,10 @@ def test_focal_work_is_stepwise_bounded_and_deterministic(rng):
     cal.work(100)
     cal.offer(60, *_pair(rng, 6.0, n=1250))
     assert cal.work(100) == 8 and cal.pairs == 5
+    # The chunk follows the ACs kept (`max_acs`), not those offered.
+    small = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, max_acs=400)
+    small.offer(70, *_pair(rng, 6.0, n=1250))
+    assert small.work(100) == 4 and small.pairs == 1
     with pytest.raises(InputError, match=r'steps: expected a non-negative number of work steps'):
         cal.work(-1.0)
 

@@ -59,8 +59,8 @@ class CameraConfig(Options):
         focal_steps: work steps of the focal calibration per frame while turning pairs wait
             (each a vote, a chunk of one pair's profile sized by its ACs, or its shifted
             profile, about 5-15 ms on KITTI frames; a pair of 400 ACs is 4 steps, of 1,200 ACs
-            8); in steps rather than seconds, so that
-            results do not depend on the machine's speed or load.
+            8); in steps rather than seconds, so that results do not depend on the machine's
+            speed or load.
         focal_max_acs: ACs per turning pair kept for its focal profile (evenly picked), a
             memory bound; fewer cost less but lose information (800 instead of 1,300 widened
             the KITTI 05 standard deviation by a third).
