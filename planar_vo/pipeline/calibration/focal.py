@@ -53,7 +53,7 @@ _PP_STEP = 0.01
 # Work per step of a pair's profile, in ACs times grid focal lengths: a pair of N ACs takes
 # ``max(1, _STEP_WORK // N)`` grid points per step, so a step costs about the same whatever the
 # pair's size (KITTI 05 turning pairs: 8 grid points of 1,100-1,350 ACs took 9 ms median, 16 ms
-# at most; 24 of 180-470 ACs, 8 ms median, 11 ms at most) and small pairs take fewer steps: a
+# at most; 21 of 267-468 ACs, 7.7 ms median, 10.7 ms at most) and small pairs take fewer steps: a
 # pair of the budgeted front-end (about 400 ACs) is 4 steps (the vote, 2 chunks, the shifted
 # profile), one every other frame at the default 2 steps per frame, which keeps pace with the
 # turn (`TurnPairSelector` offers a pair every ``stride`` = 2 keyframes). With a fixed 8 grid
