@@ -57,7 +57,7 @@ def test_bench_cli_parses_each_benchmark():
     assert args.sizes == [500, 4000, 20000] and args.out == 'out/bench/speed'
     with pytest.raises(SystemExit) as exc:
         parser.parse_args(['bench'])
-    assert exc.value.code == 2
+    assert exc.value.code == 1
 
 
 def test_soak_trend_ignores_slow_blocks_and_reports_growth(capsys):

@@ -40,10 +40,24 @@ def test_known_error_is_one_line_and_exit_1(capsys):
     assert err == 'planar_vo demo: error: trials: expected at least 1, got 0'
 
 
-def test_unknown_command_is_a_usage_error():
+@pytest.mark.parametrize(('argv', 'message'), [
+    (['fly'], "planar_vo: error: argument COMMAND: invalid choice: 'fly'"),
+    ([], 'planar_vo: error: the following arguments are required: COMMAND'),
+    (['replay', 'in_bag'], 'planar_vo replay: error: the following arguments are required: '
+                           '--out (see planar_vo replay --help)'),
+    (['demo', '--frames', 'x'], "planar_vo demo: error: argument --frames: invalid int value: "
+                                "'x' (see planar_vo demo --help)"),
+    (['bench', 'speed', '--bogus'], 'planar_vo: error: unrecognized arguments: --bogus'),
+])
+def test_usage_error_is_one_line_and_exit_1(capsys, argv, message):
+    """Usage errors end like every other error: one line on stderr, exit code 1 (not
+    argparse's usage block and exit code 2)."""
     with pytest.raises(SystemExit) as exc:
-        main(['fly'])
-    assert exc.value.code == 2
+        main(argv)
+    assert exc.value.code == 1
+    captured = capsys.readouterr()
+    assert captured.err.count('\n') == 1 and captured.err.startswith(message), captured.err
+    assert captured.out == ''
 
 
 def test_python_dash_m_entry_point():

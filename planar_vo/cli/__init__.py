@@ -1,8 +1,9 @@
 """The ``planar_vo`` command: one entry point, one module per subcommand.
 
 Each subcommand module defines ``register(subparsers)`` (its parser, with examples) and
-``run(args) -> int``. Known errors (`PlanarVoError`) become one line on stderr and exit code 1;
-anything else is a bug and keeps its traceback. SIGTERM is handled like SIGINT (Ctrl-C): the
+``run(args) -> int``. Known errors (`PlanarVoError`) and usage errors (a missing or unknown
+argument, a value of the wrong type) become one line on stderr and exit code 1; anything else
+is a bug and keeps its traceback. SIGTERM is handled like SIGINT (Ctrl-C): the
 command stops, its outputs are finished or removed, and one line says what was kept.
 """
 
@@ -17,7 +18,7 @@ from collections.abc import Sequence
 from planar_vo import __version__
 from planar_vo.errors import PlanarVoError
 
-__all__ = ['build_parser', 'main', 'show_progress']
+__all__ = ['CommandParser', 'build_parser', 'main', 'show_progress']
 
 # Subcommand modules, in --help order.
 COMMANDS = ('demo', 'replay', 'eval', 'import-kitti', 'fleet', 'bench')
@@ -32,6 +33,16 @@ EPILOG = """examples:
 """
 
 
+class CommandParser(argparse.ArgumentParser):
+    """An `argparse.ArgumentParser` whose usage errors are one line on stderr and exit code 1,
+    like every other error of the command (argparse's own: the usage block and exit code 2).
+    Subcommand parsers inherit it (`add_subparsers` uses the parent's class)."""
+
+    def error(self, message: str):
+        self.exit(1, f'{self.prog}: error: {" ".join(message.split())} '
+                     f'(see {self.prog} --help)\n')
+
+
 def show_progress(args: argparse.Namespace) -> bool:
     """Progress bars on stderr unless ``--no-progress`` or stderr is not a terminal (CI logs)."""
     return not getattr(args, 'no_progress', False) and sys.stderr.isatty()
@@ -39,7 +50,7 @@ def show_progress(args: argparse.Namespace) -> bool:
 
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with every subcommand registered."""
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog='planar_vo',
         description='Planar visual odometry from single affine correspondences '
                     '(Hajder and Barath 1AC/1ACf).',
@@ -62,8 +73,8 @@ def _with_notes(text: str, err: BaseException) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``planar_vo`` command; returns the process exit code.
 
-    Exit codes: 0 done, 1 a known error (one line on stderr, saying what was kept), 2 a usage
-    error, 128 + the signal number when stopped by SIGINT (130) or SIGTERM (143): both are
+    Exit codes: 0 done, 1 a known or usage error (one line on stderr, saying what was kept),
+    128 + the signal number when stopped by SIGINT (130) or SIGTERM (143): both are
     handled alike, outputs are finished or removed and one line says what was kept.
     """
     from planar_vo.io.outputs import interrupt_signal, stop_signals_interrupt

@@ -6,7 +6,6 @@ does not inflate them; OpenCV is limited to one thread.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -14,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from planar_vo.cli import CommandParser
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import mount_transform
 from planar_vo.sim import StreetWorld, render, s_curve, stop_and_go, straight, turn
@@ -28,7 +28,7 @@ CAMERAS = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog='python -m planar_vo.sim', description=__doc__,
         epilog='example: python -m planar_vo.sim --camera kitti --frames 40 --save /tmp/drive')
     parser.add_argument('--camera', choices=sorted(CAMERAS), default='vga')
