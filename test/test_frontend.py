@@ -871,12 +871,45 @@ def test_extract_more_adds_the_selected_cells_from_the_same_flows(ground_pair):
     np.testing.assert_allclose(more.A, free.A[same], rtol=0, atol=1e-8)
     with pytest.raises(InputError, match='select'):
         tracker.extract_more(lambda p: np.ones(3, bool))
-    klt = ACExtractor(FrontendConfig(method='klt'))
-    klt.extract(g1, g2)
-    assert klt.extract_more(lower) is None
+    asift = ACExtractor(FrontendConfig(method='asift'))
+    assert asift.extract_more(lower) is None
     flow = ACExtractor(capped)
     flow.extract(g1, g2)
     assert len(flow.extract_more(lower)) == len(more)
+
+
+def test_klt_extract_more_finds_corners_on_a_faint_road():
+    """KLT corners are ranked against the frame's strongest: a faint road (a tenth of the
+    contrast, below 60 % of the height) gets none of a small budget. Asked for more ACs there,
+    the KLT front-end detects corners in the region alone, tracks and refines them: all in the
+    region, many, and as accurate as the exact ground homography allows; nothing before the
+    first pair; a bad mask is refused."""
+    from planar_vo.frontend.klt import KLTExtractor
+
+    Hg = _ground_homography()
+    tex = _texture(2)
+    faint_from = int((0.6 * H + PAD) * SUPERSAMPLE)          # texture rows of image rows > 0.6 H
+    tex[faint_from:] = 128.0 + 0.1 * (tex[faint_from:] - 128.0)
+    p = _grid()
+    p_src = apply_homography(np.linalg.inv(Hg), p.reshape(-1, 2)).reshape(H, W, 2)
+    g1, g2 = _sample(tex, p), _sample(tex, np.nan_to_num(p_src, nan=-1e4))
+
+    def road(q):
+        return q[:, 1] > 0.65 * H
+
+    klt = KLTExtractor(FrontendConfig(method='klt', max_correspondences=60))
+    assert klt.extract_more(road) is None
+    main = klt.extract(g1, g2)
+    assert np.count_nonzero(road(main.p1)) <= 2
+    more = klt.extract_more(road)
+    assert np.all(road(more.p1)) and 20 <= len(more) <= 60
+    point, affine = _errors(more, Hg)
+    assert np.median(point) < 0.1 and np.median(affine) < 0.03
+    with pytest.raises(InputError, match='select'):
+        klt.extract_more(lambda q: np.ones(3, bool))
+    through = ACExtractor(FrontendConfig(method='klt', max_correspondences=60))
+    through.extract(g1, g2)
+    np.testing.assert_array_equal(through.extract_more(road).p1, more.p1)
 
 
 def test_extract_more_refuses_masks_and_texture_maps_that_do_not_fit(mild_pair):

@@ -284,10 +284,13 @@ class ScaleConfig(Options):
         ground_normal_acs: road ACs kept per frame pair for it (evenly picked).
         ground_normal_refit: the road normal is refitted after this many new frame pairs.
         ground_top_up: when a frame's ACs hold too few road ACs for the ground scale, the
-            flow front-end adds ACs on the road within ``ground_max_depth`` from the same
-            flows, on its grid without the per-frame budget's larger cells (at most
-            ``frontend.max_correspondences`` more; `FlowExtractor.extract_more`). A fast car
-            sees little near road, and the budget's cells leave few candidates on it.
+            front-end adds ACs on the road within ``ground_max_depth`` (at most
+            ``frontend.max_correspondences`` more): the flow front-end from the same flows, on
+            its grid without the per-frame budget's larger cells
+            (`FlowExtractor.extract_more`), the KLT front-end from corners detected on the
+            road alone (`KLTExtractor.extract_more`); not ASIFT. A fast car sees little near
+            road, and the budget's cells (or the frame's stronger corners) leave few
+            candidates on it.
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'

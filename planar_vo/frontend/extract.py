@@ -68,9 +68,10 @@ class ACExtractor:
         return acs
 
     def extract_more(self, select) -> AffineCorrespondences | None:
-        """More ACs on the last pair where ``select(points) -> bool mask`` keeps candidates,
-        without the per-frame budget's larger cells (`FlowExtractor.extract_more`); None when
-        the last pair's method cannot (``'klt'``, ``'asift'``) or there was no pair."""
+        """More ACs on the last pair where ``select(points) -> bool mask`` keeps candidates:
+        without the per-frame budget's larger cells (`FlowExtractor.extract_more`) or from the
+        region's own corners (`KLTExtractor.extract_more`); None when the last pair's method
+        cannot (``'asift'``) or there was no pair."""
         more = getattr(self._last, 'extract_more', None)
         return None if more is None else more(select)
 

@@ -565,8 +565,9 @@ class VisualOdometry:
     def _road_acs(self, camera: CameraModel) -> AffineCorrespondences | None:
         """ACs of this frame pair on the road ahead (rays meeting the road within
         ``scale.ground_max_depth`` at the current road normal, `road_rays`), from the front-end
-        without its per-frame budget's larger cells (`ACExtractor.extract_more`), normalised;
-        None when the front-end cannot (``'klt'``, ``'asift'``)."""
+        without its per-frame budget's larger cells or from the road's own corners
+        (`ACExtractor.extract_more`), normalised;
+        None when the front-end cannot (``'asift'``)."""
         pitch, roll, _ = self.road_normal
         n = normal_from_tilt(pitch, roll)
         height, max_depth = self.config.mount.height, self.config.scale.ground_max_depth
