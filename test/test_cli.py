@@ -60,6 +60,17 @@ def test_usage_error_is_one_line_and_exit_1(capsys, argv, message):
     assert captured.out == ''
 
 
+def test_a_path_the_system_refuses_is_one_line_and_exit_1(capsys, tmp_path):
+    """A file name too long for the file system raises OSError in the path checks themselves
+    (Path.exists): one line and exit code 1, not a traceback."""
+    long_name = str(tmp_path / ('x' * 300))
+    for argv in (['replay', long_name, '--out', str(tmp_path / 'out')],
+                 ['eval', long_name]):
+        assert main(argv) == 1, argv
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and 'File name too long' in err, err
+
+
 def test_python_dash_m_entry_point():
     proc = subprocess.run([sys.executable, '-m', 'planar_vo', '--version'],
                           capture_output=True, text=True, timeout=60)

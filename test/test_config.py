@@ -53,6 +53,23 @@ def test_plain_nested_yaml(tmp_path):
     assert config.voting.bins == 180 and config.mount.height == 1.65
 
 
+def test_dotted_keys_as_ros_parameter_files_may_write_them(tmp_path):
+    """ROS 2 accepts ``voting.bins: 360`` under ros__parameters as well as nested sections;
+    so does `load_config`, mixed with nested ones; a parameter given twice is refused."""
+    path = tmp_path / 'c.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    voting.bins: 360\n    mount:\n'
+                    '      height: 1.65\n    mount.estimate_tilt: false\n')
+    config = load_config(path)
+    assert (config.voting.bins, config.mount.height, config.mount.estimate_tilt) == \
+        (360, 1.65, False)
+    path.write_text('voting.bins: 360\nvoting:\n  bins: 180\n')
+    with pytest.raises(ConfigError, match=r'voting.bins: given twice'):
+        load_config(path)
+    path.write_text('voting.bins.x: 1\nvoting:\n  bins: 180\n')
+    with pytest.raises(ConfigError, match=r'voting.bins'):
+        load_config(path)
+
+
 def test_exponents_without_a_dot_are_numbers_as_in_ros_parameter_files(tmp_path):
     """PyYAML (YAML 1.1) reads 2e-2 as text; ROS 2 reads it as a double."""
     path = tmp_path / 'c.yaml'
@@ -188,3 +205,28 @@ def test_parameter_file_keyed_on_any_node_and_old_files_still_load(tmp_path):
                                node_name='planar_vo'))
     assert '\nplanar_vo:\n  ros__parameters:\n' in old.read_text()
     assert load_config(old).voting.bins == 360
+
+
+@pytest.mark.parametrize(('changes', 'match'), [
+    ({'bins': '720'}, r"bins: expected int, got str '720'"),
+    ({'bins': 720.5}, r'bins: expected int, got float 720.5'),
+    ({'bins': True}, r'bins: expected int, got bool True'),
+    ({'inlier_chi2': 'x'}, r"inlier_chi2: expected float, got str 'x'"),
+    ({'method': 'foo'}, r"method: expected one of \['histogram', 'ransac'\], got 'foo'"),
+])
+def test_options_built_directly_check_their_types(changes, match):
+    """Not only `from_dict`: an options object built in code refuses a wrong type or choice
+    at once (before, the estimator failed later with a plain TypeError, or ran the default
+    method for an unknown one); numpy numbers count as numbers."""
+    import numpy as np
+
+    from planar_vo.core.robust import VotingConfig
+
+    with pytest.raises(ConfigError, match=match):
+        VotingConfig(**changes)
+    typed = VotingConfig(bins=np.int64(360), inlier_chi2=np.float32(12.5), kernel_bins=2)
+    assert type(typed.bins) is int and typed.bins == 360
+    assert type(typed.inlier_chi2) is float and typed.inlier_chi2 == 12.5
+    assert type(typed.kernel_bins) is float
+    with pytest.raises(ConfigError, match='voting: expected VotingConfig, got dict'):
+        PlanarVoConfig(voting={'bins': 360})

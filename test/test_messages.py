@@ -341,3 +341,12 @@ def test_pose_and_speed_from_messages():
         pose_from_message(SimpleNamespace(x=1))
     with pytest.raises(InputError, match=r'speed message: expected TwistStamped or Odometry'):
         speed_from_message(SimpleNamespace(x=1))
+    # Huge components: refused (their squares overflowed a float before and crashed the node's
+    # speed callback); a speed above MAX_SPEED is no vehicle's; non-numbers are refused.
+    for value, match in ((1e300, 'at most 1000 m/s, got 1e[+]300'), (1e154, 'got 1e[+]154'),
+                         (1001.0, 'got 1001'), (float('nan'), 'got nan')):
+        with pytest.raises(InputError, match=match):
+            speed_from_message(twist_msg(0, value))
+    assert speed_from_message(twist_msg(0, 999.0)) == 999.0
+    with pytest.raises(InputError, match='expected numbers'):
+        speed_from_message(SimpleNamespace(linear=SimpleNamespace(x='fast', y=0.0, z=0.0)))

@@ -293,8 +293,8 @@ def test_bad_frames_are_counted_and_do_not_stop_the_odometry():
     vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
     expect = []
 
-    def feed(image, stamp, reason):
-        result = vo.process(image, stamp)
+    def feed(image, stamp, reason, camera=None):
+        result = vo.process(image, stamp, camera)
         expect.append(reason)
         assert (result.reason is reason) if reason else result.ok, (result.reason,
                                                                     result.message)
@@ -310,6 +310,12 @@ def test_bad_frames_are_counted_and_do_not_stop_the_odometry():
     feed('not an image', stamps[5], DropReason.BAD_IMAGE)
     feed(images[6][:240, :320], stamps[6], DropReason.SIZE_CHANGED)
     feed(images[7], float('nan'), DropReason.BAD_IMAGE)
+    # Stamps that are not numbers and a camera that is not a model: counted drops, no raise.
+    for stamp in (None, 'abc', np.array([1.0, 2.0]), 1j):
+        result = feed(images[7], stamp, DropReason.BAD_IMAGE)
+        assert 'is not a finite number' in result.message and '\n' not in result.message
+    result = feed(images[7], stamps[7], DropReason.NO_CAMERA_INFO, camera='x')
+    assert result.message == 'camera: expected a CameraModel or None, got str'
     good = feed(images[8], stamps[8], None)                   # a gap of several frames
     for i in range(9, 12):
         good = feed(images[i], stamps[i], None)
@@ -317,7 +323,8 @@ def test_bad_frames_are_counted_and_do_not_stop_the_odometry():
     assert np.linalg.norm(good.pose[:2, 3] - truth[:2, 3]) < 0.1
     assert sum(vo.counters.values()) == len(expect)
     assert vo.counters['ok'] == expect.count(None)
-    assert vo.counters['blank_image'] == 2 and vo.counters['bad_image'] == 3
+    assert vo.counters['blank_image'] == 2 and vo.counters['bad_image'] == 7
+    assert vo.counters['no_camera_info'] == 1
 
 
 def test_no_camera_is_a_reason_not_an_error():

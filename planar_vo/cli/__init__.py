@@ -1,10 +1,11 @@
 """The ``planar_vo`` command: one entry point, one module per subcommand.
 
 Each subcommand module defines ``register(subparsers)`` (its parser, with examples) and
-``run(args) -> int``. Known errors (`PlanarVoError`) and usage errors (a missing or unknown
-argument, a value of the wrong type) become one line on stderr and exit code 1; anything else
-is a bug and keeps its traceback. SIGTERM is handled like SIGINT (Ctrl-C): the
-command stops, its outputs are finished or removed, and one line says what was kept.
+``run(args) -> int``. Known errors (`PlanarVoError`), paths the system refuses (`OSError`) and
+usage errors (a missing or unknown argument, a value of the wrong type) become one line on
+stderr and exit code 1; anything else is a bug and keeps its traceback. SIGTERM is handled like
+SIGINT (Ctrl-C): the command stops, its outputs are finished or removed, and one line says what
+was kept.
 """
 
 from __future__ import annotations
@@ -90,7 +91,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     with stop_signals_interrupt():
         try:
             return int(args.run(args) or 0)
-        except PlanarVoError as err:
+        except (PlanarVoError, OSError) as err:
+            # OSError: a path the system refuses (no permission, a name too long, a full disk)
+            # that no check of ours named first.
             print(_with_notes(f'{command}: error: {err}', err), file=sys.stderr)
             return 1
         except KeyboardInterrupt as err:

@@ -45,6 +45,8 @@ DISTORTION_MODELS = {'none': 0, 'plumb_bob': 5, 'equidistant': 4}
 MIN_FIELD_OF_VIEW_DEG = 3.0
 MAX_FIELD_OF_VIEW_DEG = {'none': 160.0, 'plumb_bob': 160.0, 'equidistant': 280.0}
 _UNDISTORT_ITERATIONS = 20
+# The largest plausible skew, as a share of fx (a pixel shear of 5.7 degrees; real cameras: 0).
+_MAX_SKEW = 0.1
 
 
 def fits_distortion_model(model: str, D) -> bool:
@@ -167,9 +169,10 @@ class CameraModel:
 
     def check_plausible(self) -> None:
         """`CameraModelError` unless the intrinsics describe a real lens: the principal point
-        inside the image and fields of view (`field_of_view`) between `MIN_FIELD_OF_VIEW_DEG`
+        inside the image, fields of view (`field_of_view`) between `MIN_FIELD_OF_VIEW_DEG`
         and the model's `MAX_FIELD_OF_VIEW_DEG` (a focal length off by a large factor, a
-        principal point given for another resolution)."""
+        principal point given for another resolution), a skew of at most a tenth of fx and a
+        distortion that can be inverted over most of the image."""
         if not (0.0 <= self.cx <= self.width and 0.0 <= self.cy <= self.height):
             raise CameraModelError(f'camera_info: principal point ({self.cx:g}, {self.cy:g}) '
                                    f'lies outside the {self.width}x{self.height} image')
@@ -182,6 +185,27 @@ class CameraModel:
                     f'{self.fy:g} px on {self.width}x{self.height}) is outside the '
                     f'{MIN_FIELD_OF_VIEW_DEG:g}-{widest:g} deg of real {kind} lenses: is the '
                     f'focal length in pixels of this resolution?')
+        skew = float(self.K[0, 1])
+        if abs(skew) > _MAX_SKEW * self.fx:
+            raise CameraModelError(f'camera_info: skew {skew:.6g} is more than {_MAX_SKEW:g} fx '
+                                   f'(fx {self.fx:g}): real pixels are not sheared that much')
+        if self.is_distorted:
+            # The distortion must be invertible over the image: Newton's undistortion converges
+            # at most pixels of a 9x9 grid (a real wide-angle calibration may fail in the far
+            # corners; absurd coefficients fail everywhere, and every frame would be lost).
+            grid = np.stack(np.meshgrid(np.linspace(0.0, self.width - 1.0, 9),
+                                        np.linspace(0.0, self.height - 1.0, 9)), -1)
+            try:
+                with np.errstate(all='ignore'):
+                    q, _ = self.pixel_to_normalized(grid.reshape(-1, 2))
+                inverted = int(np.count_nonzero(np.isfinite(q).all(axis=1)))
+            except np.linalg.LinAlgError:
+                inverted = 0
+            if inverted < 0.75 * 81:
+                raise CameraModelError(
+                    f'camera_info: the {self.distortion_model} distortion {list(self.D)} cannot '
+                    f'be inverted over the image ({81 - inverted} of 81 grid pixels have no '
+                    f'undistorted position)')
 
     # -- properties --------------------------------------------------------------------------
 
@@ -304,7 +328,7 @@ def _check_K(K) -> np.ndarray:
     except (TypeError, ValueError, OverflowError):     # OverflowError: a Python 10**400
         arr = np.zeros(0)
     if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
-        raise CameraModelError(f'K: expected a finite 3x3 matrix, got {K!r}')
+        raise CameraModelError(f'K: expected a finite 3x3 matrix, got {" ".join(repr(K).split())}')
     if arr[0, 0] <= 0 or arr[1, 1] <= 0 or arr[1, 0] != 0 or np.any(arr[2] != (0.0, 0.0, 1.0)):
         raise CameraModelError(f'K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy '
                                f'> 0, got {arr.tolist()}')

@@ -9,7 +9,9 @@ ranges everywhere and reports the dotted path of a bad value as a `ConfigError`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import numbers
 import re
 import types
 import typing
@@ -81,6 +83,14 @@ class Options:
     _section: ClassVar[str] = ''
 
     def __post_init__(self) -> None:
+        # Types first (built directly, not only through `from_dict`): an int field given
+        # '720', 720.5 or True, a choice outside its Literal, a float given a string.
+        hints = _type_hints(type(self))
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            typed = _typed(f.name, value, hints[f.name])
+            if typed is not value:
+                object.__setattr__(self, f.name, typed)
         for name, allowed in self.ranges().items():
             value = getattr(self, name)
             if isinstance(value, (int, float)) and not isinstance(value, bool) \
@@ -144,6 +154,28 @@ class Options:
     def _require(self, ok: bool, name: str, expected: str) -> None:
         if not ok:
             raise ConfigError(f'{name}: expected {expected}, got {getattr(self, name)!r}')
+
+
+@functools.cache
+def _type_hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _typed(key: str, value: Any, hint: Any) -> Any:
+    """A field's value as its annotated type, or `ConfigError` (direct construction: numpy
+    numbers are taken as numbers, strings are not parsed)."""
+    if isinstance(hint, type) and issubclass(hint, Options):
+        if isinstance(value, hint):
+            return value
+        raise ConfigError(f'{key}: expected {hint.__name__}, got {type(value).__name__}')
+    if hint in (int, float) and not isinstance(value, bool):
+        if hint is int and isinstance(value, numbers.Integral):
+            return value if type(value) is int else int(value)
+        if hint is float and isinstance(value, numbers.Real):
+            return value if type(value) is float else float(value)
+        if hint is float and isinstance(value, str):
+            raise ConfigError(f'{key}: expected float, got str {value!r}')
+    return _coerce(key, value, hint)
 
 
 def _coerce(key: str, raw: Any, hint: Any) -> Any:

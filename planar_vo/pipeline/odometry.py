@@ -224,12 +224,24 @@ class VisualOdometry:
         start = time.perf_counter()
         timings: dict[str, float] = {}
         try:
-            result = self._process(image, float(stamp), camera, timings)
+            seconds = float(stamp)
+        except (TypeError, ValueError):
+            seconds = math.nan
+        try:
+            if not math.isfinite(seconds):
+                result = self._drop(seconds, DropReason.BAD_IMAGE,
+                                    f'timestamp {_short(stamp)} is not a finite number')
+            elif camera is not None and not isinstance(camera, CameraModel):
+                result = self._drop(seconds, DropReason.NO_CAMERA_INFO,
+                                    f'camera: expected a CameraModel or None, got '
+                                    f'{type(camera).__name__}')
+            else:
+                result = self._process(image, seconds, camera, timings)
         except PlanarVoError as err:        # a bad input the checks did not anticipate
-            result = self._drop(float(stamp), DropReason.PIPELINE_ERROR, str(err))
+            result = self._drop(seconds, DropReason.PIPELINE_ERROR, str(err))
         except Exception as err:            # noqa: BLE001 - a bug must not stop the odometry
-            log.exception('pipeline error at stamp %.6f', stamp)
-            result = self._drop(float(stamp), DropReason.PIPELINE_ERROR,
+            log.exception('pipeline error at stamp %.6f', seconds)
+            result = self._drop(seconds, DropReason.PIPELINE_ERROR,
                                 f'{type(err).__name__}: {err}')
         if self._focal is not None and self._camera is None:
             t = time.perf_counter()
@@ -243,8 +255,6 @@ class VisualOdometry:
 
     def _process(self, image, stamp: float, camera: CameraModel | None,
                  timings: dict[str, float]) -> FrameResult:
-        if not math.isfinite(stamp):
-            return self._drop(stamp, DropReason.BAD_IMAGE, f'timestamp {stamp} is not finite')
         last = self._clock.last
         check = self._clock.check(stamp)
         if check is StampCheck.DUPLICATE:
@@ -785,6 +795,12 @@ _WOBBLE_CHANGE = 0.2
 def _with_timings(result: FrameResult, timings: dict[str, float]) -> FrameResult:
     result.timings.update(timings)
     return result
+
+
+def _short(value, limit: int = 40) -> str:
+    """``repr(value)`` on one line, cut to about ``limit`` characters (for drop reasons)."""
+    text = ' '.join(repr(value).split())
+    return text if len(text) <= limit else text[:limit - 3] + '...'
 
 
 def _gray(image) -> np.ndarray:

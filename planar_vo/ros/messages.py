@@ -26,6 +26,7 @@ from planar_vo.errors import InputError
 from planar_vo.frontend.images import decode_compressed, decode_raw
 
 __all__ = [
+    'MAX_SPEED',
     'compressed_to_array',
     'covariance_to_list',
     'image_to_array',
@@ -209,6 +210,10 @@ def pose_from_message(msg: Any) -> np.ndarray:
     return se3(rotation_from_quaternion(q / norm), t)
 
 
+# A speed above this (m/s, 3,600 km/h) is no ground vehicle's: the message is refused.
+MAX_SPEED = 1000.0
+
+
 def speed_from_message(msg: Any) -> float:
     """Vehicle speed (m/s, non-negative) of a ``geometry_msgs/TwistStamped``, ``Twist`` or
     ``nav_msgs/Odometry``: the norm of the linear velocity.
@@ -222,10 +227,14 @@ def speed_from_message(msg: Any) -> float:
             twist = twist.twist
     try:
         v = twist.linear
-        speed = math.sqrt(float(v.x) ** 2 + float(v.y) ** 2 + float(v.z) ** 2)
+        components = (float(v.x), float(v.y), float(v.z))
     except AttributeError as err:
         raise InputError(f'speed message: expected TwistStamped or Odometry fields, got '
                          f'{type(msg).__name__}') from err
-    if not math.isfinite(speed):
-        raise InputError(f'speed message: expected a finite velocity, got {speed}')
+    except (TypeError, ValueError) as err:
+        raise InputError(f'speed message: expected numbers in linear.x, y, z: {err}') from err
+    speed = math.hypot(*components)                  # no overflow where the squares would
+    if not (math.isfinite(speed) and speed <= MAX_SPEED):
+        raise InputError(f'speed message: expected a finite velocity of at most {MAX_SPEED:g} '
+                         f'm/s, got {speed:.6g} m/s')
     return speed
