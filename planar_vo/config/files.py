@@ -6,6 +6,7 @@ from pathlib import Path
 
 from planar_vo.config.keys import describe
 from planar_vo.config.sections import PlanarVoConfig
+from planar_vo.core.options import nest_dotted
 from planar_vo.errors import ConfigError
 
 __all__ = ['load_config', 'to_ros_yaml']
@@ -50,36 +51,9 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
                               f"this node; key its parameters on '{node_name}' (with or "
                               f"without a namespace) or '/**'")
     try:
-        return PlanarVoConfig.from_dict(_nest_dotted(data) if isinstance(data, dict) else data)
+        return PlanarVoConfig.from_dict(nest_dotted(data) if isinstance(data, dict) else data)
     except ConfigError as err:
         raise ConfigError(f'{path}: {err}') from None
-
-
-def _nest_dotted(data: dict, path: str = '') -> dict:
-    """Dotted keys (``voting.bins: 360``, as ROS parameter files may write them) as nested
-    sections, merged with the nested ones; a parameter given twice is a `ConfigError`."""
-    out: dict = {}
-    for key, value in data.items():
-        *parents, leaf = str(key).split('.')
-        node, where = out, path
-        for part in parents:
-            where = f'{where}.{part}' if where else part
-            node = node.setdefault(part, {})
-            if not isinstance(node, dict):
-                raise ConfigError(f'{where}: a value and a section at once')
-        where = f'{where}.{leaf}' if where else leaf
-        if isinstance(value, dict):
-            value = _nest_dotted(value, where)
-            if isinstance(node.get(leaf), dict):
-                for k, v in value.items():
-                    if k in node[leaf]:
-                        raise ConfigError(f'{where}.{k}: given twice')
-                    node[leaf][k] = v
-                continue
-        if leaf in node:
-            raise ConfigError(f'{where}: given twice')
-        node[leaf] = value
-    return out
 
 
 def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = '/**') -> str:

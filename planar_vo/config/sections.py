@@ -23,9 +23,8 @@ import typing
 from typing import Any
 
 from planar_vo.core.camera import DISTORTION_MODELS, fits_distortion_model
-from planar_vo.core.options import Options, bounded, finite
+from planar_vo.core.options import Options, bounded, finite, nest_dotted
 from planar_vo.core.robust.options import EstimatorConfig, VotingConfig
-from planar_vo.errors import ConfigError
 
 __all__ = [
     'CameraConfig',
@@ -436,13 +435,4 @@ class PlanarVoConfig(Options):
     @classmethod
     def from_flat(cls, flat: typing.Mapping[str, Any]) -> PlanarVoConfig:
         """Build from dotted keys (``{'voting.bins': 720}``), the form of ROS parameters."""
-        nested: dict[str, Any] = {}
-        for key, value in flat.items():
-            node = nested
-            *parents, leaf = key.split('.')
-            for part in parents:
-                node = node.setdefault(part, {})
-                if not isinstance(node, dict):
-                    raise ConfigError(f'{key}: {part} is a value, not a section')
-            node[leaf] = value
-        return cls.from_dict(nested)
+        return cls.from_dict(nest_dotted(dict(flat)))

@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 from planar_vo.errors import ConfigError
 
-__all__ = ['Options', 'Range', 'bounded', 'finite']
+__all__ = ['Options', 'Range', 'bounded', 'finite', 'nest_dotted']
 
 # A number with an exponent (2e-2, 1.5e3, -1E3): YAML 1.1 (PyYAML) reads it as text unless it has
 # a dot and a signed exponent; YAML 1.2 and ROS 2's parameter files read it as a number.
@@ -176,6 +176,33 @@ def _typed(key: str, value: Any, hint: Any) -> Any:
         if hint is float and isinstance(value, str):
             raise ConfigError(f'{key}: expected float, got str {value!r}')
     return _coerce(key, value, hint)
+
+
+def nest_dotted(data: dict, path: str = '') -> dict:
+    """Dotted keys (``voting.bins: 360``, as ROS parameter files may write them) as nested
+    sections, merged with the nested ones; a parameter given twice is a `ConfigError`."""
+    out: dict = {}
+    for key, value in data.items():
+        *parents, leaf = str(key).split('.')
+        node, where = out, path
+        for part in parents:
+            where = f'{where}.{part}' if where else part
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f'{where}: a value and a section at once')
+        where = f'{where}.{leaf}' if where else leaf
+        if isinstance(value, dict):
+            value = nest_dotted(value, where)
+            if isinstance(node.get(leaf), dict):
+                for k, v in value.items():
+                    if k in node[leaf]:
+                        raise ConfigError(f'{where}.{k}: given twice')
+                    node[leaf][k] = v
+                continue
+        if leaf in node:
+            raise ConfigError(f'{where}: given twice')
+        node[leaf] = value
+    return out
 
 
 def _coerce(key: str, raw: Any, hint: Any) -> Any:

@@ -94,11 +94,16 @@ class KLTExtractor:
         self.stats = {'candidates': 0.0, 'fb_consistent': 0.0, 'accepted': 0.0}
         return self._track(gray1, gray2, self._corners(gray1, self._inner(gray1.shape) & region))
 
+    @property
+    def _margin(self) -> int:
+        """Pixels a corner keeps from the border: at pyramid level 1 the patch (same radius in
+        pixels) covers twice the distance."""
+        return 2 * (self.config.patch_radius + 1)
+
     def _inner(self, shape: tuple[int, int]) -> np.ndarray:
         """The ``uint8`` mask (255 inside) of corners whose patch fits at pyramid level 1."""
         h, w = shape
-        # At pyramid level 1 the patch (same radius in pixels) covers twice the distance.
-        margin = 2 * (self.config.patch_radius + 1)
+        margin = self._margin
         mask = np.zeros(shape, np.uint8)
         mask[margin:h - margin, margin:w - margin] = 255
         return mask
@@ -114,7 +119,7 @@ class KLTExtractor:
         if corners is None:
             return np.zeros((0, 2), np.int64)
         h, w = gray1.shape
-        margin = 2 * (cfg.patch_radius + 1)
+        margin = self._margin
         # Even integer centres: the half-resolution level then samples the same template grid.
         p1 = (2 * np.round(corners.reshape(-1, 2) / 2.0)).astype(np.int64)
         return np.clip(p1, margin, [w - 1 - margin, h - 1 - margin])
