@@ -16,7 +16,15 @@ __all__ = [
     'InputError',
     'OutputError',
     'PlanarVoError',
+    'one_line',
 ]
+
+
+def one_line(err: BaseException | str) -> str:
+    """An exception's (or any) text on one line (numpy reprs and third-party messages may span
+    several)."""
+    text = ' '.join(str(err).split())
+    return text or type(err).__name__
 
 
 class PlanarVoError(Exception):

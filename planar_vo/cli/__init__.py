@@ -17,7 +17,7 @@ import sys
 from collections.abc import Sequence
 
 from planar_vo import __version__
-from planar_vo.errors import PlanarVoError
+from planar_vo.errors import PlanarVoError, one_line
 
 __all__ = ['CommandParser', 'build_parser', 'main', 'show_progress']
 
@@ -40,7 +40,7 @@ class CommandParser(argparse.ArgumentParser):
     Subcommand parsers inherit it (`add_subparsers` uses the parent's class)."""
 
     def error(self, message: str):
-        self.exit(1, f'{self.prog}: error: {" ".join(message.split())} '
+        self.exit(1, f'{self.prog}: error: {one_line(message)} '
                      f'(see {self.prog} --help)\n')
 
 
@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _with_notes(text: str, err: BaseException) -> str:
     """`text` and the error's notes (what was kept, added on the way out) on one line."""
     parts = [text, *getattr(err, '__notes__', ())]
-    return '; '.join(' '.join(p.split()) for p in parts if p.strip())
+    return '; '.join(one_line(p) for p in parts if p.strip())
 
 
 def main(argv: Sequence[str] | None = None) -> int:

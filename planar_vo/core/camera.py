@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from planar_vo.core.checks import as_array
-from planar_vo.errors import CameraModelError
+from planar_vo.errors import CameraModelError, one_line
 
 __all__ = [
     'DISTORTION_MODELS',
@@ -328,7 +328,7 @@ def _check_K(K) -> np.ndarray:
     except (TypeError, ValueError, OverflowError):     # OverflowError: a Python 10**400
         arr = np.zeros(0)
     if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
-        raise CameraModelError(f'K: expected a finite 3x3 matrix, got {" ".join(repr(K).split())}')
+        raise CameraModelError(f'K: expected a finite 3x3 matrix, got {one_line(repr(K))}')
     if arr[0, 0] <= 0 or arr[1, 1] <= 0 or arr[1, 0] != 0 or np.any(arr[2] != (0.0, 0.0, 1.0)):
         raise CameraModelError(f'K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy '
                                f'> 0, got {arr.tolist()}')

@@ -17,7 +17,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 from rosbags.typesys import Stores, get_typestore
 
-from planar_vo.errors import BagError
+from planar_vo.errors import BagError, one_line
 from planar_vo.ros.messages import stamp_to_ns
 
 __all__ = [
@@ -25,7 +25,6 @@ __all__ = [
     'BagReader',
     'StampedMessage',
     'iter_messages',
-    'one_line',
     'open_bag',
 ]
 
@@ -33,12 +32,6 @@ log = logging.getLogger(__name__)
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 BAG_SUFFIXES = ('.mcap', '.db3')
-
-
-def one_line(err: BaseException | str) -> str:
-    """An exception's text on one line (third-party messages may span several)."""
-    text = ' '.join(str(err).split())
-    return text or type(err).__name__
 
 
 class BagMessage(NamedTuple):

@@ -53,7 +53,7 @@ from planar_vo.core.conventions import (
 )
 from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.core.robust.stats import MAD_TO_SIGMA
-from planar_vo.errors import ImageError, PlanarVoError
+from planar_vo.errors import ImageError, PlanarVoError, one_line
 from planar_vo.frontend import ACExtractor, leveling_rotation
 from planar_vo.frontend.images import as_gray
 from planar_vo.pipeline.calibration import (
@@ -799,7 +799,7 @@ def _with_timings(result: FrameResult, timings: dict[str, float]) -> FrameResult
 
 def _short(value, limit: int = 40) -> str:
     """``repr(value)`` on one line, cut to about ``limit`` characters (for drop reasons)."""
-    text = ' '.join(repr(value).split())
+    text = one_line(repr(value))
     return text if len(text) <= limit else text[:limit - 3] + '...'
 
 

@@ -60,8 +60,7 @@ from pathlib import Path
 from typing import Any
 
 from planar_vo.config import PlanarVoConfig, flatten
-from planar_vo.errors import ConfigError, DependencyError, InputError, PlanarVoError
-from planar_vo.io.reader import one_line
+from planar_vo.errors import ConfigError, DependencyError, InputError, PlanarVoError, one_line
 from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
 
 __all__ = [
