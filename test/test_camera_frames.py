@@ -160,6 +160,23 @@ def test_real_lenses_are_plausible(width, height, fx, model):
     assert horizontal == pytest.approx(expected, rel=1e-12) and 3.0 <= vertical <= horizontal
 
 
+@pytest.mark.parametrize('name', list(CAMERAS))
+def test_pixel_shift_is_how_far_another_model_moves_the_image(name):
+    camera = CAMERAS[name]
+    assert camera.pixel_shift(camera) < 1e-9
+    # Pinhole: a focal length 1 % longer moves the pixel at (u, v) by 1 % of its distance from
+    # the principal point: the most at the corner (0, 0) (K's centre is nearer the far corner).
+    K2 = K.copy()
+    K2[:2, :2] *= 1.01
+    longer = CameraModel(640, 480, K2, camera.distortion_model, camera.D)
+    if name == 'none':
+        assert camera.pixel_shift(longer) == pytest.approx(0.01 * np.hypot(320.0, 240.0),
+                                                           rel=1e-12)
+    else:
+        assert 1.0 < camera.pixel_shift(longer) < 10.0
+    assert camera.pixel_shift(CameraModel(320, 240, K)) == np.inf       # another size
+
+
 def test_mount_transform_conventions():
     T = mount_transform(height=1.65)
     np.testing.assert_allclose(T[:3, :3], R_BASE_OPTICAL)

@@ -412,6 +412,25 @@ def test_first_signal_mid_stream_exits_cleanly_with_a_summary(prefix, ros_env, t
     assert frames >= after
 
 
+@pytest.mark.timeout(60)
+def test_signals_during_the_clean_up_do_not_interrupt_it(prefix, ros_env, tmp_path):
+    """An impatient Ctrl-C: SIGINT again every 20 ms after the first, until the node's summary
+    (the end of its clean-up) is out. The clean-up finishes and the exit code stays 0."""
+    with NodeProcess(node_args(prefix, MOUNT_PARAMS), ros_env, tmp_path / 'node.log') as node:
+        deadline = time.monotonic() + 30
+        while 'listening on' not in node.output():
+            assert time.monotonic() < deadline and node.popen.poll() is None, node.output()
+            time.sleep(0.05)
+        sent = 0
+        while node.popen.poll() is None:
+            node.popen.send_signal(signal.SIGINT)
+            sent += 1
+            time.sleep(0.01)
+        assert node.popen.wait(timeout=10) == 0 and sent >= 2, (sent, node.output())
+        output = node.output()
+    assert 'Traceback' not in output and 'summary: 0 frames in' in output, output
+
+
 # -- 5, 6: parameters ------------------------------------------------------------------------------
 
 @pytest.mark.timeout(60)
@@ -421,6 +440,15 @@ def test_first_signal_mid_stream_exits_cleanly_with_a_summary(prefix, ros_env, t
                           "got 'gps'"),
     ('mount.height:=high', "mount.height: expected float, got str 'high'"),
     ('voting.binz:=360', 'unknown parameter(s) voting.binz'),
+    # QoS overrides: a misspelt policy (rclpy ignores it), values rclpy raises or rcl fails on.
+    ('qos_overrides./image.subscription.reliabilty:=reliable',
+     'unknown QoS override(s) qos_overrides./image.subscription.reliabilty: expected '
+     'qos_overrides.<topic>.subscription.<history|depth|reliability> for a topic the node '
+     'subscribes to (/image, /camera_info)'),
+    ('qos_overrides./image.subscription.reliability:=bogus',
+     "qos_overrides./image.subscription.reliability: 'bogus' is not a reliability policy"),
+    ('qos_overrides./camera_info.subscription.depth:=-1',
+     'qos_overrides./camera_info.subscription.depth: -1 is not a queue depth'),
 ])
 def test_invalid_parameter_is_one_fatal_line_and_exit_code_1(prefix, ros_env, tmp_path, arg,
                                                              message):
@@ -743,6 +771,71 @@ def test_diagnostics_warn_when_images_give_no_odometry(monkeypatch, local_node, 
 
 
 @pytest.mark.timeout(60)
+def test_a_camera_model_change_restarts_tracking_only_when_the_image_moves(
+        local_node, drive_bag):
+    """A recalibration (fx + 0.01 px) keeps tracking; two camera models alternating on one
+    topic restart the keyframe chain at every image: reinitialised and warned about (rate-
+    limited), not an OK status without odometry."""
+    from sensor_msgs.msg import CameraInfo
+
+    node = local_node(MOUNT_PARAMS)
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    K = CAMERA.K.copy()
+    K[0, 0] += 0.01
+    recalibrated = to_rclpy(camera_info_msg(0, 640, 480, 500.0, k=K), CameraInfo)
+    K[:2, :2] *= 1.04
+    other = to_rclpy(camera_info_msg(0, 640, 480, 500.0, k=K), CameraInfo)
+
+    def change(i):          # after the bag's own CameraInfo, which comes with every image
+        if i == 5:
+            node._on_camera_info(recalibrated)
+        elif i >= 10 and i % 2 == 0:
+            node._on_camera_info(other)
+
+    feed(node, drive_bag, 16, change)
+    results = [s['result'] for s in statuses(node)]
+    assert results == ['first_frame'] + ['ok'] * 9 + ['reinitialised'] * 6
+    final = statuses(node)[-1]
+    assert final['camera_changes'] == '8' and final['tracking'] == 'reinitialised'
+    assert node.published['status'][-1].status[0].level == DiagnosticStatus.WARN
+    warned = [ln for level, ln in lines if level == 'warning' and 'camera model changed' in ln]
+    assert len(warned) == 1 and 'the image moves up to 0.00639 px' in warned[0]
+    assert sum('tracking state tracking -> reinitialised' in ln for _, ln in lines) == 1
+    assert sum('first frame of the keyframe chain' in ln for _, ln in lines) == 1
+    # Odometry went on through the recalibration, and the pose was carried on through the
+    # restarts (a held pose would stay at the frame-9 position).
+    assert len(node.published['odom']) == 9
+
+
+@pytest.mark.timeout(60)
+def test_the_path_is_paced_by_path_period_and_completed_when_images_stop(local_node):
+    """While images arrive the path goes out once per ``ros.path_period`` of image time,
+    however often the diagnostics timer runs; when they stop, the timer publishes the path
+    with its last pose."""
+    from nav_msgs.msg import Odometry as OdometryMsg
+
+    node = local_node({'ros.path_period': 1.0})
+    sent = []
+    node._path_pub.get_subscription_count = lambda: 1
+    node._path_pub.publish = sent.append
+    for i in range(25):                                  # 2.5 s of images at 10 Hz
+        odom = OdometryMsg()
+        odom.header.stamp.sec, odom.header.stamp.nanosec = divmod(i * 100_000_000, 10 ** 9)
+        odom.pose.pose.position.x = float(i)
+        node._publish(odom)
+        node._last_image = time.monotonic()
+        node._on_diagnostics_timer()                     # images still arriving
+    assert [len(p.poses) for p in sent] == [1, 11, 21]
+    node._last_image = time.monotonic() - 1.0            # a second without images
+    node._on_diagnostics_timer()
+    assert len(sent) == 4 and sent[-1].poses[-1].pose.position.x == 24.0
+    node._on_diagnostics_timer()                         # nothing new: nothing published
+    assert len(sent) == 4
+
+
+@pytest.mark.timeout(60)
 def test_a_speed_topic_on_another_clock_is_reported(monkeypatch, local_node, drive_bag):
     """scale.source speed with speed samples 1000 s away from the image stamps: the odometry
     falls back to unit steps, and /diagnostics and the log say why."""
@@ -960,6 +1053,7 @@ def test_renamed_node_with_the_shipped_parameter_file_resets_and_publishes_diagn
     # /diagnostics: a name and hardware id an aggregator can group, the state and the rates.
     ours = [d.status[0] for d in diagnostics if d.status[0].name == 'front_vo: visual odometry']
     assert ours and {s.hardware_id for s in ours} == {'/car/front_vo'}
+    assert {s.status[0].hardware_id for s in status} == {'/car/front_vo'}      # as per image
     values = {kv.key: kv.value for kv in ours[-1].values}
     assert values['tracking'] == 'tracking' and values['image_topic'] == '/camera/image_raw'
     assert values['listening_on'] == '/camera/image_raw /camera/camera_info'

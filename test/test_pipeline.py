@@ -225,6 +225,15 @@ def test_flat_output_keeps_x_y_yaw_and_states_the_flat_world():
         assert f.pose_covariance[2, 2] == pytest.approx(0.05 ** 2)
         assert f.pose_covariance[3, 3] == pytest.approx(0.02 ** 2)
         assert f.pose_covariance[5, 5] == pytest.approx(g.pose_covariance[5, 5])
+        # The twist too: vz and the roll and pitch rates are zero, uncertain by what was
+        # dropped; vx, vy and the yaw rate as in 3D.
+        keep, drop = [0, 1, 5], [2, 3, 4]
+        assert np.array_equal(f.twist[keep], g.twist[keep]) and not f.twist[drop].any()
+        assert np.array_equal(f.twist_covariance[np.ix_(keep, keep)],
+                              g.twist_covariance[np.ix_(keep, keep)])
+        np.testing.assert_allclose(np.diag(f.twist_covariance)[drop],
+                                   np.diag(g.twist_covariance)[drop] + g.twist[drop] ** 2,
+                                   rtol=1e-12)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -388,6 +397,36 @@ def test_lost_tracking_restarts_on_the_next_real_frame_with_inflated_covariance(
     true_step = np.linalg.norm(trajectory.xy[8] - trajectory.xy[7])
     step = np.linalg.norm(r8.pose[:2, 3] - r7.pose[:2, 3])
     assert abs(step - true_step) < 0.1 * true_step
+
+
+def test_a_camera_model_change_restarts_the_chain_only_when_the_image_moves():
+    # A recalibration that moves the image by a hundredth of a pixel keeps the keyframe chain:
+    # every frame is tracked. A model that moves it by pixels (fx 500 -> 520) starts a new
+    # chain like lost tracking: the pose extrapolated over the interval, the covariance grown.
+    trajectory, images, _ = _drive('straight')
+    stamps = [float(t) for t in trajectory.stamps]
+    K = CAMERA.K.copy()
+    K[0, 0] += 0.01
+    recalibrated = CameraModel(640, 480, K)
+    K = CAMERA.K.copy()
+    K[:2, :2] *= 1.04
+    other = CameraModel(640, 480, K)
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}})
+    vo = VisualOdometry(config)
+    results = [vo.process(images[i], stamps[i], CAMERA if i < 5 else recalibrated)
+               for i in range(10)]
+    assert [r.ok for r in results] == [False] + [True] * 9
+    before = results[-1]
+    changed = vo.process(images[10], stamps[10], other)
+    assert changed.reason is DropReason.REINITIALISED and 'camera model change' in changed.message
+    assert changed.tracking is TrackingState.REINITIALISED
+    truth = np.linalg.norm(trajectory.xy[10] - trajectory.xy[0])
+    assert abs(changed.pose[0, 3] - truth) < 0.05                  # carried on at 8 m/s
+    dt = stamps[10] - stamps[9]
+    assert changed.pose_covariance[0, 0] == pytest.approx(
+        before.pose_covariance[0, 0] + (config.odometry.lost_speed_std * dt) ** 2, rel=0.05)
+    # The next frame is tracked against the new chain with the new model.
+    assert vo.process(images[11], stamps[11], other).ok
 
 
 def test_mount_tilt_is_estimated_and_used():

@@ -332,7 +332,8 @@ class OdometryConfig(Options):
         max_time_jump_back: a stamp further back than this (s) resets tracking (a looped bag, a
             restarted clock); a smaller step back is a frame out of order.
         output: ``'3d'`` (the full pose: the vehicle follows hills, with roll and pitch) or
-            ``'flat'`` (x, y and yaw; z, roll and pitch zero: for ground robots).
+            ``'flat'`` (x, y and yaw; z, roll and pitch zero, and their rates in the twist:
+            for ground robots).
         flat_z_std, flat_tilt_std: with ``output: flat``, the standard deviations (m, rad)
             given to the dropped z and roll/pitch.
         lost_speed_std, lost_turn_rate_std: while tracking is lost the pose is extrapolated

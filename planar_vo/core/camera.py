@@ -16,6 +16,7 @@ Models (ROS ``sensor_msgs/CameraInfo`` names and coefficient order):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -254,6 +255,19 @@ class CameraModel:
 
     def __hash__(self) -> int:
         return hash((self.size, self.K.tobytes(), self.distortion_model, self.D))
+
+    def pixel_shift(self, other: CameraModel) -> float:
+        """How far ``other`` moves the image (pixels): the largest distance, over a 5x5 grid of
+        pixels spanning the image, between a pixel and where ``other`` images the same ray.
+        Infinite for another image size or a ray ``other`` cannot image."""
+        if other.size != self.size:
+            return math.inf
+        u, v = np.meshgrid(np.linspace(0.0, self.width - 1.0, 5),
+                           np.linspace(0.0, self.height - 1.0, 5))
+        grid = np.column_stack([u.ravel(), v.ravel()])
+        moved, _ = other.normalized_to_pixel(self.pixel_to_normalized(grid)[0])
+        shift = np.linalg.norm(moved - grid, axis=1)
+        return float(shift.max()) if np.isfinite(shift).all() else math.inf
 
     # -- distortion of normalised coordinates ------------------------------------------------
 

@@ -131,6 +131,19 @@ def flatten(T: np.ndarray, C_ros: np.ndarray, z_std: float, tilt_std: float
     return flat, C
 
 
+def flatten_twist(twist: np.ndarray, C_twist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 2D output's twist ``[vx, vy, vz, wx, wy, wz]``: vz and the roll and pitch rates set
+    to zero, each with its variance plus the square of the value dropped (the zero is off by
+    that much); the x, y, yaw block of ``C_twist`` kept, the rest uncorrelated."""
+    flat = np.zeros(6)
+    keep, drop = [0, 1, 5], [2, 3, 4]
+    flat[keep] = twist[keep]
+    C = np.zeros((6, 6))
+    C[np.ix_(keep, keep)] = C_twist[np.ix_(keep, keep)]
+    C[drop, drop] = C_twist[drop, drop] + twist[drop] ** 2
+    return flat, C
+
+
 def yaw_rate_decay(rate: float, dt: float, time_constant: float) -> float:
     """The yaw (rad) a rate ``rate`` (rad/s) decaying exponentially with ``time_constant`` (s)
     turns in ``dt`` seconds: ``rate tau (1 - exp(-dt / tau))``, bounded by ``rate tau`` however

@@ -69,6 +69,7 @@ from planar_vo.pipeline.keyframes import Keyframe, KeyframeChain
 from planar_vo.pipeline.motion import (
     compose,
     flatten,
+    flatten_twist,
     ros_pose_covariance,
     ros_twist_covariance,
     to_base,
@@ -160,7 +161,7 @@ class VisualOdometry:
         self._twist_cov = np.eye(6) * _UNKNOWN
         self._held: tuple[float, float, float] | None = None      # speed, std, stamp
         self._lost = 0
-        self._restart = False
+        self._restart = ''          # why the next usable frame starts a new keyframe chain
         self._time_reset = False
         self._new_time_base = False
         self._state = TrackingState.INITIALISING
@@ -278,7 +279,7 @@ class VisualOdometry:
             log.warning('time moved on by %.3f s: tracking restarts, the pose held (the '
                         'motion across a new time base is unknown)', stamp - last)
             self._keyframes.clear()
-            self._restart = self._new_time_base = True
+            self._restart, self._new_time_base = 'the time base moved on', True
         t = time.perf_counter()
         try:
             gray = _gray(image)
@@ -359,8 +360,15 @@ class VisualOdometry:
                         ) -> CameraModel | None:
         if camera is not None:
             if self._camera is not None and camera != self._camera:
-                log.info('camera model changed; starting a new keyframe')
-                self._keyframes.clear()
+                shift = self._camera.pixel_shift(camera)
+                if shift > _SAME_CAMERA_SHIFT and self._keyframes.current is not None:
+                    # The keyframe's pixels do not mean what they did: restart the chain
+                    # like lost tracking (the pose extrapolated over the frame interval, its
+                    # covariance grown). A smaller change (a recalibration) keeps the chain.
+                    log.debug('camera model changed (the image moves up to %.3g px): new '
+                              'keyframe chain', shift)
+                    self._keyframes.clear()
+                    self._restart = 'a camera model change'
             self._camera = camera
             self._camera_from_config = False
         if self._camera is None:
@@ -691,7 +699,7 @@ class VisualOdometry:
         self._state = TrackingState.LOST
         if self._lost >= self.config.odometry.max_lost_frames and not self._restart:
             self._keyframes.clear()
-            self._restart = True
+            self._restart = 'lost tracking'
             message += '; tracking lost: the next usable frame starts a new keyframe chain'
         return self._drop(stamp, reason, message, count, inliers)
 
@@ -707,7 +715,7 @@ class VisualOdometry:
         elif self._restart:
             self._extrapolate(stamp)
             reason, message = (DropReason.REINITIALISED,
-                               'new keyframe chain after lost tracking (pose extrapolated)')
+                               f'new keyframe chain after {self._restart} (pose extrapolated)')
         elif self._time_reset:
             reason, message = (DropReason.TIME_JUMP_BACK,
                                f'time jumped back to {stamp:.9f}: tracking reset, pose at the '
@@ -715,7 +723,8 @@ class VisualOdometry:
         self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov)
         self._state = (TrackingState.TRACKING if reason is DropReason.FIRST_FRAME
                        else TrackingState.REINITIALISED)
-        self._restart = self._time_reset = self._new_time_base = False
+        self._restart = ''
+        self._time_reset = self._new_time_base = False
         self._lost = 0
         if self._last_out is None:
             self._last_out = (stamp, self.camera_pose.copy())
@@ -765,14 +774,15 @@ class VisualOdometry:
             self._state = TrackingState.TRACKING
         pose, cov_body = to_base(self.camera_pose, self._camera_cov, self._T_base_camera)
         cov = ros_pose_covariance(pose, cov_body)
+        twist, twist_cov = self._twist.copy(), self._twist_cov.copy()
         odometry = self.config.odometry
         if odometry.output == 'flat':
             pose, cov = flatten(pose, cov, odometry.flat_z_std, odometry.flat_tilt_std)
+            twist, twist_cov = flatten_twist(twist, twist_cov)
         self.pose = pose
         return FrameResult(stamp=stamp, ok=ok, pose=pose.copy(), pose_covariance=cov,
                            tracking=self._state, camera_pose=self.camera_pose.copy(),
-                           twist=self._twist.copy(), twist_covariance=self._twist_cov.copy(),
-                           **fields)
+                           twist=twist, twist_covariance=twist_cov, **fields)
 
     def _drop(self, stamp: float, reason: DropReason, message: str, count: int = 0,
               inliers: int = 0) -> FrameResult:
@@ -780,6 +790,9 @@ class VisualOdometry:
                             num_correspondences=count, num_inliers=inliers)
 
 
+# A new camera model that moves the image by at most this many pixels (`CameraModel.pixel_shift`)
+# is a recalibration of the same camera: the keyframe chain goes on with it.
+_SAME_CAMERA_SHIFT = 0.5
 # Variance (m^2 or rad^2) that says "unknown": a unit step has no metric length.
 _UNKNOWN = 1e6
 # Steps of history before the yaw's excess variance is measured (`_yaw_excess`).

@@ -18,7 +18,8 @@ class DropReason(str, enum.Enum):
     """Why a frame produced no odometry update (stable keys for counters and logs)."""
 
     FIRST_FRAME = 'first_frame'            # initialises the pipeline; nothing to compare with yet
-    REINITIALISED = 'reinitialised'        # starts a new keyframe chain after lost tracking
+    REINITIALISED = 'reinitialised'        # a new keyframe chain after lost tracking, a new
+    #                                        time base or a camera model change
     TIME_JUMP_AHEAD = 'time_jump_ahead'    # stamped implausibly far ahead (a clock glitch)
     TIME_JUMP_BACK = 'time_jump_back'      # stamped far back (looped bag, clock restart): reset
     NO_CAMERA_INFO = 'no_camera_info'      # no intrinsics yet (and no focal self-calibration)

@@ -72,7 +72,7 @@ from rcl_interfaces.msg import (
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -140,6 +140,12 @@ _PERIOD_WINDOW = 20
 # Gaps in a row of lengths within this share of their median are a new frame rate.
 _RATE_CHANGE_GAPS, _RATE_CHANGE_SPREAD = 3, 0.2
 _INT64_MAX = 2 ** 63 - 1
+# The QoS policies the subscriptions let `qos_overrides.*` change, and the values rclpy knows.
+_QOS_POLICIES = tuple(kind.name.lower() for kind in
+                      QoSOverridingOptions.with_default_policies().policy_kinds)
+_QOS_POLICY_VALUES = {
+    policy: tuple(name.lower() for name in enum.__members__ if name != 'UNKNOWN')
+    for policy, enum in (('history', HistoryPolicy), ('reliability', ReliabilityPolicy))}
 # The parameters `usage` lists (the parameter file has them all).
 _MAIN_PARAMETERS = ('scale.source', 'mount.height', 'mount.pitch', 'camera.fx',
                     'camera.estimate_focal', 'ros.image_transport', 'ros.publish_tf',
@@ -235,6 +241,7 @@ class PlanarVoNode(Node):
         # rclpy writes the overrides into the profile it is given: every subscription gets its
         # own (a reliable image must not make the speed subscription reliable too).
         overriding = QoSOverridingOptions.with_default_policies()
+        self._check_qos_values()
         if ros.image_transport == 'compressed':
             self._image_sub = self.create_subscription(
                 CompressedImage, 'image/compressed', self._on_compressed,
@@ -258,6 +265,7 @@ class PlanarVoNode(Node):
             self._speed_sub = self.create_subscription(
                 speed_type, 'speed', self._on_speed, qos_profile=sensor_qos(SPEED_QUEUE_DEPTH),
                 qos_overriding_options=overriding)
+        self._check_qos_names()
         self.create_service(Trigger, '~/reset', self._on_reset)
         # Steady time: diagnostics and the no-image warning go on when a simulated clock stops.
         self.create_timer(ros.diagnostics_period, self._on_diagnostics_timer,
@@ -275,11 +283,39 @@ class PlanarVoNode(Node):
                          if n not in self._defaults and not self.has_parameter(n)
                          and not n.startswith('qos_overrides.'))
         if unknown:
-            message = (f'unknown parameter(s) {", ".join(unknown)}: expected planar_vo '
-                       f'parameters such as {", ".join(list(self._defaults)[:3])}, ... (see '
-                       f'config/planar_vo.yaml)')
-            self.get_logger().fatal(f'invalid parameters: {message}')
-            raise ConfigError(message)
+            self._fatal(f'unknown parameter(s) {", ".join(unknown)}: expected planar_vo '
+                        f'parameters such as {", ".join(list(self._defaults)[:3])}, ... (see '
+                        f'config/planar_vo.yaml)')
+
+    def _qos_overrides(self) -> dict[str, Any]:
+        return {name: param.value for name, param in self._parameter_overrides.items()
+                if name.startswith('qos_overrides.')}
+
+    def _check_qos_values(self) -> None:
+        """A ``qos_overrides.*`` value that rclpy cannot use is one fatal line (rclpy raises
+        deep in the subscription's creation, or rcl fails on a negative depth)."""
+        for name, value in self._qos_overrides().items():
+            policy = name.rpartition('.')[2]
+            allowed = _QOS_POLICY_VALUES.get(policy)
+            if allowed is not None and str(value).lower() not in allowed:
+                self._fatal(f'{name}: {value!r} is not a {policy} policy (expected one of '
+                            f'{", ".join(allowed)})')
+            if policy == 'depth' and (type(value) is not int or value < 1):
+                self._fatal(f'{name}: {value!r} is not a queue depth (expected an integer of at '
+                            f'least 1)')
+
+    def _check_qos_names(self) -> None:
+        """A ``qos_overrides.*`` name that no subscription declared (a misspelt topic or
+        policy, a publisher) is an error: rclpy would ignore it without a word."""
+        unknown = sorted(n for n in self._qos_overrides() if not self.has_parameter(n))
+        if unknown:
+            self._fatal(f'unknown QoS override(s) {", ".join(unknown)}: expected qos_overrides.'
+                        f'<topic>.subscription.<{"|".join(_QOS_POLICIES)}> for a topic the '
+                        f'node subscribes to ({", ".join(self.listened_topics())})')
+
+    def _fatal(self, message: str) -> None:
+        self.get_logger().fatal(f'invalid parameters: {message}')
+        raise ConfigError(message)
 
     def _declare_parameters(self) -> None:
         """Every config key, with its description, range (`planar_vo.config.ranges`) and
@@ -432,8 +468,11 @@ class PlanarVoNode(Node):
             self._warn('camera_info', f'ignoring camera_info: {err}; {kept}')
             return
         if camera != self._camera and self._camera is not None:
-            self.get_logger().info(f'camera model changed to {camera.width}x{camera.height}, '
-                                   f'fx {camera.fx:.1f}')
+            # Rate-limited: two drivers publishing on one topic change it every message.
+            self._counters['camera_changes'] += 1
+            self._warn('camera_model', f'camera model changed to {camera.width}x'
+                                       f'{camera.height}, fx {camera.fx:.1f}: the image moves up '
+                                       f'to {self._camera.pixel_shift(camera):.3g} px')
         self._camera = camera
         self.flush_pending()
 
@@ -676,8 +715,8 @@ class PlanarVoNode(Node):
         }
         for reason in DropReason:
             values[f'dropped.{reason.value}'] = self.outcomes[reason.value]
-        for name in ('camera_info_errors', 'speed_messages', 'speed_errors', 'gaps',
-                     'missing_frames', 'resets', 'tracking_changes'):
+        for name in ('camera_info_errors', 'camera_changes', 'speed_messages', 'speed_errors',
+                     'gaps', 'missing_frames', 'resets', 'tracking_changes'):
             values[name] = self._counters[name]
         return values
 
@@ -686,7 +725,7 @@ class PlanarVoNode(Node):
         """One `DiagnosticStatus` per image: this frame's outcome and the running counters."""
         status = DiagnosticStatus()
         status.name = f'{self.get_name()}: visual odometry'
-        status.hardware_id = header.frame_id
+        status.hardware_id = self.get_fully_qualified_name()     # as on /diagnostics
         if result.ok or result.reason is DropReason.FIRST_FRAME:
             status.level = DiagnosticStatus.OK
         elif result.reason is DropReason.PIPELINE_ERROR:
@@ -740,8 +779,9 @@ class PlanarVoNode(Node):
                                    f'({publishers} publisher(s)); listening on '
                                    f'{", ".join(self.listened_topics())}; check the remapping '
                                    f'(-r image:=...) and the QoS')
-        if self._path_header is not None:
-            self.publish_path(self._path_header, force=True)   # the end of a stopped stream
+        if self._path_header is not None and silent >= self.config.ros.path_period:
+            # The end of a stopped stream (while images arrive, ros.path_period paces the path).
+            self.publish_path(self._path_header, force=True)
         frames = sum(self._period.values())
         period = self.config.ros.diagnostics_period
         status = DiagnosticStatus()
@@ -962,22 +1002,25 @@ class _StopRequest:
     When the wake-up lands before the shutdown, the executor finds nothing to do and waits
     again, now without a deadline: the node keeps running until a second signal. Here nothing
     is asynchronous: the executor waits at most `POLL` seconds, and the loop ends after the
-    callback in progress.
+    callback in progress. A second Ctrl-C during the clean-up only sets the flag again; `done`
+    then ignores the signals for the interpreter's exit, which would otherwise restore the
+    default handlers and let one more kill the process (exit code -2 after a clean stop).
     """
 
     POLL = 0.1
 
     def __init__(self) -> None:
         self.signal: int | None = None
-        self._previous = {sig: signal.signal(sig, self._handle)
-                          for sig in (signal.SIGINT, signal.SIGTERM)}
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._handle)
 
     def _handle(self, signum: int, frame: Any) -> None:
         self.signal = signum
 
-    def restore(self) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
+    @staticmethod
+    def done() -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
 
 
 class _RosLogHandler(logging.Handler):
@@ -1004,7 +1047,8 @@ def main(args: list[str] | None = None) -> int:
     """Entry point: ``--help`` prints `usage`; otherwise init, spin until SIGINT or SIGTERM,
     clean up (Jazzy idiom: try_shutdown in finally).
 
-    Returns 0 after SIGINT or SIGTERM, 1 when the parameters are invalid.
+    Returns 0 after SIGINT or SIGTERM, 1 when the parameters are invalid. The entry point of
+    a process: SIGINT and SIGTERM are ignored once it returns (the process is exiting).
     """
     argv = sys.argv if args is None else args
     ros_start = argv.index('--ros-args') if '--ros-args' in argv else len(argv)
@@ -1032,7 +1076,6 @@ def main(args: list[str] | None = None) -> int:
     except ConfigError:
         return 1            # the fatal line naming the parameter is already logged
     finally:
-        stop.restore()
         if handler is not None:
             library_log.removeHandler(handler)
             library_log.propagate = True
@@ -1046,4 +1089,5 @@ def main(args: list[str] | None = None) -> int:
             node.get_logger().info(node.summary())
             node.destroy_node()
         rclpy.try_shutdown()
+        stop.done()
     return 0
