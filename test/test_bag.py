@@ -22,6 +22,7 @@ from bagdata import (
     zero_png,
 )
 
+from planar_vo.cli import main
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import planar_pose
 from planar_vo.errors import BagError
@@ -419,6 +420,22 @@ def test_replay_of_a_bag_corrupt_mid_way_keeps_what_was_written(tmp_path, rng, s
     assert [m.stamp_ns for m in odom] == [T0 + i * 100_000_000 for i in range(1, kept + 1)]
     assert len(read_tum(tmp_path / 'vo.tum')) == kept
     assert len(_read_odometry(tmp_path / 'out', '/ground_truth/odom')) >= kept
+
+
+@pytest.mark.parametrize('storage', STORAGES)
+def test_replay_of_an_image_topic_without_messages_is_one_line_and_exit_1(tmp_path, capsys,
+                                                                          storage):
+    """The image topic was recorded but holds no message: not a replay of 0 frames that exits
+    0, but one line naming the topic and what the bag has; no output is written."""
+    in_bag = write_bag(tmp_path / 'in', storage, [
+        ('/cam/image_raw', IMAGE, T0, None),
+        ('/ground_truth/odom', ODOM, T0, odometry_msg(T0, 0.0))])
+    assert main(['replay', str(in_bag), '--out', str(tmp_path / 'out'), '--no-progress']) == 1
+    assert capsys.readouterr().err == (
+        f"planar_vo replay: error: image_topic: '/cam/image_raw' in '{in_bag}' has no messages; "
+        f'messages per topic: /cam/image_raw (sensor_msgs/msg/Image): 0, /ground_truth/odom '
+        f'(nav_msgs/msg/Odometry): 1\n')
+    assert list(tmp_path.iterdir()) == [in_bag]
 
 
 def test_replay_counts_a_decompression_bomb_as_a_bad_image(tmp_path, rng):

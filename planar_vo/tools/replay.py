@@ -182,7 +182,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         A `ReplaySummary`.
 
     Raises:
-        BagError: input missing/corrupt/ambiguous, output or TUM path exists, the input found
+        BagError: input missing/corrupt/ambiguous, an image topic without messages, output or
+            TUM path exists, the input found
             corrupt mid-way, or the output bag cannot be written (a full disk).
         OutputError: the TUM file cannot be written.
 
@@ -214,6 +215,9 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                                odom_frame=odom_frame, base_frame=base_frame)
     with open_bag(in_path) as bag:
         image_topic, info_topic = resolve_camera_topics(bag, image_topic, camera_info_topic)
+        if not bag.count(image_topic):
+            raise BagError(f"image_topic: '{image_topic}' in '{in_path}' has no messages; "
+                           f'messages per topic: {bag.describe_topics(counts=True)}')
         summary.image_topic, summary.camera_info_topic = image_topic, info_topic
         if copy_topics is None:
             copy = [t for t in bag.topics_of_type(*COPY_TYPES) if t != odom_topic]
