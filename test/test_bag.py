@@ -438,6 +438,34 @@ def test_replay_of_an_image_topic_without_messages_is_one_line_and_exit_1(tmp_pa
     assert list(tmp_path.iterdir()) == [in_bag]
 
 
+def test_replay_logs_the_first_bad_image_and_camera_info_and_counts_them_all(tmp_path, rng,
+                                                                             caplog):
+    """From frame 2 on, images in an encoding planar_vo cannot read and CameraInfo with K all
+    zeros: one warning of each kind (not one per message), every one counted."""
+    gray = rng.integers(0, 256, (24, 32), dtype=np.uint8)
+    entries = []
+    for i in range(20):
+        stamp = T0 + i * 100_000_000
+        entries.append(('/cam/camera_info', INFO, stamp, camera_info_msg(
+            stamp, 32, 24, 30.0, k=None if i < 2 else np.zeros((3, 3)))))
+        entries.append(('/cam/image_raw', IMAGE, stamp + 1,
+                        image_msg(gray, 'mono8' if i < 2 else 'yuv422', stamp)))
+    in_bag = write_bag(tmp_path / 'in', 'mcap', entries)
+    with caplog.at_level('WARNING', logger='planar_vo'):
+        summary = replay_bag(in_bag, tmp_path / 'out', ConstantVelocityDouble(), progress=False)
+    assert (summary.frames_in, summary.odometry_out) == (20, 1)
+    assert summary.dropped == {'first_frame': 1, 'bad_image': 18}
+    assert summary.camera_info_errors == 18
+    stamp = T0 + 200_000_000
+    assert [r.getMessage() for r in caplog.records] == [
+        f'ignoring camera_info at {stamp} ns: camera_info: K is all zeros (uncalibrated camera); '
+        f'set the camera.fx/fy/cx/cy parameters or enable camera.estimate_focal (further bad '
+        f'camera_info messages are counted, not logged)',
+        f"frame 2 ({stamp} ns) dropped, bad_image: image.encoding: expected one of ['mono8', "
+        f"'8UC1', 'mono16', '16UC1', 'rgb8', 'bgr8', 'rgba8', 'bgra8'], got 'yuv422' (further "
+        f'bad_image frames are counted in the summary)']
+
+
 def test_replay_counts_a_decompression_bomb_as_a_bad_image(tmp_path, rng):
     """A 389 KB PNG declaring 20000x20000 pixels is refused from its header: a counted
     bad_image, and the frames around it go on."""

@@ -113,7 +113,9 @@ class CameraFrameDecoder:
         except (BagError, CameraModelError) as err:
             self.camera_errors += 1
             self._pending_camera_error = f'camera_info at {message.log_time_ns} ns: {err}'
-            log.warning('ignoring %s', self._pending_camera_error)
+            if self.camera_errors == 1:           # `camera_errors` counts them all
+                log.warning('ignoring %s (further bad camera_info messages are counted, not '
+                            'logged)', self._pending_camera_error)
 
     def _decode(self, message: BagMessage) -> CameraFrame:
         stamp_ns, frame_id = message.log_time_ns, ''
