@@ -16,6 +16,7 @@ import numpy as np
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import BagError, CameraModelError, ImageError
 from planar_vo.io.reader import BagMessage, BagReader
+from planar_vo.pipeline.clock import Stamp
 from planar_vo.ros.messages import compressed_to_array, image_to_array, stamp_to_ns
 
 __all__ = [
@@ -62,9 +63,9 @@ class CameraFrame:
     camera_error: str | None = None
 
     @property
-    def stamp(self) -> float:
-        """Header stamp in seconds."""
-        return self.stamp_ns / 1_000_000_000     # int / int: correctly rounded
+    def stamp(self) -> Stamp:
+        """Header stamp in seconds, keeping its nanoseconds (a `Stamp`, a float)."""
+        return Stamp(self.stamp_ns)
 
 
 class CameraFrameDecoder:
