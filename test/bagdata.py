@@ -103,13 +103,15 @@ def twist_msg(stamp_ns: int, vx: float) -> Any:
 
 
 def write_bag(path: Path, storage: str, entries: list[tuple[str, str, int, Any]]) -> Path:
-    """A bag with `entries` ``(topic, msgtype, log_time_ns, message)`` in that order."""
+    """A bag with `entries` ``(topic, msgtype, log_time_ns, message)`` in that order (a
+    message None: the topic only, without a message)."""
     with Writer(path, version=9, storage_plugin=STORAGE_PLUGINS[storage]) as writer:
         connections = {}
         for topic, msgtype, log_ns, msg in entries:
             if topic not in connections:
                 connections[topic] = writer.add_connection(topic, msgtype, typestore=TS)
-            writer.write(connections[topic], log_ns, TS.serialize_cdr(msg, msgtype))
+            if msg is not None:
+                writer.write(connections[topic], log_ns, TS.serialize_cdr(msg, msgtype))
     return path
 
 

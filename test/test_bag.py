@@ -22,6 +22,7 @@ from bagdata import (
     zero_png,
 )
 
+from planar_vo.cli import main
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import planar_pose
 from planar_vo.errors import BagError
@@ -419,6 +420,50 @@ def test_replay_of_a_bag_corrupt_mid_way_keeps_what_was_written(tmp_path, rng, s
     assert [m.stamp_ns for m in odom] == [T0 + i * 100_000_000 for i in range(1, kept + 1)]
     assert len(read_tum(tmp_path / 'vo.tum')) == kept
     assert len(_read_odometry(tmp_path / 'out', '/ground_truth/odom')) >= kept
+
+
+@pytest.mark.parametrize('storage', STORAGES)
+def test_replay_of_an_image_topic_without_messages_is_one_line_and_exit_1(tmp_path, capsys,
+                                                                          storage):
+    """The image topic was recorded but holds no message: not a replay of 0 frames that exits
+    0, but one line naming the topic and what the bag has; no output is written."""
+    in_bag = write_bag(tmp_path / 'in', storage, [
+        ('/cam/image_raw', IMAGE, T0, None),
+        ('/ground_truth/odom', ODOM, T0, odometry_msg(T0, 0.0))])
+    assert main(['replay', str(in_bag), '--out', str(tmp_path / 'out'), '--no-progress']) == 1
+    assert capsys.readouterr().err == (
+        f"planar_vo replay: error: image_topic: '/cam/image_raw' in '{in_bag}' has no messages; "
+        f'messages per topic: /cam/image_raw (sensor_msgs/msg/Image): 0, /ground_truth/odom '
+        f'(nav_msgs/msg/Odometry): 1\n')
+    assert list(tmp_path.iterdir()) == [in_bag]
+
+
+def test_replay_logs_the_first_bad_image_and_camera_info_and_counts_them_all(tmp_path, rng,
+                                                                             caplog):
+    """From frame 2 on, images in an encoding planar_vo cannot read and CameraInfo with K all
+    zeros: one warning of each kind (not one per message), every one counted."""
+    gray = rng.integers(0, 256, (24, 32), dtype=np.uint8)
+    entries = []
+    for i in range(20):
+        stamp = T0 + i * 100_000_000
+        entries.append(('/cam/camera_info', INFO, stamp, camera_info_msg(
+            stamp, 32, 24, 30.0, k=None if i < 2 else np.zeros((3, 3)))))
+        entries.append(('/cam/image_raw', IMAGE, stamp + 1,
+                        image_msg(gray, 'mono8' if i < 2 else 'yuv422', stamp)))
+    in_bag = write_bag(tmp_path / 'in', 'mcap', entries)
+    with caplog.at_level('WARNING', logger='planar_vo'):
+        summary = replay_bag(in_bag, tmp_path / 'out', ConstantVelocityDouble(), progress=False)
+    assert (summary.frames_in, summary.odometry_out) == (20, 1)
+    assert summary.dropped == {'first_frame': 1, 'bad_image': 18}
+    assert summary.camera_info_errors == 18
+    stamp = T0 + 200_000_000
+    assert [r.getMessage() for r in caplog.records] == [
+        f'ignoring camera_info at {stamp} ns: camera_info: K is all zeros (uncalibrated camera); '
+        f'set the camera.fx/fy/cx/cy parameters or enable camera.estimate_focal (further bad '
+        f'camera_info messages are counted, not logged)',
+        f"frame 2 ({stamp} ns) dropped, bad_image: image.encoding: expected one of ['mono8', "
+        f"'8UC1', 'mono16', '16UC1', 'rgb8', 'bgr8', 'rgba8', 'bgra8'], got 'yuv422' (further "
+        f'bad_image frames are counted in the summary)']
 
 
 def test_replay_counts_a_decompression_bomb_as_a_bad_image(tmp_path, rng):

@@ -47,7 +47,16 @@ def test_known_error_is_one_line_and_exit_1(capsys):
                            '--out (see planar_vo replay --help)'),
     (['demo', '--frames', 'x'], "planar_vo demo: error: argument --frames: invalid int value: "
                                 "'x' (see planar_vo demo --help)"),
-    (['bench', 'speed', '--bogus'], 'planar_vo: error: unrecognized arguments: --bogus'),
+    # An unknown option after a subcommand points to that subcommand's help.
+    (['replay', 'bag', '--out', 'x', '--bogus'],
+     'planar_vo replay: error: unrecognized arguments: --bogus (see planar_vo replay --help)'),
+    (['bench', 'speed', '--bogus'], 'planar_vo bench speed: error: unrecognized arguments: '
+                                    '--bogus (see planar_vo bench speed --help)'),
+    (['fleet', 'run', '--out', 'x', '--bogus'],
+     'planar_vo fleet run: error: unrecognized arguments: --bogus (see planar_vo fleet run '
+     '--help)'),
+    (['--bogus', 'replay', 'bag', '--out', 'x'],
+     'planar_vo: error: unrecognized arguments: --bogus (see planar_vo --help)'),
 ])
 def test_usage_error_is_one_line_and_exit_1(capsys, argv, message):
     """Usage errors end like every other error: one line on stderr, exit code 1 (not

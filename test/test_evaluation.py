@@ -376,6 +376,22 @@ def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
     ]
     path, _, _ = _bag_with(tmp_path, rng, topics=('/odom',))
     cases.append((['eval', str(path)], "gt-topic: '/ground_truth/odom' is not a topic of"))
+    # Errors of the evaluation itself name the arguments as typed: EST, --gt, --max-diff.
+    write_tum(tmp_path / 'parked.tum', Trajectory.from_poses(gt.stamps_ns, np.tile(np.eye(4),
+                                                                                   (5, 1, 1))))
+    cases.append((['eval', str(tmp_path / 'parked.tum'), '--gt', str(tmp_path / 'est.tum')],
+                  'error: est: expected points that are not all identical (a trajectory that '
+                  'moves), got 5 identical points'))
+    cases.append((['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'),
+                   '--max-diff', '-1'],
+                  'error: max-diff: expected a non-negative number of seconds, got -1.0'))
+    huge = tmp_path / 'huge'
+    with OdometryBagWriter(huge, topic='/odom') as writer:
+        writer.add_topic('/ground_truth/odom', 'nav_msgs/msg/Odometry')
+        for i, (stamp, T) in enumerate(zip(gt.stamps_ns, gt.poses)):
+            writer.write(int(stamp), planar_pose(1e300, 0.0, 0.0) if i == 2 else T)
+            writer.write_odometry('/ground_truth/odom', int(stamp), T)
+    cases.append((['eval', str(huge)], 'error: est, gt: coordinates too large to align'))
     for argv, expected in cases:
         assert main(argv) == 1
         err = capsys.readouterr().err.strip()

@@ -156,10 +156,25 @@ def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
      r"sequence: '.*seq' has no image_0/ or image_l/ folder"),
 ])
 def test_malformed_sequence_errors(tmp_path, rng, damage, match):
+    """Each leaves no bag, not even when the bad image comes after frames were written."""
     _write_sequence(tmp_path / 'seq', rng)
     damage(tmp_path / 'seq')
     with pytest.raises(InputError, match=match):
         import_kitti(tmp_path / 'seq', tmp_path / 'bag')
+    assert not (tmp_path / 'bag').exists() and partial_leftovers(tmp_path) == []
+
+
+def test_cli_a_corrupt_image_mid_way_is_one_line_and_leaves_no_bag(tmp_path, rng, capsys):
+    _write_sequence(tmp_path / 'seq', rng)
+    png = tmp_path / 'seq' / 'image_0' / '000002.png'
+    png.write_bytes(png.read_bytes()[:60])                  # truncated
+    assert main(['import-kitti', str(tmp_path / 'seq'), '--out', str(tmp_path / 'bag')]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"planar_vo import-kitti: error: images: cannot read '{png}' as an "
+                          f'image (') and err.count('\n') == 1
+    assert err.endswith(f"; nothing was kept at '{tmp_path / 'bag'}' (removed: 2 of 4 frames "
+                        f'were written before the bad image)\n')
+    assert not (tmp_path / 'bag').exists() and partial_leftovers(tmp_path) == []
 
 
 def test_argument_errors_and_existing_output(tmp_path, rng):

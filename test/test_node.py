@@ -729,6 +729,22 @@ def _diagnostics(monkeypatch, node) -> list:
     return sent
 
 
+@pytest.mark.timeout(60)
+def test_frames_stamped_1_ns_apart_are_not_duplicates(local_node, drive_bag):
+    """Header stamps 1 ns apart (the same float seconds at 1.7e9 s): the node hands the
+    pipeline the integer nanoseconds, so every frame gets its odometry, stamped exactly."""
+    node = local_node(MOUNT_PARAMS)
+    info, images = _bag_messages(drive_bag, 4)
+    node._on_camera_info(info)
+    t0 = 1_700_000_000 * 10**9
+    for i, msg in enumerate(images):
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t0 + i, 10**9)
+        node._on_image(msg)
+    assert [s['result'] for s in statuses(node)] == ['first_frame', 'ok', 'ok', 'ok']
+    assert [stamp_to_ns(m.header.stamp) for m in node.published['odom']] == \
+        [t0 + 1, t0 + 2, t0 + 3]
+
+
 def test_a_new_frame_rate_is_learned_not_counted_as_lost_frames(local_node):
     """10 Hz, then 5 Hz for good (a driver reconfigured): the first intervals at the new rate
     look like lost frames until three in a row agree; then they are taken off the counts. A

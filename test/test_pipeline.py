@@ -4,6 +4,7 @@ reason."""
 from __future__ import annotations
 
 import functools
+import pickle
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ import pytest
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import invert, mount_transform, yaw_of
-from planar_vo.pipeline import DropReason, TrackingState, VisualOdometry
+from planar_vo.pipeline import DropReason, Stamp, TrackingState, VisualOdometry
 from planar_vo.sim import StreetWorld, reverse, stop_and_go, straight, turn
 from planar_vo.sim.drive import body_twists, render_drive
 
@@ -334,6 +335,27 @@ def test_bad_frames_are_counted_and_do_not_stop_the_odometry():
     assert vo.counters['ok'] == expect.count(None)
     assert vo.counters['blank_image'] == 2 and vo.counters['bad_image'] == 7
     assert vo.counters['no_camera_info'] == 1
+
+
+def test_stamps_1_ns_apart_are_different_frames_as_integer_nanoseconds():
+    """At 1.7e9 s a float holds about 0.24 us: stamps 1 ns apart are the same float seconds.
+    Given as `Stamp` s (integer nanoseconds, as ROS headers and bags have them) they are
+    compared exactly; plain float seconds keep their meaning."""
+    _, images, _ = _drive('straight')
+    t0 = 1_700_000_000 * 10**9
+    assert Stamp(t0 + 1) == t0 / 1e9 and Stamp(t0 + 1).ns == t0 + 1
+    copied = pickle.loads(pickle.dumps(Stamp(t0 + 1)))
+    assert (copied, copied.ns) == (t0 / 1e9, t0 + 1)
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}})
+    vo = VisualOdometry(config, CAMERA)
+    reasons = [vo.process(images[i], Stamp(t0 + ns)).reason
+               for i, ns in ((0, 0), (1, 1), (2, 1), (2, 0), (2, 2))]
+    assert reasons[0] is DropReason.FIRST_FRAME
+    assert reasons[1] is None and reasons[4] is None                  # odometry
+    assert reasons[2:4] == [DropReason.DUPLICATE_STAMP, DropReason.OUT_OF_ORDER]
+    floats = VisualOdometry(config, CAMERA)
+    floats.process(images[0], t0 / 1e9)
+    assert floats.process(images[1], (t0 + 1) / 1e9).reason is DropReason.DUPLICATE_STAMP
 
 
 def test_no_camera_is_a_reason_not_an_error():

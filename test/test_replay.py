@@ -110,6 +110,31 @@ def test_replay_says_once_why_frames_are_dropped(tmp_path, caplog, drive_bags):
     assert 'size_changed: image is 640x480 but the camera model is 1226x370' in lines[0]
 
 
+def test_replay_tells_apart_frames_stamped_1_ns_apart(tmp_path, drive_bags):
+    """The drive's first frames stamped 1 ns apart (the same float seconds at 1.7e9 s): the
+    stamps are the bag's integer nanoseconds, so none is a duplicate_stamp; each frame gets its
+    odometry, stamped exactly."""
+    from planar_vo.config import PlanarVoConfig
+    from planar_vo.io import iter_camera_frames
+    from planar_vo.io.camera_bag import CameraBagWriter
+    from planar_vo.pipeline import VisualOdometry
+    from planar_vo.tools.replay import replay_bag
+
+    _, bags = drive_bags
+    with open_bag(bags['mcap']) as bag:
+        frames = list(iter_camera_frames(bag))[:6]
+    t0 = 1_700_000_000 * 10**9
+    with CameraBagWriter(tmp_path / 'ns') as writer:
+        for i, frame in enumerate(frames):
+            writer.write_frame(t0 + i, frame.image, frame.camera)
+    config = PlanarVoConfig.from_flat({'mount.height': 1.5})
+    summary = replay_bag(tmp_path / 'ns', tmp_path / 'vo', VisualOdometry(config),
+                         progress=False)
+    assert summary.dropped == {'first_frame': 1} and summary.odometry_out == 5
+    assert load_trajectory(tmp_path / 'vo', '/odom').stamps_ns.tolist() == \
+        [t0 + i for i in range(1, 6)]
+
+
 def test_replay_checks_the_tum_path_before_replaying(tmp_path, capsys, drive_bags):
     _, bags = drive_bags
     out = tmp_path / 'o'

@@ -43,6 +43,15 @@ class CommandParser(argparse.ArgumentParser):
         self.exit(1, f'{self.prog}: error: {one_line(message)} '
                      f'(see {self.prog} --help)\n')
 
+    def parse_known_args(self, args=None, namespace=None):
+        """An argument left over is a usage error of the parser it was left to: a subcommand's
+        (argparse hands a subcommand's leftovers up to the top-level parser, whose message
+        then pointed to ``planar_vo --help``)."""
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace, extras
+
 
 def show_progress(args: argparse.Namespace) -> bool:
     """Progress bars on stderr unless ``--no-progress`` or stderr is not a terminal (CI logs)."""

@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
         gt_path = args.est
     ref = load_trajectory(gt_path, args.gt_topic, role='gt-topic')
     evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
-                          segment_lengths=tuple(args.segments))
+                          segment_lengths=tuple(args.segments),
+                          names={'ref': 'gt', 'max_diff': 'max-diff'})
     print(f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''))
     print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
     print(evaluation.format_table())

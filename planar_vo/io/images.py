@@ -16,6 +16,7 @@ import numpy as np
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import BagError, CameraModelError, ImageError
 from planar_vo.io.reader import BagMessage, BagReader
+from planar_vo.pipeline.clock import Stamp
 from planar_vo.ros.messages import compressed_to_array, image_to_array, stamp_to_ns
 
 __all__ = [
@@ -62,9 +63,9 @@ class CameraFrame:
     camera_error: str | None = None
 
     @property
-    def stamp(self) -> float:
-        """Header stamp in seconds."""
-        return self.stamp_ns / 1_000_000_000     # int / int: correctly rounded
+    def stamp(self) -> Stamp:
+        """Header stamp in seconds, keeping its nanoseconds (a `Stamp`, a float)."""
+        return Stamp(self.stamp_ns)
 
 
 class CameraFrameDecoder:
@@ -113,7 +114,9 @@ class CameraFrameDecoder:
         except (BagError, CameraModelError) as err:
             self.camera_errors += 1
             self._pending_camera_error = f'camera_info at {message.log_time_ns} ns: {err}'
-            log.warning('ignoring %s', self._pending_camera_error)
+            if self.camera_errors == 1:           # `camera_errors` counts them all
+                log.warning('ignoring %s (further bad camera_info messages are counted, not '
+                            'logged)', self._pending_camera_error)
 
     def _decode(self, message: BagMessage) -> CameraFrame:
         stamp_ns, frame_id = message.log_time_ns, ''

@@ -246,7 +246,8 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
         progress: show a progress bar on stderr.
 
     Raises:
-        InputError: a malformed sequence folder or bad arguments.
+        InputError: a malformed sequence folder or bad arguments; an image found bad (unreadable
+            or of another size) mid-way leaves nothing at `out_path` either.
         BagError: `out_path` exists (nothing touched) or cannot be written.
     """
     from tqdm import tqdm
@@ -277,15 +278,21 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
     with CameraBagWriter(out_path, storage=storage, ground_truth=seq.poses is not None,
                          camera_frame=camera_frame, odom_frame=odom_frame,
                          base_frame=base_frame) as writer:
-        for i, path in enumerate(tqdm(seq.images, desc='import', unit='frame', file=sys.stderr,
-                                      disable=not progress, leave=False)):
-            image = first if i == 0 else _read_png(path)
-            if image.shape != (height, width):
-                raise InputError(f"images: expected every image {width}x{height}, got "
-                                 f"{image.shape[1]}x{image.shape[0]} for '{path.name}'")
-            writer.write_frame(int(stamps[i]), image, camera, projection=seq.P0,
-                               pose=None if seq.poses is None else gt_poses[i],
-                               twist=None if seq.poses is None else gt_twists[i])
+        try:
+            for i, path in enumerate(tqdm(seq.images, desc='import', unit='frame',
+                                          file=sys.stderr, disable=not progress, leave=False)):
+                image = first if i == 0 else _read_png(path)
+                if image.shape != (height, width):
+                    raise InputError(f"images: expected every image {width}x{height}, got "
+                                     f"{image.shape[1]}x{image.shape[0]} for '{path.name}'")
+                writer.write_frame(int(stamps[i]), image, camera, projection=seq.P0,
+                                   pose=None if seq.poses is None else gt_poses[i],
+                                   twist=None if seq.poses is None else gt_twists[i])
+        except InputError:
+            # A bag of the frames before a bad image would pass for the whole sequence.
+            writer.discard(f'removed: {writer.frames} of {n} frames were written before the '
+                           f'bad image')
+            raise
     return KittiImportSummary(Path(out_path), n, camera, seq.poses is not None, int(stamps[0]),
                               int(stamps[-1]))
 

@@ -76,9 +76,11 @@ class BagReader:
         return {c.topic: c.msgtype for c in sorted(self._reader.connections,
                                                    key=lambda c: c.topic)}
 
-    def describe_topics(self) -> str:
-        """``'/a (pkg/msg/A), /b (pkg/msg/B)'`` for error messages."""
-        return ', '.join(f'{t} ({m})' for t, m in self.topics.items()) or 'none'
+    def describe_topics(self, counts: bool = False) -> str:
+        """``'/a (pkg/msg/A), /b (pkg/msg/B)'`` for error messages; with `counts`, each with
+        its number of messages: ``'/a (pkg/msg/A): 12'``."""
+        return ', '.join(f'{t} ({m})' + (f': {self.count(t)}' if counts else '')
+                         for t, m in self.topics.items()) or 'none'
 
     def count(self, topic: str) -> int:
         """Number of messages on `topic` recorded in the bag's index."""

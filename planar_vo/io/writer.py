@@ -7,7 +7,9 @@ complete, so the path either holds a complete, readable bag or does not exist:
 - an exception inside the ``with`` block (bad input found mid-way, an interruption) still
   finishes the bag (index and ``metadata.yaml``): everything written up to it is kept;
 - a bag that cannot be finished, or whose storage failed to write a message (a full disk), is
-  removed: a half-written bag is never left behind nor reported as kept.
+  removed: a half-written bag is never left behind nor reported as kept;
+- a bag the caller `BagWriter.discard` s (bad input found mid-way where the part written would
+  pass for the whole, as in an import) is removed too.
 
 Either way the exception leaving the ``with`` block carries a note saying what was kept
 (`BagWriter.outcome`). Writing a message and finishing the bag are never cut by SIGINT/SIGTERM
@@ -167,6 +169,18 @@ class BagWriter:
             finally:
                 self._remove_tmp()
             self.kept = True
+
+    def discard(self, reason: str) -> None:
+        """Remove the bag instead of finishing it: nothing is kept at `path`, and `outcome`
+        says `reason`. A no-op once the bag is closed."""
+        writer, self._writer = self._writer, None
+        if writer is None:
+            return
+        with deferred_interrupts():
+            with suppress(Exception):
+                writer.abort()
+            self._remove_tmp()
+        self._failure = reason
 
     def _remove_tmp(self) -> None:
         tmp, self._tmp = self._tmp, None

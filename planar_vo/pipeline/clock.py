@@ -10,13 +10,40 @@ long real gap). None of them may stop the odometry for good:
   (`StampCheck.NEW_TIME_BASE`) and tracking restarts there;
 - a stamp more than ``max_jump_back`` seconds behind the last one is a new time base
   (`StampCheck.JUMP_BACK`): tracking is reset; a smaller step back is a frame out of order.
+
+Stamps are float seconds. A float holds about 0.24 us at 1.7e9 s, so two stamps 1 ns apart may
+be the same float: where the source has integer nanoseconds (ROS header stamps, bag times), a
+`Stamp` keeps them, and two `Stamp` s are compared exactly (a frame 1 ns later is not a
+duplicate).
 """
 
 from __future__ import annotations
 
 import enum
 
-__all__ = ['FrameClock', 'StampCheck']
+__all__ = ['FrameClock', 'Stamp', 'StampCheck']
+
+
+class Stamp(float):
+    """Seconds (a float, usable wherever one is) that keep the integer nanoseconds they were
+    made from, ``Stamp(stamp_ns)``; `FrameClock` compares two of them exactly."""
+
+    __slots__ = ('ns',)
+
+    def __new__(cls, ns: int) -> Stamp:
+        stamp = super().__new__(cls, int(ns) / 1_000_000_000)     # int / int: correctly rounded
+        stamp.ns = int(ns)
+        return stamp
+
+    def __reduce__(self):
+        return Stamp, (self.ns,)        # float's would pass the seconds as nanoseconds
+
+
+def _seconds_between(later: float, earlier: float) -> float:
+    """``later - earlier`` in seconds, exact to the nanosecond between two `Stamp` s."""
+    if isinstance(later, Stamp) and isinstance(earlier, Stamp):
+        return (later.ns - earlier.ns) / 1_000_000_000
+    return later - earlier
 
 
 class StampCheck(str, enum.Enum):
@@ -51,12 +78,13 @@ class FrameClock:
         self._ahead = None
 
     def check(self, stamp: float) -> StampCheck:
-        """Judge ``stamp`` (seconds) and, when it is accepted, make it the last stamp."""
+        """Judge ``stamp`` (seconds, or a `Stamp`) and, when it is accepted, make it the last
+        stamp."""
         last = self.last
         if last is None:
             self.last, self._ahead = stamp, None
             return StampCheck.OK
-        step = stamp - last
+        step = _seconds_between(stamp, last)
         if step == 0.0:
             return StampCheck.DUPLICATE
         if step < 0.0:
@@ -66,7 +94,7 @@ class FrameClock:
             return StampCheck.JUMP_BACK
         if step > self.max_gap:
             ahead = self._ahead
-            if ahead is not None and 0.0 < stamp - ahead <= self.max_gap:
+            if ahead is not None and 0.0 < _seconds_between(stamp, ahead) <= self.max_gap:
                 self.last, self._ahead = stamp, None
                 return StampCheck.NEW_TIME_BASE
             self._ahead = stamp

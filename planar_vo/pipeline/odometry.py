@@ -63,7 +63,7 @@ from planar_vo.pipeline.calibration import (
     TurnPairSelector,
     pair_road_normal,
 )
-from planar_vo.pipeline.clock import FrameClock, StampCheck
+from planar_vo.pipeline.clock import FrameClock, Stamp, StampCheck
 from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator
 from planar_vo.pipeline.keyframes import Keyframe, KeyframeChain
 from planar_vo.pipeline.motion import (
@@ -218,14 +218,15 @@ class VisualOdometry:
 
         Args:
             image: 8-bit grey ``(H, W)`` or BGR ``(H, W, 3)`` image.
-            stamp: its timestamp in seconds.
+            stamp: its timestamp in seconds; a `Stamp` (integer nanoseconds, e.g.
+                ``CameraFrame.stamp``) is judged exactly: 1 ns later is not a duplicate.
             camera: the camera model for this frame (e.g. from ``CameraInfo``); None keeps the
                 last one.
         """
         start = time.perf_counter()
         timings: dict[str, float] = {}
         try:
-            seconds = float(stamp)
+            seconds = stamp if isinstance(stamp, Stamp) else float(stamp)
         except (TypeError, ValueError):
             seconds = math.nan
         try:

@@ -83,7 +83,7 @@ from planar_vo.config import PlanarVoConfig, describe, flatten, ranges
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import CameraModelError, ConfigError, ImageError, InputError
 from planar_vo.pipeline import DropReason, FrameResult, TrackingState, VisualOdometry
-from planar_vo.pipeline.clock import FrameClock, StampCheck
+from planar_vo.pipeline.clock import FrameClock, Stamp, StampCheck
 from planar_vo.pipeline.threads import limit_blas_threads
 from planar_vo.ros.messages import (
     compressed_to_array,
@@ -507,7 +507,7 @@ class PlanarVoNode(Node):
         self._note_gap(stamp_ns)
         odom = None
         try:
-            result = self._vo.process(decode(msg), stamp_ns / 1e9, self._camera)
+            result = self._vo.process(decode(msg), Stamp(stamp_ns), self._camera)
             if result.ok:
                 odom = self._odometry(msg.header, result)    # InputError if the pose is not finite
         except ImageError as err:
@@ -557,7 +557,7 @@ class PlanarVoNode(Node):
         duplicate, a frame out of order or a single stamp far ahead (a clock glitch) leave the
         time base alone, and a jump back (a looped bag) or a confirmed jump ahead starts a new
         one: none of them is a gap of lost frames."""
-        check = self._stamps.check(stamp_ns / 1e9)
+        check = self._stamps.check(Stamp(stamp_ns))
         if check in (StampCheck.DUPLICATE, StampCheck.OUT_OF_ORDER, StampCheck.JUMP_AHEAD):
             return
         last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns

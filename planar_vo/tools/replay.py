@@ -9,6 +9,9 @@ The processor is anything with the `FrameProcessor` interface (the pipeline's
 3. otherwise ``process`` runs; an ``ok`` result becomes a ``nav_msgs/Odometry`` stamped with the
    image's exact header stamp, any other result is counted under its `DropReason`.
 
+The first frame dropped for each reason is logged with the reason's message; further ones are
+only counted (in the summary), so that a bag of undecodable images does not log every frame.
+
 Ground-truth-like topics (Odometry, Path, TF, poses) are copied through unchanged, so the output
 bag holds estimate and reference for ``planar_vo eval``.
 """
@@ -31,7 +34,7 @@ import numpy as np
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import BagError, InputError, OutputError
-from planar_vo.io.images import CameraFrameDecoder, resolve_camera_topics
+from planar_vo.io.images import CameraFrame, CameraFrameDecoder, resolve_camera_topics
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
 from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
 from planar_vo.pipeline.types import DropReason, FrameResult
@@ -154,6 +157,15 @@ def _read_speeds(bag: BagReader, topic: str) -> tuple[list[int], list[float]]:
 _EXPECTED_DROPS = frozenset({'first_frame'})
 
 
+def _count_drop(dropped: Counter[str], reason: str, frame: CameraFrame, message: str) -> None:
+    """Count a frame without odometry under `reason`. The first of each kind says why, the
+    summary counts them all: a bag of 10,000 undecodable images logs one line, not 10,000."""
+    dropped[reason] += 1
+    if dropped[reason] == 1 and reason not in _EXPECTED_DROPS:
+        log.warning('frame %d (%d ns) dropped, %s: %s (further %s frames are counted in the '
+                    'summary)', frame.index, frame.stamp_ns, reason, message, reason)
+
+
 def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProcessor, *,
                image_topic: str | None = None, camera_info_topic: str | None = None,
                speed_topic: str | None = None, copy_topics: Iterable[str] | None = None,
@@ -182,7 +194,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         A `ReplaySummary`.
 
     Raises:
-        BagError: input missing/corrupt/ambiguous, output or TUM path exists, the input found
+        BagError: input missing/corrupt/ambiguous, an image topic without messages, output or
+            TUM path exists, the input found
             corrupt mid-way, or the output bag cannot be written (a full disk).
         OutputError: the TUM file cannot be written.
 
@@ -214,6 +227,9 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                                odom_frame=odom_frame, base_frame=base_frame)
     with open_bag(in_path) as bag:
         image_topic, info_topic = resolve_camera_topics(bag, image_topic, camera_info_topic)
+        if not bag.count(image_topic):
+            raise BagError(f"image_topic: '{image_topic}' in '{in_path}' has no messages; "
+                           f'messages per topic: {bag.describe_topics(counts=True)}')
         summary.image_topic, summary.camera_info_topic = image_topic, info_topic
         if copy_topics is None:
             copy = [t for t in bag.topics_of_type(*COPY_TYPES) if t != odom_topic]
@@ -252,9 +268,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                     summary.frames_in += 1
                     bar.update(1)
                     if frame.image is None:
-                        log.warning('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
-                                    frame.error)
-                        dropped[BAD_IMAGE] += 1
+                        _count_drop(dropped, BAD_IMAGE, frame, frame.error)
                         continue
                     end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
                     for k in range(next_speed, end):
@@ -271,12 +285,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                         poses.add(frame.stamp_ns, result.pose)
                         sources[str(getattr(result, 'scale_source', 'unknown'))] += 1
                     else:
-                        dropped[reason] += 1
-                        if dropped[reason] == 1 and reason not in _EXPECTED_DROPS:
-                            # The first of each kind says why; the summary counts them all.
-                            log.warning('frame %d (%d ns) dropped, %s: %s (further %s frames '
-                                        'are counted in the summary)', frame.index,
-                                        frame.stamp_ns, reason, result.message, reason)
+                        _count_drop(dropped, reason, frame, result.message)
                     log.debug('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
                               reason or 'odometry')
         except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too

@@ -37,13 +37,14 @@ class Alignment:
                 'translation': self.t.tolist(), 'scale': self.scale}
 
 
-def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = False
-            ) -> tuple[np.ndarray, np.ndarray, float]:
+def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = False,
+            names: tuple[str, str] = ('src', 'dst')) -> tuple[np.ndarray, np.ndarray, float]:
     """Least-squares rigid (or similarity) transform ``dst ~ s R src + t`` (Umeyama 1991).
 
     Args:
         src, dst: ``(N, 3)`` corresponding points, ``N >= 2``.
         with_scale: estimate ``s`` (Sim(3)); otherwise ``s = 1`` (SE(3)).
+        names: what error messages call `src` and `dst` (the caller's names for them).
 
     Returns:
         ``(R, t, s)``: rotation ``(3, 3)`` with ``det R = +1``, translation ``(3,)``, scale.
@@ -51,20 +52,21 @@ def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = False
     Raises:
         InputError: wrong shapes, fewer than 2 points, or all source points identical.
     """
-    src = as_array('src', src, (None, 3), min_items=2)
-    dst = as_array('dst', dst, (None, 3), min_items=2)
-    same_length(src=src, dst=dst)
+    src = as_array(names[0], src, (None, 3), min_items=2)
+    dst = as_array(names[1], dst, (None, 3), min_items=2)
+    same_length(**{names[0]: src, names[1]: dst})
     with np.errstate(over='ignore', invalid='ignore'):     # overflow is checked below
         mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
         xs, xd = src - mu_s, dst - mu_d
         var_s = float(np.mean(np.sum(xs * xs, axis=1)))
         sigma = xd.T @ xs / src.shape[0]
     if var_s <= 1e-24:
-        raise InputError(f'src: expected points that are not all identical (a trajectory that '
-                         f'moves), got {len(src)} identical points')
+        raise InputError(f'{names[0]}: expected points that are not all identical (a trajectory '
+                         f'that moves), got {len(src)} identical points')
     if not (np.isfinite(var_s) and np.isfinite(sigma).all()):
         # LAPACK's SVD may not return on infinite input (coordinates near 1e308 overflow).
-        raise InputError('src, dst: coordinates too large to align (their products overflow)')
+        raise InputError(f'{names[0]}, {names[1]}: coordinates too large to align (their '
+                         f'products overflow)')
     U, D, Vt = np.linalg.svd(sigma)
     S = np.ones(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:
@@ -74,12 +76,13 @@ def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = False
     return R, mu_d - s * R @ mu_s, s
 
 
-def align_trajectory(est: Trajectory, ref: Trajectory, method: str = 'se3'
-                     ) -> tuple[Trajectory, Alignment]:
+def align_trajectory(est: Trajectory, ref: Trajectory, method: str = 'se3', *,
+                     names: tuple[str, str] = ('est', 'ref')) -> tuple[Trajectory, Alignment]:
     """Express `est` in the frame of `ref` (already associated: same length, pose by pose).
 
     Methods: ``'se3'`` (Umeyama, rigid), ``'sim3'`` (Umeyama with scale), ``'origin'`` (the
-    first estimated pose onto the first reference pose), ``'none'``.
+    first estimated pose onto the first reference pose), ``'none'``. `names`: what error
+    messages call `est` and `ref` (the caller's names for them).
     """
     if method not in ALIGNMENTS:
         raise InputError(f"align: expected one of {list(ALIGNMENTS)}, got '{method}'")
@@ -87,7 +90,8 @@ def align_trajectory(est: Trajectory, ref: Trajectory, method: str = 'se3'
         raise InputError(f'align: expected associated trajectories of equal length, got '
                          f'{len(est)} and {len(ref)}')
     if method in ('se3', 'sim3'):
-        R, t, s = umeyama(est.positions, ref.positions, with_scale=method == 'sim3')
+        R, t, s = umeyama(est.positions, ref.positions, with_scale=method == 'sim3',
+                          names=names)
     elif method == 'origin':
         T = ref.poses[0] @ np.linalg.inv(est.poses[0])
         R, t, s = T[:3, :3], T[:3, 3], 1.0

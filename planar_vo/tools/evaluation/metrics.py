@@ -281,7 +281,7 @@ class Evaluation:
 
 def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: float = 0.02,
              segment_lengths: tuple[float, ...] = DEFAULT_SEGMENTS,
-             min_step: float = 1e-3) -> Evaluation:
+             min_step: float = 1e-3, names: dict[str, str] | None = None) -> Evaluation:
     """Associate `est` with `ref` by stamp, align it, and compute every metric.
 
     Args:
@@ -290,12 +290,16 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
         max_diff: association tolerance in seconds.
         segment_lengths: RPE-by-distance segment lengths in metres.
         min_step: planar displacement (m) below which a frame has no heading.
+        names: what error messages call ``ref``, ``est`` and ``max_diff`` where the caller's
+            names differ (the CLI: ``{'ref': 'gt', 'max_diff': 'max-diff'}``).
 
     Raises:
         InputError: fewer than 2 poses matched (the message gives both stamp ranges).
     """
+    name = {'ref': 'ref', 'est': 'est', 'max_diff': 'max_diff', **(names or {})}
     if not (math.isfinite(max_diff) and max_diff >= 0):
-        raise InputError(f'max_diff: expected a non-negative number of seconds, got {max_diff}')
+        raise InputError(f"{name['max_diff']}: expected a non-negative number of seconds, got "
+                         f'{max_diff}')
     ie, ir = associate(est.stamps_ns, ref.stamps_ns, max_diff)
     if len(ie) < 2:
         def span(t: Trajectory) -> str:
@@ -304,7 +308,8 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
                          f'got {len(ie)} (estimate {len(est)} poses {span(est)}, reference '
                          f'{len(ref)} poses {span(ref)})')
     est_m, ref_m = est.subset(ie), ref.subset(ir)
-    aligned, alignment = align_trajectory(est_m, ref_m, align)
+    aligned, alignment = align_trajectory(est_m, ref_m, align,
+                                          names=(name['est'], name['ref']))
     rpe_t, rpe_r = rpe_per_frame(ref_m, aligned)
     yaw, heading = yaw_heading_errors(ref_m, aligned, min_step)
     return Evaluation(ref_m, est_m, aligned, alignment, ate_errors(ref_m, aligned), rpe_t, rpe_r,
