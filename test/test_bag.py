@@ -432,7 +432,7 @@ def test_replay_of_an_image_topic_without_messages_is_one_line_and_exit_1(tmp_pa
         ('/ground_truth/odom', ODOM, T0, odometry_msg(T0, 0.0))])
     assert main(['replay', str(in_bag), '--out', str(tmp_path / 'out'), '--no-progress']) == 1
     assert capsys.readouterr().err == (
-        f"planar_vo replay: error: image_topic: '/cam/image_raw' in '{in_bag}' has no messages; "
+        f"planar_vo replay: error: --image-topic: '/cam/image_raw' in '{in_bag}' has no messages; "
         f'messages per topic: /cam/image_raw (sensor_msgs/msg/Image): 0, /ground_truth/odom '
         f'(nav_msgs/msg/Odometry): 1\n')
     assert list(tmp_path.iterdir()) == [in_bag]

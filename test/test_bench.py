@@ -78,8 +78,8 @@ def test_soak_trend_ignores_slow_blocks_and_reports_growth(capsys):
                            'summary': 'summary: ...', 'path_subscribed': True, 'every': 500})
     assert 'RSS +29.0 %, node CPU time +0.0 %' in text and '**NOT flat**' in text
     args = build_parser().parse_args(['bench', 'soak', '--frames', '100', '--every', '60'])
-    with pytest.raises(InputError, match=r'expected every >= 10 and frames >= 2 \* every, '
-                                         r'got 100, 60'):
+    with pytest.raises(InputError, match=r'^--frames, --every: expected --every >= 10 and '
+                                         r'--frames >= 2 \* --every, got 100, 60$'):
         run(args)
 
 

@@ -243,9 +243,9 @@ def test_drive_folders_are_found_or_refused(data, tmp_path):
 
 
 @pytest.mark.parametrize('options, message', [
-    (['--frames', '2'], 'frames: expected at least 3 frames, got 2'),
-    (['--camera-height', '-1'], 'camera-height: expected a positive height in metres, got -1'),
-    (['--drives', 'kitti99'], 'drives: kitti99 not found'),
+    (['--frames', '2'], '--frames: expected at least 3 frames, got 2'),
+    (['--camera-height', '-1'], '--camera-height: expected a positive height in metres, got -1'),
+    (['--drives', 'kitti99'], '--drives: kitti99 not found'),
 ])
 def test_bad_options_are_one_line_and_exit_1(data, tmp_path, capsys, options, message):
     assert main(['bench', 'drives', '--data', str(data), '--out', str(tmp_path), *options]) == 1

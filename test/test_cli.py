@@ -37,7 +37,7 @@ def test_demo_solvers_prints_accuracy_table(capsys):
 def test_known_error_is_one_line_and_exit_1(capsys):
     assert main(['demo', '--solvers', '--trials', '0']) == 1
     err = capsys.readouterr().err.strip()
-    assert err == 'planar_vo demo: error: trials: expected at least 1, got 0'
+    assert err == 'planar_vo demo: error: --trials: expected at least 1, got 0'
 
 
 @pytest.mark.parametrize(('argv', 'message'), [
@@ -57,6 +57,14 @@ def test_known_error_is_one_line_and_exit_1(capsys):
      '--help)'),
     (['--bogus', 'replay', 'bag', '--out', 'x'],
      'planar_vo: error: unrecognized arguments: --bogus (see planar_vo --help)'),
+    # An option of planar_vo itself after the subcommand points to planar_vo --help, where it
+    # is listed (the subcommand's help does not list it).
+    (['replay', 'bag', '--out', 'x', '-v'],
+     'planar_vo replay: error: unrecognized arguments: -v (an option of planar_vo itself goes '
+     'before the command: see planar_vo --help)'),
+    (['bench', 'speed', '-vv'],
+     'planar_vo bench speed: error: unrecognized arguments: -vv (an option of planar_vo itself '
+     'goes before the command: see planar_vo --help)'),
 ])
 def test_usage_error_is_one_line_and_exit_1(capsys, argv, message):
     """Usage errors end like every other error: one line on stderr, exit code 1 (not
@@ -108,23 +116,33 @@ def test_every_help_page_prints(capsys):
     (['bench', 'frontend', '--asift-pairs', '-1'],
      'planar_vo bench: error: --asift-pairs: expected an integer of at least 0, got -1'),
     (['demo', '--frames', '100000'],
-     'planar_vo demo: error: frames: expected at most 392 (the demo drive), got 100000'),
+     'planar_vo demo: error: --frames: expected at most 392 (the demo drive), got 100000'),
     (['demo', '--solvers', '--sigmas', 'inf'],
-     'planar_vo demo: error: sigmas: expected finite non-negative noise levels, got [inf]'),
+     'planar_vo demo: error: --sigmas: expected finite non-negative noise levels, got [inf]'),
     (['demo', '--out', ''],
-     'planar_vo demo: error: out: an empty path; expected the folder to write the demo to'),
+     'planar_vo demo: error: --out: an empty path; expected the folder to write the demo to'),
     (['demo', '--out', '.', '--force'],
-     "planar_vo demo: error: out: '.' is the current folder, one above it or the home folder; "
+     "planar_vo demo: error: --out: '.' is the current folder, one above it or the home folder; "
      'the demo replaces its folder, so choose another --out'),
     (['demo', '--out', '..', '--force'],
-     "planar_vo demo: error: out: '..' is the current folder, one above it or the home folder; "
+     "planar_vo demo: error: --out: '..' is the current folder, one above it or the home folder; "
      'the demo replaces its folder, so choose another --out'),
     (['replay', 'planar_vo_demo', '--out', ''],
-     'planar_vo replay: error: out: an empty path; expected the folder to write the bag to'),
+     'planar_vo replay: error: --out: an empty path; expected the folder to write the bag to'),
     (['eval', 'planar_vo_demo/odometry.tum', '--gt', 'x.tum', '--out-dir', ' '],
-     'planar_vo eval: error: out-dir: an empty path; expected the folder for the report'),
+     'planar_vo eval: error: --out-dir: an empty path; expected the folder for the report'),
     (['bench', 'pipeline', '--out', ''],
      'planar_vo bench: error: --out: an empty path; expected the folder for the report'),
+    (['bench', 'pipeline', '--frames', '9'],
+     'planar_vo bench: error: --frames: expected at least 10, got 9'),
+    (['bench', 'pipeline', '--kitti', 'nowhere'],
+     "planar_vo bench: error: --kitti: 'nowhere' is not a KITTI sequence folder (no calib.txt)"),
+    (['bench', 'fleet', '--bags', '1'],
+     'planar_vo bench: error: --bags, --frames, --repeat: expected at least 2, 10 and 1, got 1, '
+     '100, 2'),
+    (['bench', 'speed', '--repeats', '0', '--sizes', '9'],
+     'planar_vo bench: error: --repeats, --sizes: expected at least 1 and sizes of at least 10, '
+     'got 0, [9]'),
 ])
 def test_bad_options_are_refused_before_any_work(tmp_path, monkeypatch, capsys, argv, message):
     """One line and exit code 1, and nothing touched: a previous demo folder survives a bad

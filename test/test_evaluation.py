@@ -366,37 +366,57 @@ def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
     (tmp_path / 'bad.tum').write_text('1.0 0 0 0 0 0 0 1\n2.0 0 0\n')
     cases = [
         (['eval', str(tmp_path / 'est.tum')],
-         'gt: expected --gt GT when EST is a TUM file, got none'),
+         'error: --gt: expected GT when EST is a TUM file, got none'),
         (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'bad.tum')],
          "bad.tum line 2: expected 8 values 'timestamp tx ty tz qx qy qz qw', got 3"),
         (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'missing.tum')],
-         'missing.tum\' does not exist'),
+         "error: --gt: '" + str(tmp_path / 'missing.tum') + "' does not exist"),
         (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'), '--segments',
-          '0'], 'segments: expected positive lengths in metres, got [0.0]'),
+          '0'], 'error: --segments: expected positive lengths in metres, got [0.0]'),
     ]
     path, _, _ = _bag_with(tmp_path, rng, topics=('/odom',))
-    cases.append((['eval', str(path)], "gt-topic: '/ground_truth/odom' is not a topic of"))
-    # Errors of the evaluation itself name the arguments as typed: EST, --gt, --max-diff.
+    cases.append((['eval', str(path)], "error: --gt-topic: '/ground_truth/odom' is not a topic of"))
+    # Errors of the evaluation itself name the arguments as typed: EST, --gt (--gt-topic when
+    # the ground truth is in the EST bag), --max-diff.
     write_tum(tmp_path / 'parked.tum', Trajectory.from_poses(gt.stamps_ns, np.tile(np.eye(4),
                                                                                    (5, 1, 1))))
     cases.append((['eval', str(tmp_path / 'parked.tum'), '--gt', str(tmp_path / 'est.tum')],
-                  'error: est: expected points that are not all identical (a trajectory that '
+                  'error: EST: expected points that are not all identical (a trajectory that '
                   'moves), got 5 identical points'))
     cases.append((['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'),
                    '--max-diff', '-1'],
-                  'error: max-diff: expected a non-negative number of seconds, got -1.0'))
+                  'error: --max-diff: expected a non-negative number of seconds, got -1.0'))
     huge = tmp_path / 'huge'
     with OdometryBagWriter(huge, topic='/odom') as writer:
         writer.add_topic('/ground_truth/odom', 'nav_msgs/msg/Odometry')
         for i, (stamp, T) in enumerate(zip(gt.stamps_ns, gt.poses)):
             writer.write(int(stamp), planar_pose(1e300, 0.0, 0.0) if i == 2 else T)
             writer.write_odometry('/ground_truth/odom', int(stamp), T)
-    cases.append((['eval', str(huge)], 'error: est, gt: coordinates too large to align'))
+    cases.append((['eval', str(huge)], 'error: EST, --gt-topic: coordinates too large to align'))
     for argv, expected in cases:
         assert main(argv) == 1
         err = capsys.readouterr().err.strip()
         assert err.startswith('planar_vo eval: error: ') and '\n' not in err, err
         assert expected in err, err
+
+
+@pytest.mark.parametrize(('est', 'gt', 'message'), [
+    ('missing.tum', 'est.tum', "EST: 'missing.tum' does not exist"),
+    ('est.tum', 'missing.tum', "--gt: 'missing.tum' does not exist"),
+    ('empty.tum', 'est.tum', "EST: 'empty.tum' contains no poses"),
+    ('est.tum', 'empty.tum', "--gt: 'empty.tum' contains no poses"),
+    ('est.tum', 'folder', "--gt: 'folder' is not a bag: expected a directory with metadata.yaml "
+                          'or a .mcap/.db3 file'),
+])
+def test_cli_eval_names_the_paths_as_typed(tmp_path, rng, monkeypatch, capsys, est, gt, message):
+    """A trajectory that cannot be read is EST or --gt, as on the command line (was the
+    library's 'trajectory', 'tum' or 'bag', the same for both)."""
+    monkeypatch.chdir(tmp_path)
+    write_tum(tmp_path / 'est.tum', _drive(rng, 5))
+    (tmp_path / 'empty.tum').write_text('')
+    (tmp_path / 'folder').mkdir()
+    assert main(['eval', est, '--gt', gt]) == 1
+    assert capsys.readouterr().err == f'planar_vo eval: error: {message}\n'
 
 
 # -- KITTI protocol ---------------------------------------------------------------------------

@@ -475,7 +475,7 @@ def test_an_unreachable_head_address_is_one_line_and_exit_1(drives, tmp_path, ca
             '127.0.0.1:1']
     assert main(args) == 1
     err = capsys.readouterr().err.strip()
-    assert err.startswith("planar_vo fleet: error: address: cannot reach Ray at '127.0.0.1:1' "
+    assert err.startswith("planar_vo fleet: error: --address: cannot reach Ray at '127.0.0.1:1' "
                           'within 5 s') and '\n' not in err
     assert main(args[:-1] + ['head-without-port']) == 1
     assert "expected 'auto', 'host:port' or 'ray://host:port'" in capsys.readouterr().err
@@ -508,14 +508,15 @@ def test_replay_and_the_node_never_import_ray(drives, tmp_path):
 
 
 @pytest.mark.parametrize(('extra', 'match'), [
-    (['--address', 'auto', '--workers', '2'], r'workers: --workers sizes the local Ray '
+    (['--address', 'auto', '--workers', '2'], r'--workers: --workers sizes the local Ray '
                                               r'instance; with --address'),
-    (['--workers', '0'], r'workers: expected at least 1, got 0'),
-    (['--retries', '-1'], r'retries: expected 0 or more, got -1'),
-    (['--set', 'voting.binz=3'], r"set: unknown configuration key 'voting.binz'; did you mean "
+    (['--workers', '0'], r'--workers: expected at least 1, got 0'),
+    (['--retries', '-1'], r'--retries: expected 0 or more, got -1'),
+    (['--set', 'voting.binz=3'], r"--set: unknown configuration key 'voting.binz'; did you mean "
                                  r'voting.bins'),
-    (['--set', 'voting.bins=3'], r'set: voting.bins=3: .*bins: expected in \[36, 100000\], got 3'),
-    (['--manifest', 'nowhere.txt'], r"manifest: cannot read 'nowhere.txt' \(No such file"),
+    (['--set', 'voting.bins=3'], r'--set: voting.bins=3: .*bins: expected in \[36, 100000\], '
+                                 r'got 3'),
+    (['--manifest', 'nowhere.txt'], r"--manifest: cannot read 'nowhere.txt' \(No such file"),
 ])
 def test_bad_arguments_are_one_line_and_exit_1(drives, tmp_path, capsys, extra, match):
     assert main(['fleet', 'run', str(drives['drive_a']), '--out', str(tmp_path / 'o'),
@@ -527,7 +528,8 @@ def test_bad_arguments_are_one_line_and_exit_1(drives, tmp_path, capsys, extra, 
 
 def test_no_bags_is_an_error(tmp_path, capsys):
     assert main(['fleet', 'run', '--out', str(tmp_path / 'o')]) == 1
-    assert 'bags: expected BAG arguments or --manifest FILE' in capsys.readouterr().err
+    assert capsys.readouterr().err == ('planar_vo fleet: error: BAG: expected BAG arguments or '
+                                       '--manifest FILE, got none\n')
 
 
 # ---------------------------------------------------------------------------------------------

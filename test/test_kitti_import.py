@@ -194,6 +194,22 @@ def test_argument_errors_and_existing_output(tmp_path, rng):
     assert list((tmp_path / 'bag').iterdir()) == []
 
 
+@pytest.mark.parametrize(('options', 'message'), [
+    (['--camera-height', '-1'], '--camera-height: expected a positive height in metres, got -1.0'),
+    (['--rate-hz', '0'], '--rate-hz: expected a positive frame rate, got 0.0'),
+    (['--start', 'soon'], "--start: expected a number of seconds, got 'soon'"),
+    (['--storage', 'mcap'], "DIR: '{seq}' is not a directory"),
+])
+def test_cli_errors_name_the_arguments_as_typed(tmp_path, capsys, options, message):
+    """--camera-height, not the library's camera_height (and so on); the folder is DIR, as in
+    the usage line: one line, exit code 1."""
+    seq = tmp_path / 'nowhere'
+    assert main(['import-kitti', str(seq), '--out', str(tmp_path / 'bag'), *options]) == 1
+    assert capsys.readouterr().err == (f'planar_vo import-kitti: error: '
+                                       f'{message.format(seq=seq)}\n')
+    assert not (tmp_path / 'bag').exists()
+
+
 def test_cli_import_kitti(tmp_path, rng, capsys):
     _write_sequence(tmp_path / 'seq', rng)
     out = tmp_path / 'out'
@@ -203,7 +219,7 @@ def test_cli_import_kitti(tmp_path, rng, capsys):
     assert 'wrote 4 frames (40x30, fx 50.00, 0.30 s)' in printed and '/ground_truth/odom' in printed
     assert main(['import-kitti', str(tmp_path / 'seq'), '--out', str(out)]) == 1
     err = capsys.readouterr().err.strip()
-    assert err.startswith('planar_vo import-kitti: error: out: ') and '\n' not in err
+    assert err.startswith('planar_vo import-kitti: error: --out: ') and '\n' not in err
     assert err.endswith('already exists; refusing to overwrite it (remove it or choose another '
                         'path)')
 
@@ -275,7 +291,7 @@ def test_import_on_a_full_disk_keeps_nothing_and_says_so(tmp_path, rng):
                          'mcap'], disk=disk, keep=tmp_path / 'kept', size_kib=4)
     reason = 'No space left on device' if run.method == 'tmpfs' else 'File too large'
     assert run.returncode == 1
-    assert run.stderr.startswith('planar_vo import-kitti: error: out: ')
+    assert run.stderr.startswith('planar_vo import-kitti: error: --out: ')
     assert run.stderr.endswith(f"nothing was kept at '{disk / 'bag'}' (cannot finish the bag: "
                                f'{reason})\n') and run.stderr.count('\n') == 1
     assert list((tmp_path / 'kept').iterdir()) == []

@@ -182,7 +182,7 @@ def test_demo_on_a_read_only_disk_is_one_line(tmp_path):
                         disk=tmp_path / 'ro', keep=tmp_path / 'kept', read_only=True)
     reason = 'Read-only file system' if run.method == 'tmpfs' else 'Permission denied'
     assert run.returncode == 1
-    assert run.stderr == (f"planar_vo demo: error: out: cannot write the demo folder "
+    assert run.stderr == (f"planar_vo demo: error: --out: cannot write the demo folder "
                           f"'{tmp_path / 'ro' / 'demo'}' ({reason})\n")
     assert list((tmp_path / 'kept').iterdir()) == []
 
@@ -195,7 +195,7 @@ def test_demo_on_a_full_disk_says_nothing_was_kept(tmp_path):
     demo = tmp_path / 'disk' / 'demo'
     reason = 'No space left on device' if run.method == 'tmpfs' else 'File too large'
     assert run.returncode == 1, run.stderr
-    assert run.stderr == (f"planar_vo demo: error: out: cannot write to bag '{demo}/drive' "
+    assert run.stderr == (f"planar_vo demo: error: --out: cannot write to bag '{demo}/drive' "
                           f"({reason}); nothing was kept at '{demo}/drive' (removed after a "
                           f"failed write); '{demo}' holds: nothing\n")
     assert partial_leftovers(tmp_path / 'kept') == []

@@ -86,6 +86,31 @@ def test_replay_refuses_to_overwrite_and_reports_bad_input(tmp_path, capsys, dri
     assert err.startswith('planar_vo replay: error:') and '\n' not in err
 
 
+@pytest.mark.parametrize(('options', 'message'), [
+    (['--image-topic', '/nope'], "--image-topic: '/nope' is not a topic of '{bag}'"),
+    (['--camera-info-topic', '/nope'], "--camera-info-topic: '/nope' is not a topic of '{bag}'"),
+    (['--speed-topic', '/nope'], "--speed-topic: '/nope' is not a topic of '{bag}'"),
+    (['--speed-topic', '/camera/image_raw'],
+     "--speed-topic: '/camera/image_raw' in '{bag}' has type sensor_msgs/msg/Image, expected "
+     'geometry_msgs/msg/TwistStamped or geometry_msgs/msg/TwistWithCovarianceStamped or '
+     'nav_msgs/msg/Odometry'),
+])
+def test_replay_errors_name_the_options_as_typed(tmp_path, capsys, drive_bags, options, message):
+    """--image-topic, not the library's image_topic (and so on): one line, exit code 1."""
+    _, bags = drive_bags
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), *options]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"planar_vo replay: error: {message.format(bag=bags['mcap'])}"), err
+    assert err.count('\n') == 1 and not (tmp_path / 'o').exists()
+
+
+def test_replay_names_its_input_as_typed(tmp_path, capsys):
+    """IN, as in the usage line (was the library's 'bag')."""
+    assert main(['replay', str(tmp_path / 'missing'), '--out', str(tmp_path / 'o')]) == 1
+    assert capsys.readouterr().err == (f"planar_vo replay: error: IN: '{tmp_path / 'missing'}' "
+                                       f'does not exist\n')
+
+
 def test_replay_says_once_why_frames_are_dropped(tmp_path, caplog, drive_bags):
     """A camera model whose size is not the images' (configured for another resolution): every
     frame is dropped; the first drop of the kind says why, the summary counts them all."""
@@ -141,7 +166,8 @@ def test_replay_checks_the_tum_path_before_replaying(tmp_path, capsys, drive_bag
     assert main(['replay', str(bags['mcap']), '--out', str(out), '--tum',
                  str(tmp_path / 'missing' / 'x.tum')]) == 1
     err = capsys.readouterr().err.strip()
-    assert err == (f"planar_vo replay: error: tum: cannot write '{tmp_path / 'missing' / 'x.tum'}'"
+    assert err == (f"planar_vo replay: error: --tum: cannot write "
+                   f"'{tmp_path / 'missing' / 'x.tum'}'"
                    f" (its folder '{tmp_path / 'missing'}' does not exist or is not writable)")
     assert not out.exists()
     assert main(['replay', str(bags['mcap']), '--out', str(out), '--tum', str(out)]) == 1
@@ -199,7 +225,7 @@ def test_replay_on_a_full_disk_removes_the_bag_and_says_what_was_kept(
                         keep=tmp_path / 'kept', size_kib={'mcap': 16, 'sqlite3': 48}[storage])
     assert run.returncode == 1 and run.stdout == ''
     line = run.stderr.rstrip('\n')
-    assert '\n' not in line and line.startswith('planar_vo replay: error: out: '), run.stderr
+    assert '\n' not in line and line.startswith('planar_vo replay: error: --out: '), run.stderr
     assert f"nothing was kept at '{disk / 'vo'}'" in line
     assert not (tmp_path / 'kept' / 'vo').exists()
     assert partial_leftovers(tmp_path / 'kept') == []

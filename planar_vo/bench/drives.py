@@ -113,9 +113,9 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.bench.common import reexec_single_threaded, require
 
     if args.frames is not None and args.frames < 3:
-        raise InputError(f'frames: expected at least 3 frames, got {args.frames}')
+        raise InputError(f'--frames: expected at least 3 frames, got {args.frames}')
     if not (math.isfinite(args.camera_height) and args.camera_height > 0.0):
-        raise InputError(f'camera-height: expected a positive height in metres, got '
+        raise InputError(f'--camera-height: expected a positive height in metres, got '
                          f'{args.camera_height}')
     drives = find_drives(args.data, args.drives)
     if not (args.skip_peers and args.skip_focal):

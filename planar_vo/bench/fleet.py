@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.tools.fleet import import_ray
 
     if args.bags < 2 or args.frames < 10 or args.repeat < 1:
-        raise InputError(f'bags, frames, repeat: expected at least 2, 10 and 1, got '
+        raise InputError(f'--bags, --frames, --repeat: expected at least 2, 10 and 1, got '
                          f'{args.bags}, {args.frames}, {args.repeat}')
     ray = import_ray()
     out = Path(args.out)

@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError
 
     if args.frames < 10:
-        raise InputError(f'frames: expected at least 10, got {args.frames}')
+        raise InputError(f'--frames: expected at least 10, got {args.frames}')
     kitti = args.kitti if args.kitti is not None else KITTI_DRIVE
     if args.kitti is not None and not (kitti / 'calib.txt').exists():
         raise InputError(f"kitti: '{kitti}' is not a KITTI sequence folder (no calib.txt)")

@@ -60,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError
 
     if args.frames < 2 * args.every or args.every < 10:
-        raise InputError(f'frames, every: expected every >= 10 and frames >= 2 * every, got '
-                         f'{args.frames}, {args.every}')
+        raise InputError(f'--frames, --every: expected --every >= 10 and --frames >= 2 * '
+                         f'--every, got {args.frames}, {args.every}')
     require('rclpy')
     blocks, info = soak(args.frames, args.every, args.camera)
     section = report(blocks, info)

@@ -321,8 +321,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     require('poselib', 'matplotlib', 'tqdm')
     if args.repeats < 1 or not args.sizes or min(args.sizes) < 10:
-        raise InputError(f'repeats >= 1 and sizes >= 10 expected, got repeats={args.repeats}, '
-                         f'sizes={args.sizes}')
+        raise InputError(f'--repeats, --sizes: expected at least 1 and sizes of at least 10, got '
+                         f'{args.repeats}, {args.sizes}')
     code = reexec_single_threaded(args, pin_core=True)
     if code is not None:
         return code

@@ -3,9 +3,11 @@
 Each subcommand module defines ``register(subparsers)`` (its parser, with examples) and
 ``run(args) -> int``. Known errors (`PlanarVoError`), paths the system refuses (`OSError`) and
 usage errors (a missing or unknown argument, a value of the wrong type) become one line on
-stderr and exit code 1; anything else is a bug and keeps its traceback. SIGTERM is handled like
-SIGINT (Ctrl-C): the command stops, its outputs are finished or removed, and one line says what
-was kept.
+stderr and exit code 1; anything else is a bug and keeps its traceback. A known error that
+starts with the library's name for an argument (``speed_topic: ...``) names it as typed on the
+command line instead (``--speed-topic: ...``; a positional argument by its metavar, ``IN: ...``).
+SIGTERM is handled like SIGINT (Ctrl-C): the command stops, its outputs are finished or removed,
+and one line says what was kept.
 """
 
 from __future__ import annotations
@@ -13,13 +15,14 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import re
 import sys
 from collections.abc import Sequence
 
 from planar_vo import __version__
 from planar_vo.errors import PlanarVoError, one_line
 
-__all__ = ['CommandParser', 'build_parser', 'main', 'show_progress']
+__all__ = ['CommandParser', 'build_parser', 'main', 'relabel', 'show_progress']
 
 # Subcommand modules, in --help order.
 COMMANDS = ('demo', 'replay', 'eval', 'import-kitti', 'fleet', 'bench')
@@ -32,6 +35,9 @@ EPILOG = """examples:
   planar_vo fleet run --manifest bags.txt --out fleet_out   many bags on Ray, summary and report
   planar_vo bench pipeline                        speed per stage, KITTI accuracy vs five-point
 """
+
+# The options of planar_vo itself, which go before the command (-v, -vv, --verbose, --version).
+TOP_LEVEL_OPTION = re.compile(r'-v+|--verbose|--version')
 
 
 class CommandParser(argparse.ArgumentParser):
@@ -48,8 +54,17 @@ class CommandParser(argparse.ArgumentParser):
         (argparse hands a subcommand's leftovers up to the top-level parser, whose message
         then pointed to ``planar_vo --help``)."""
         namespace, extras = super().parse_known_args(args, namespace)
+        top = self.prog.split()[0]
+        if extras and self.prog != top and all(TOP_LEVEL_OPTION.fullmatch(e) for e in extras):
+            # Their help is planar_vo --help, not this command's.
+            self.exit(1, f"{self.prog}: error: unrecognized arguments: {' '.join(extras)} "
+                         f'(an option of {top} itself goes before the command: see {top} '
+                         f'--help)\n')
         if extras:
             self.error(f"unrecognized arguments: {' '.join(extras)}")
+        # The innermost parser, the command's own, parses first: its arguments name the errors.
+        if not hasattr(namespace, 'parser'):
+            namespace.parser = self
         return namespace, extras
 
 
@@ -72,6 +87,22 @@ def build_parser() -> argparse.ArgumentParser:
     for name in COMMANDS:
         importlib.import_module(f'planar_vo.cli.{name.replace("-", "_")}').register(subparsers)
     return parser
+
+
+def relabel(err: PlanarVoError, names: dict[str, str]) -> None:
+    """If `err` starts with one of the keys of `names` (``'speed_topic: ...'``), name it
+    ``names[key]`` instead (``'--speed-topic: ...'``)."""
+    label, sep, rest = str(err).partition(': ')
+    if sep and label in names:
+        err.args = (f'{names[label]}: {rest}',)
+
+
+def _typed_names(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """The arguments of `parser` as typed, by their Python names: an option by its long form
+    (``rate_hz`` -> ``--rate-hz``), a positional argument by its metavar (``est`` -> ``EST``)."""
+    return {action.dest: action.option_strings[-1] if action.option_strings else
+            action.metavar or action.dest
+            for action in parser._actions}                 # argparse has no public iterator
 
 
 def _with_notes(text: str, err: BaseException) -> str:
@@ -101,6 +132,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             return int(args.run(args) or 0)
         except (PlanarVoError, OSError) as err:
+            if isinstance(err, PlanarVoError):
+                relabel(err, _typed_names(args.parser))
             # OSError: a path the system refuses (no permission, a name too long, a full disk)
             # that no check of ours named first.
             print(_with_notes(f'{command}: error: {err}', err), file=sys.stderr)

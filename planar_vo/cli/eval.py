@@ -48,25 +48,40 @@ def register(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
+def _load(path: str, topic: str, name: str, topic_option: str):
+    """The trajectory of `path` (`topic` of a bag); errors call the path `name` (EST, --gt),
+    not the library's 'trajectory', 'tum' or 'bag', and the topic `topic_option`."""
+    from planar_vo.cli import relabel
+    from planar_vo.errors import PlanarVoError
+    from planar_vo.tools.evaluation import load_trajectory
+
+    try:
+        return load_trajectory(path, topic, role=topic_option)
+    except PlanarVoError as err:
+        relabel(err, dict.fromkeys(('trajectory', 'tum', 'bag'), name))
+        raise
+
+
 def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError
-    from planar_vo.tools.evaluation import evaluate, load_trajectory, write_report
+    from planar_vo.tools.evaluation import evaluate, write_report
     from planar_vo.tools.evaluation.files import is_bag_path
 
     if any(not (math.isfinite(s) and s > 0) for s in args.segments):
-        raise InputError(f'segments: expected positive lengths in metres, got {args.segments}')
+        raise InputError(f'--segments: expected positive lengths in metres, got {args.segments}')
     if args.out_dir is not None and not args.out_dir.strip():
-        raise InputError('out-dir: an empty path; expected the folder for the report')
-    est = load_trajectory(args.est, args.est_topic, role='est-topic')
+        raise InputError('--out-dir: an empty path; expected the folder for the report')
+    est = _load(args.est, args.est_topic, 'EST', '--est-topic')
     gt_path = args.gt
     if gt_path is None:
         if not is_bag_path(args.est):
-            raise InputError('gt: expected --gt GT when EST is a TUM file, got none')
+            raise InputError('--gt: expected GT when EST is a TUM file, got none')
         gt_path = args.est
-    ref = load_trajectory(gt_path, args.gt_topic, role='gt-topic')
+    ref = _load(gt_path, args.gt_topic, '--gt', '--gt-topic')
     evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
                           segment_lengths=tuple(args.segments),
-                          names={'ref': 'gt', 'max_diff': 'max-diff'})
+                          names={'ref': '--gt-topic' if args.gt is None else '--gt', 'est': 'EST',
+                                 'max_diff': '--max-diff'})
     print(f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''))
     print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
     print(evaluation.format_table())

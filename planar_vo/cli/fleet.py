@@ -74,15 +74,15 @@ def run(args: argparse.Namespace) -> int:
 
     import_ray()                     # without the fleet extra: one line with the install command
     if args.address and args.workers is not None:
-        raise InputError('workers: --workers sizes the local Ray instance; with --address the '
+        raise InputError('--workers: --workers sizes the local Ray instance; with --address the '
                          "cluster's CPUs are used")
     if args.workers is not None and args.workers < 1:
-        raise InputError(f'workers: expected at least 1, got {args.workers}')
+        raise InputError(f'--workers: expected at least 1, got {args.workers}')
     if args.retries < 0:
-        raise InputError(f'retries: expected 0 or more, got {args.retries}')
+        raise InputError(f'--retries: expected 0 or more, got {args.retries}')
     bags = list(args.bags) + (read_manifest(args.manifest) if args.manifest else [])
     if not bags:
-        raise InputError('bags: expected BAG arguments or --manifest FILE, got none')
+        raise InputError('BAG: expected BAG arguments or --manifest FILE, got none')
     configs = config_grid(load_config(args.config), args.set)
     command = ['planar_vo', 'fleet', 'run', *args.bags, '--out', args.out]
     for flag in ('manifest', 'config', 'address', 'workers'):

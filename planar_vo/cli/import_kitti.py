@@ -24,7 +24,9 @@ def register(subparsers) -> argparse.ArgumentParser:
         'import-kitti', help='convert a KITTI odometry sequence folder into a bag',
         description=__doc__, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('folder', metavar='DIR',
+    # dest 'sequence': planar_vo.io.kitti's name for it in errors ('sequence: ...' becomes
+    # 'DIR: ...').
+    parser.add_argument('sequence', metavar='DIR',
                         help='sequence folder with image_0/ (or image_l/), calib.txt, times.txt '
                              'and optionally poses.txt')
     parser.add_argument('--out', required=True, metavar='BAG',
@@ -46,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.cli import show_progress
     from planar_vo.io.kitti import import_kitti
 
-    summary = import_kitti(args.folder, args.out, storage=args.storage,
+    summary = import_kitti(args.sequence, args.out, storage=args.storage,
                            camera_height=args.camera_height, rate_hz=args.rate_hz,
                            start=args.start, progress=show_progress(args))
     print(summary.format())

@@ -25,7 +25,8 @@ def register(subparsers) -> argparse.ArgumentParser:
         'replay', help='run the visual odometry over a bag, odometry into a new bag',
         description=__doc__, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('input', metavar='IN', help='input bag (directory, .mcap or .db3)')
+    # dest 'bag': planar_vo.io.reader's name for it in errors ('bag: ...' becomes 'IN: ...').
+    parser.add_argument('bag', metavar='IN', help='input bag (directory, .mcap or .db3)')
     parser.add_argument('--out', required=True, metavar='OUT',
                         help='output bag directory (must not exist)')
     parser.add_argument('--image-topic', metavar='TOPIC',
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = load_config(args.config)
     summary = replay_bag(
-        args.input, args.out, VisualOdometry(config), image_topic=args.image_topic,
+        args.bag, args.out, VisualOdometry(config), image_topic=args.image_topic,
         camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
         tum_path=args.tum, storage=args.storage, odom_frame=config.ros.odom_frame,
         base_frame=config.ros.base_frame, progress=show_progress(args))

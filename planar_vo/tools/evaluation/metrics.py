@@ -291,7 +291,7 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
         segment_lengths: RPE-by-distance segment lengths in metres.
         min_step: planar displacement (m) below which a frame has no heading.
         names: what error messages call ``ref``, ``est`` and ``max_diff`` where the caller's
-            names differ (the CLI: ``{'ref': 'gt', 'max_diff': 'max-diff'}``).
+            names differ (the CLI: ``{'ref': '--gt', 'max_diff': '--max-diff'}``).
 
     Raises:
         InputError: fewer than 2 poses matched (the message gives both stamp ranges).

@@ -48,7 +48,7 @@ def write_report(evaluation: Evaluation, out_dir: str | Path, *, plots: bool = T
     try:
         written.append(write_file(out / 'metrics.json',
                                   json.dumps(json_ready(metrics), indent=2) + '\n',
-                                  role='out-dir'))
+                                  role='out_dir'))
         for name, plot in (PLOTS.items() if plots else ()):
             written.append(plot(evaluation, out / name))
     except (PlanarVoError, KeyboardInterrupt) as err:
