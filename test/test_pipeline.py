@@ -181,6 +181,37 @@ def test_covariance_is_derived_and_grows_along_the_drive():
     assert covs[-1, 5, 5] > 0.0 and covs[-1, 3, 3] > 0.0 and covs[-1, 4, 4] > 0.0
 
 
+def test_a_scale_error_shared_by_the_steps_grows_the_position_std_with_the_distance(
+        monkeypatch):
+    # The road normal's calibration error makes every step too long or short by the same
+    # share: a relative error of 5 % shared by all steps is 5 % of the distance (not 5 % of a
+    # step times the square root of the number of steps), along the camera's path, and 5 % of
+    # the speed in the twist.
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}})
+    road_step = VisualOdometry._road_step
+
+    def run(share: float):
+        def shared(self, *args, **kwargs):
+            step = road_step(self, *args, **kwargs)
+            return None if step is None else (*step[:2], share)
+
+        monkeypatch.setattr(VisualOdometry, '_road_step', shared)
+        return _run('straight', config)[1]
+
+    alone, results = run(0.0), run(0.05)
+    assert all(r.ok and r.scale_source == 'ground' for r in results[1:])
+    mount = mount_transform(height=HEIGHT)
+    for r, a in zip(results[1:], alone[1:]):
+        np.testing.assert_array_equal(r.pose, a.pose)               # the poses are the same
+        path = (r.pose @ mount)[:3, 3] - mount[:3, 3]               # the camera's, in odom
+        np.testing.assert_allclose(r.pose_covariance[:3, :3] - a.pose_covariance[:3, :3],
+                                   0.05 ** 2 * np.outer(path, path), rtol=1e-9, atol=1e-15)
+        v = r.twist[:2]
+        np.testing.assert_allclose(r.twist_covariance[:2, :2] - a.twist_covariance[:2, :2],
+                                   0.05 ** 2 * np.outer(v, v), rtol=1e-9, atol=1e-15)
+    assert results[-1].pose[0, 3] > 20.0
+
+
 def test_yaw_covariance_covers_errors_the_estimator_does_not_predict(monkeypatch):
     """Every estimate's yaw disturbed by 0.05 deg of noise its covariance does not know about
     (errors shared by all ACs of a frame, as on real roads): after a few steps the published

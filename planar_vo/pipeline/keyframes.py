@@ -10,7 +10,7 @@ keyframes are kept (bounded) for the calibrations that pair the current view wit
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,6 +27,8 @@ class Keyframe:
         pose: ``T_world_camera`` (4, 4), world = the first camera frame of the chain.
         covariance: 6x6 right-perturbation covariance of ``pose`` (``[phi, rho]``).
         index: running number of the keyframe in the chain.
+        bias: ``(3,)`` the position error (m, world frame) one standard deviation of the
+            steps' shared scale errors makes (`VisualOdometry._road_step`).
         age: frames tracked against it so far.
     """
 
@@ -35,6 +37,7 @@ class Keyframe:
     pose: np.ndarray
     covariance: np.ndarray
     index: int
+    bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     age: int = 0
 
 
@@ -58,9 +61,10 @@ class KeyframeChain:
         return self._frames[-1] if self._frames else None
 
     def add(self, image: np.ndarray, stamp: float, pose: np.ndarray,
-            covariance: np.ndarray) -> Keyframe:
+            covariance: np.ndarray, bias: np.ndarray | None = None) -> Keyframe:
         """Make a view the new keyframe."""
-        frame = Keyframe(image, stamp, pose.copy(), covariance.copy(), self._count)
+        frame = Keyframe(image, stamp, pose.copy(), covariance.copy(), self._count,
+                         np.zeros(3) if bias is None else np.array(bias, dtype=np.float64))
         self._count += 1
         self._frames.append(frame)
         return frame
