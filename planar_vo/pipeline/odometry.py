@@ -634,19 +634,20 @@ class VisualOdometry:
         road-normal calibration (a top-up of a pair it already took: one pair counts once)."""
         cfg = self.config.scale
 
-        def measure(pitch: float, roll: float, normal_std: float) -> RoadScale:
+        def measure(pitch: float, roll: float, own_std: float) -> RoadScale:
+            # own_std: the error of this pair's normal not shared with the other steps.
             return road_scale(norm.p1, norm.p2, norm.A, est.R, est.t,
                               normal_from_tilt(pitch, roll), self.config.mount.height,
                               point_sigma=cfg.ground_point_std / camera.fx,
                               weights=norm.weights,
-                              sigma_normal=normal_std,
+                              sigma_normal=own_std,
                               max_depth=cfg.ground_max_depth,
                               affine_sigma=cfg.ground_affine_std, gate=cfg.ground_gate,
                               min_count=cfg.ground_min_correspondences,
                               lateral_std=cfg.ground_lateral_std)
 
         before = self.road_normal
-        rs = measure(before[0], before[1], math.hypot(before[2], cfg.ground_normal_std))
+        rs = measure(before[0], before[1], cfg.ground_normal_std)
         shared = before[2]      # the drive's normal error in this step's normal (rad)
         if self._road is not None and rs.count:
             if feed and self._road.add(norm.p1, norm.p2, est.R, est.t, rs.mask, norm.weights):
@@ -669,20 +670,19 @@ class VisualOdometry:
                 pitch += gain_p * (one.pitch - pitch)
                 roll += gain_r * (one.roll - roll)
                 shared = (1.0 - min(gain_p, gain_r)) * normal_std
-                rs = measure(pitch, roll, math.hypot(shared, math.sqrt(
-                    gain_p * one.pitch_std ** 2 + gain_r * one.roll_std ** 2)))
+                rs = measure(pitch, roll, math.sqrt(gain_p * one.pitch_std ** 2
+                                                    + gain_r * one.roll_std ** 2))
             elif (pitch, roll) != before[:2]:
                 shared = normal_std
-                rs = measure(pitch, roll, math.hypot(normal_std, cfg.ground_normal_std))
+                rs = measure(pitch, roll, cfg.ground_normal_std)
         if not (math.isfinite(rs.scale) and rs.scale > 0):
             return None
         d = rs.d_rotation
-        common = shared * math.hypot(rs.d_normal[0], rs.d_normal[1])
-        var = rs.std ** 2 - common ** 2 + float(d @ est.cov[:3, :3] @ d)
+        var = rs.std ** 2 + float(d @ est.cov[:3, :3] @ d)
         if self._focal is not None and self._camera is None:
             # Road depths scale with the focal length: so does the step.
             var += (rs.scale * min(self._focal.relative_std, 1.0)) ** 2
-        return rs.scale, max(var, 0.0), common / rs.scale
+        return rs.scale, var, shared * math.hypot(*rs.d_normal) / rs.scale
 
     def _stationary(self, keyframe: Keyframe, stamp: float, count: int) -> FrameResult:
         """The image has not moved: neither has the vehicle (no new keyframe, no drift). The
