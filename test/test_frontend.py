@@ -391,6 +391,30 @@ def test_affine_lk_converges_to_an_exact_affine_warp(rng):
     assert 0.2 < np.median(result.sigma_A[ok]) / actual < 5.0
 
 
+def test_a_patch_refines_to_the_same_bits_in_any_batch(rng):
+    # One batch on one thread, two halves on two: a patch's result must not depend on which
+    # other patches share its batch (BLAS and cv2.gemm round differently for other row counts).
+    M = np.array([[1.05, 0.03, 2.6], [-0.02, 0.96, -1.1]])
+    tex = _texture(5)
+    p = _grid()
+    Minv = cv2.invertAffineTransform(M)
+    f1 = smooth_for_refinement(_sample(tex, p))
+    f2 = smooth_for_refinement(_sample(tex, p @ Minv[:, :2].T + Minv[:, 2]))
+    n = 301
+    p1 = rng.integers(20, (W - 20, H - 20), (n, 2))
+    template = prepare_template(f1, p1, patch_offsets(9, 3))
+    p2 = p1 @ M[:, :2].T + M[:, 2] + rng.normal(0, 1.0, (n, 2))
+    A = np.broadcast_to(np.eye(2), (n, 2, 2)) + rng.normal(0, 0.05, (n, 2, 2))
+    whole = refine_affines(template, f2, p2, A, iterations=2, max_iterations=4)
+    assert whole.ok.mean() > 0.8
+    for index in (np.arange(1), np.arange(n // 2), np.arange(n // 2, n), rng.permutation(n)[:37]):
+        part = refine_affines(template.subset(index), f2, p2[index], A[index], iterations=2,
+                              max_iterations=4)
+        for name in ('p2', 'A', 'residual', 'sigma_A', 'ok'):
+            np.testing.assert_array_equal(getattr(part, name), getattr(whole, name)[index],
+                                          err_msg=f'{name}, batch of {index.size}')
+
+
 def test_cholesky_inverse_matches_numpy(rng):
     B = rng.normal(size=(50, 6, 6))
     Hs = B @ B.transpose(0, 2, 1) + 0.1 * np.eye(6)
@@ -910,6 +934,20 @@ def test_klt_extract_more_finds_corners_on_a_faint_road():
     through = ACExtractor(FrontendConfig(method='klt', max_correspondences=60))
     through.extract(g1, g2)
     np.testing.assert_array_equal(through.extract_more(road).p1, more.p1)
+
+
+def test_structure_texture_is_the_smaller_eigenvalue_in_full_resolution_units(mild_pair):
+    from planar_vo.frontend.flow import structure_texture
+
+    small = cv2.pyrDown(mild_pair[0]).astype(np.float64)
+    # Derivatives per full-resolution pixel: Sobel is 8x the derivative, a pixel here is two.
+    gx = cv2.Sobel(small, cv2.CV_64F, 1, 0, ksize=3) / 16.0
+    gy = cv2.Sobel(small, cv2.CV_64F, 0, 1, ksize=3) / 16.0
+    a, b, c = (cv2.blur(x, (3, 3)) for x in (gx * gx, gx * gy, gy * gy))
+    expected = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    got = structure_texture(mild_pair[0])
+    assert got.shape == small.shape and expected.max() > 10.0
+    np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-3 * expected.max())
 
 
 def test_extract_more_refuses_masks_and_texture_maps_that_do_not_fit(mild_pair):

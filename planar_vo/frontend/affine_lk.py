@@ -40,8 +40,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-# Parameter order of the warp increment: [da00, da01, da10, da11, dtx, dty], matching the
-# steepest-descent images [Gx ox, Gx oy, Gy ox, Gy oy, Gx, Gy].
+# Parameter order of the warp increment: [dtx, da00, da01, dty, da10, da11], matching the
+# steepest-descent images [Gx, Gx ox, Gx oy, Gy, Gy ox, Gy oy] (gradient times 1, ox, oy).
 _NPARAM = 6
 _TINY = np.float32(1e-12)    # floor of a warped patch's sum of squares (a flat patch)
 
@@ -99,8 +99,10 @@ class Template:
         p1: patch centres in image 1, ``(N, 2)`` pixels.
         offsets: sample offsets ``(S, 2)`` (pixels, relative to ``p1``).
         values: centred template intensities ``T - mean(T)``, ``(N, S)`` float32.
-        gx, gy: template gradients at the samples, ``(N, S)`` float32 (grey levels / pixel).
-        hessian_inv: inverse Gauss-Newton Hessians in the layout ``(6, 6, N)`` (float64).
+        gradients: template gradients ``(Gx, Gy)`` at the samples, ``(N, 2, S)`` float32 (grey
+            levels / pixel).
+        hessian_inv: inverse Gauss-Newton Hessians in the layout ``(6, 6, N)`` (float64), in the
+            parameter order ``(tx, a00, a01, ty, a10, a11)``.
         ok: patches with a positive-definite Hessian, ``(N,)`` bool.
         contrast: RMS of the centred template values, ``(N,)`` grey levels.
     """
@@ -108,8 +110,7 @@ class Template:
     p1: np.ndarray
     offsets: np.ndarray
     values: np.ndarray
-    gx: np.ndarray
-    gy: np.ndarray
+    gradients: np.ndarray
     hessian_inv: np.ndarray
     ok: np.ndarray
     contrast: np.ndarray
@@ -119,8 +120,8 @@ class Template:
 
     def subset(self, index: np.ndarray) -> Template:
         """The template of the patches selected by a boolean mask or index array."""
-        return Template(self.p1[index], self.offsets, self.values[index], self.gx[index],
-                        self.gy[index], self.hessian_inv[:, :, index], self.ok[index],
+        return Template(self.p1[index], self.offsets, self.values[index],
+                        self.gradients[index], self.hessian_inv[:, :, index], self.ok[index],
                         self.contrast[index])
 
 
@@ -144,10 +145,10 @@ def _monomials(offsets: np.ndarray) -> np.ndarray:
     return np.stack([np.ones_like(ox), ox, oy, ox * ox, ox * oy, oy * oy], axis=1)
 
 
-# Hessian entry (i, j) of SD = [Gx ox, Gx oy, Gy ox, Gy oy, Gx, Gy] as (gradient product,
+# Hessian entry (i, j) of SD = [Gx, Gx ox, Gx oy, Gy, Gy ox, Gy oy] as (gradient product,
 # monomial): products 0 = Gx Gx, 1 = Gx Gy, 2 = Gy Gy; monomials as in `_monomials`.
-_SD_GRAD = (0, 0, 1, 1, 0, 1)           # 0: Gx, 1: Gy
-_SD_MONO = (1, 2, 1, 2, 0, 0)           # monomial index of the offset factor (ox, oy or 1)
+_SD_GRAD = (0, 0, 0, 1, 1, 1)           # 0: Gx, 1: Gy
+_SD_MONO = (0, 1, 2, 0, 1, 2)           # monomial index of the offset factor (1, ox or oy)
 _MONO_PRODUCT = {(0, 0): 0, (0, 1): 1, (0, 2): 2, (1, 1): 3, (1, 2): 4, (2, 2): 5}
 
 
@@ -198,7 +199,8 @@ def prepare_template(image1: np.ndarray, p1: np.ndarray, offsets: np.ndarray) ->
     H -= sd_sum[:, :, None] * sd_sum[:, None, :] / s
     Hinv, ok = _cholesky_inverse(np.ascontiguousarray(H.transpose(1, 2, 0)))
     contrast = np.sqrt(np.einsum('ns,ns->n', values, values).astype(np.float64) / max(s, 1))
-    return Template(p1.astype(np.float64), offsets, values, gx, gy, Hinv, ok, contrast)
+    return Template(p1.astype(np.float64), offsets, values, np.stack([gx, gy], axis=1), Hinv,
+                    ok, contrast)
 
 
 @dataclass(frozen=True)
@@ -229,51 +231,59 @@ class AffineLKResult:
     ok: np.ndarray
 
 
-def _gauss_newton_step(T: np.ndarray, Gx: np.ndarray, Gy: np.ndarray, Hinv: np.ndarray,
-                       image2: np.ndarray, p2: np.ndarray, A: np.ndarray, mono: np.ndarray,
-                       radius: float, energy: np.ndarray
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _gauss_newton_step(T: np.ndarray, G: np.ndarray, Hinv: np.ndarray, image2: np.ndarray,
+                       p2: np.ndarray, A: np.ndarray, mono: np.ndarray, radius: float,
+                       energy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One inverse-compositional Gauss-Newton iteration for ``M`` patches (see `refine_affines`;
-    ``energy``: the templates' sums of squares ``(M,)`` float32).
+    ``G``: the template gradients ``(M, 2, S)``; ``Hinv``: inverse Hessians ``(6, 6, M)`` in the
+    order of ``q`` below; ``mono``: ``(3, S)`` rows ``1, ox, oy``; ``energy``: the templates'
+    sums of squares ``(M,)`` float32).
+
+    Every operation works on each patch's own row (``np.einsum``'s loops; no BLAS or
+    ``cv2.gemm``, whose rounding depends on the number of rows), so a patch's result does not
+    depend on which other patches are refined with it: one batch or two halves on two threads
+    give the same bits.
 
     Returns the updated ``p2 (M, 2)``, ``A (M, 2, 2)``, the step size ``(M,)`` (largest sample
-    displacement of the increment, pixels) and the residual ``(M, S)`` before the update.
+    displacement of the increment, pixels) and the residual's sum of squares ``(M,)`` before the
+    update.
     """
-    m, s = T.shape
-    # Warped sample positions: one (2M, 3) @ (3, S) product gives the x rows then the y rows.
-    coeff = np.empty((2 * m, 3), np.float32)
-    coeff[:m, 0], coeff[:m, 1], coeff[:m, 2] = p2[:, 0], A[:, 0, 0], A[:, 0, 1]
-    coeff[m:, 0], coeff[m:, 1], coeff[m:, 2] = p2[:, 1], A[:, 1, 0], A[:, 1, 1]
-    X = _gemm(coeff, mono)
-    warped = cv2.remap(image2, X[:m], X[m:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    warped -= warped.mean(axis=1, keepdims=True)
+    # Warped sample positions x = p2 + A o: rows (p2_x, a00, a01) and (p2_y, a10, a11) of each
+    # patch against the columns (1, ox, oy) of the offsets.
+    m = T.shape[0]
+    coeff = np.empty((2, m, 3), np.float32)
+    coeff[:, :, 0] = p2.T
+    coeff[:, :, 1:] = A.transpose(1, 0, 2)
+    X = np.einsum('kmj,js->kms', coeff, mono)
+    warped = cv2.remap(image2, X[0], X[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    warped -= np.einsum('ms->m', warped)[:, None] * np.float32(1.0 / T.shape[1])
     # Photometric gain: image 2 may be brighter or darker (auto-exposure, shadows), so the
     # warped patch is scaled to the template's contrast (the offset is already removed). The
     # fixed point is unchanged (T = g I2(W(x))), and an anti-correlated patch still leaves a
     # large residual (a least-squares gain would flip its sign and fit it).
     gain = np.sqrt(energy / np.maximum(np.einsum('ms,ms->m', warped, warped), _TINY))
-    r = T - gain[:, None] * warped
-    # Gradient sum_x SD^T r: (Gx r, Gy r) against (1, ox, oy); T and warped are centred, so the
-    # offset's Schur complement (mean steepest-descent image times sum(r)) vanishes.
-    q = _gemm(np.stack([Gx * r, Gy * r], axis=1).reshape(-1, s), mono.T.copy()).reshape(m, 2, 3)
-    g = np.stack([q[:, 0, 1], q[:, 0, 2], q[:, 1, 1], q[:, 1, 2], q[:, 0, 0], q[:, 1, 0]])
-    d = -np.einsum('ijn,jn->in', Hinv, g.astype(np.float64))        # (6, M)
-    step = np.hypot(d[4], d[5]) + radius * np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2
-                                                   + d[3] ** 2)
+    warped *= gain[:, None]
+    r = np.subtract(T, warped, out=warped)
+    # Gradient sum_x SD^T r: (Gx r, Gy r) against (1, ox, oy), q = (M, 6) in the order
+    # (tx, a00, a01, ty, a10, a11); T and warped are centred, so the offset's Schur complement
+    # (mean steepest-descent image times sum(r)) vanishes.
+    q = np.einsum('mks,js->mkj', G * r[:, None, :], mono).reshape(m, 6)
+    q = q.astype(np.float64)
+    d = Hinv[:, 0] * -q[:, 0]                                       # (6, M), order of q
+    for j in range(1, _NPARAM):
+        d -= Hinv[:, j] * q[:, j]
+    step = np.hypot(d[0], d[3]) + radius * np.sqrt(d[1] ** 2 + d[2] ** 2 + d[4] ** 2
+                                                   + d[5] ** 2)
     # W <- W o W(d)^-1: A <- A (I + dA)^-1, p2 <- p2 - A_new dt.
-    m00, m01, m10, m11 = 1.0 + d[0], d[1], d[2], 1.0 + d[3]
+    m00, m01, m10, m11 = 1.0 + d[1], d[2], d[4], 1.0 + d[5]
     with np.errstate(divide='ignore', invalid='ignore'):
         det = m00 * m11 - m01 * m10
         i00, i01, i10, i11 = m11 / det, -m01 / det, -m10 / det, m00 / det
     An = np.empty_like(A)
-    An[:, 0, 0] = A[:, 0, 0] * i00 + A[:, 0, 1] * i10
-    An[:, 0, 1] = A[:, 0, 0] * i01 + A[:, 0, 1] * i11
-    An[:, 1, 0] = A[:, 1, 0] * i00 + A[:, 1, 1] * i10
-    An[:, 1, 1] = A[:, 1, 0] * i01 + A[:, 1, 1] * i11
-    p2n = np.empty_like(p2)
-    p2n[:, 0] = p2[:, 0] - (An[:, 0, 0] * d[4] + An[:, 0, 1] * d[5])
-    p2n[:, 1] = p2[:, 1] - (An[:, 1, 0] * d[4] + An[:, 1, 1] * d[5])
-    return p2n, An, step, r
+    An[:, :, 0] = A[:, :, 0] * i00[:, None] + A[:, :, 1] * i10[:, None]
+    An[:, :, 1] = A[:, :, 0] * i01[:, None] + A[:, :, 1] * i11[:, None]
+    p2n = p2 - An[:, :, 0] * d[0][:, None] - An[:, :, 1] * d[3][:, None]
+    return p2n, An, step, np.einsum('ms,ms->m', r, r)
 
 
 def refine_affines(template: Template, image2: np.ndarray, p2: np.ndarray, A: np.ndarray, *,
@@ -336,16 +346,14 @@ def refine_affines(template: Template, image2: np.ndarray, p2: np.ndarray, A: np
         if active.size == 0:
             break
         if active.size == n:
-            args = (template.values, template.gx, template.gy, Hinv, p2, A)
+            args = (template.values, template.gradients, Hinv, p2, A, energy)
         else:
-            args = (template.values[active], template.gx[active], template.gy[active],
-                    Hinv[:, :, active], p2[active], A[active])
-        T, Gx, Gy, Hi, p2_a, A_a = args
-        p2_new, A_new, step, r = _gauss_newton_step(
-            T, Gx, Gy, Hi, image2, p2_a, A_a, mono, radius,
-            energy if active.size == n else energy[active])
-        residual[active] = np.sqrt(np.einsum('ns,ns->n', r, r).astype(np.float64)
-                                   / max(s - _NPARAM - 1, 1))
+            args = (template.values[active], template.gradients[active], Hinv[:, :, active],
+                    p2[active], A[active], energy[active])
+        T, G, Hi, p2_a, A_a, energy_a = args
+        p2_new, A_new, step, rr = _gauss_newton_step(T, G, Hi, image2, p2_a, A_a, mono, radius,
+                                                     energy_a)
+        residual[active] = np.sqrt(rr.astype(np.float64) / max(s - _NPARAM - 1, 1))
         # A patch whose step explodes has lost its match: freeze it (and flag it) instead of
         # letting it wander off to huge coordinates, which also makes remap slow.
         good = np.isfinite(step) & (step < max_divergence)
@@ -359,9 +367,9 @@ def refine_affines(template: Template, image2: np.ndarray, p2: np.ndarray, A: np
     # Gauss-Newton covariance residual^2 H^-1, plus the last step as an unconverged remainder.
     var = residual ** 2 + noise_floor ** 2
     remainder = np.where(np.isfinite(last), last, 0.0)
-    sigma_A = np.sqrt(var * (Hinv[0, 0] + Hinv[1, 1] + Hinv[2, 2] + Hinv[3, 3])
+    sigma_A = np.sqrt(var * (Hinv[1, 1] + Hinv[2, 2] + Hinv[4, 4] + Hinv[5, 5])
                       + (remainder / max(radius, 1.0)) ** 2)
-    sigma_p = np.sqrt(var * (Hinv[4, 4] + Hinv[5, 5]) + remainder ** 2)
+    sigma_p = np.sqrt(var * (Hinv[0, 0] + Hinv[3, 3]) + remainder ** 2)
     # The warped patch must stay inside image 2 (else BORDER_REPLICATE was sampled): its
     # half-extent along x is radius * (|a00| + |a01|), along y radius * (|a10| + |a11|).
     ex = radius * (np.abs(A[:, 0, 0]) + np.abs(A[:, 0, 1]))

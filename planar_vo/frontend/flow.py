@@ -86,17 +86,11 @@ DIS_PRESETS = {
 def structure_texture(gray: np.ndarray) -> np.ndarray:
     """Smaller eigenvalue of the 3x3-averaged structure tensor of the half-resolution image.
 
-    Returned on the half-resolution grid, in (grey levels per full-resolution pixel)^2: the Sobel
-    filter is 8x the derivative and a half-resolution pixel spans two pixels, hence ``/ 16``.
+    Returned on the half-resolution grid, in (grey levels per full-resolution pixel)^2.
+    ``cv2.cornerMinEigenVal`` (3x3 Sobel, 3x3 box) gives it for intensities in ``[0, 1]`` and
+    8x the derivative; a half-resolution pixel spans two pixels: hence ``255^2 / 16``.
     """
-    small = cv2.pyrDown(gray)
-    gx, gy = cv2.spatialGradient(small)
-    gx = gx.astype(np.float32) * np.float32(1.0 / 16.0)
-    gy = gy.astype(np.float32) * np.float32(1.0 / 16.0)
-    a = cv2.boxFilter(gx * gx, -1, (3, 3))
-    b = cv2.boxFilter(gx * gy, -1, (3, 3))
-    c = cv2.boxFilter(gy * gy, -1, (3, 3))
-    return 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    return cv2.cornerMinEigenVal(cv2.pyrDown(gray), 3, ksize=3) * np.float32(255.0 ** 2 / 16.0)
 
 
 @dataclass(frozen=True)
@@ -555,13 +549,12 @@ class FlowExtractor:
             return score_refinement(sub, result, cfg.max_residual)
 
         n = len(template)
-        if n < _PARALLEL_MIN_PATCHES:
+        if n < _PARALLEL_MIN_PATCHES or cv2.getNumThreads() <= 1:
             return work(None)
-        # Two halves whatever the thread count (inline with one OpenCV thread): cv2.gemm rounds
-        # its float32 products differently for different row counts, so splitting only with
-        # threads would make the ACs depend on the thread count in their last bits.
+        # Two halves on two threads. A patch's refinement does not depend on the other patches
+        # of its batch (`refine_affines`), so the ACs are the same bits either way.
         half = n // 2
-        second = self._executor()(work, np.arange(half, n))
+        second = self._pool.submit(work, np.arange(half, n))
         a = work(np.arange(half))
         b = second.result()
         return PatchRefinement(*(np.concatenate([x, y]) for x, y in zip(
