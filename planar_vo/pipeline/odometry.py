@@ -50,6 +50,7 @@ from planar_vo.core.conventions import (
     se3,
     se3_log,
     so3_log,
+    wrap_angle,
 )
 from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.core.robust.stats import MAD_TO_SIGMA
@@ -143,6 +144,9 @@ class VisualOdometry:
         # (yaw rate, its predicted variance) of the recent steps, for `_yaw_excess`; kept
         # across resets like the calibrations.
         self._yaw_rates: deque[tuple[float, float]] = deque(maxlen=self.config.estimator.history)
+        # (direction of travel relative to the car, its predicted variance) of the recent steps,
+        # for `_heading_excess`.
+        self._headings: deque[tuple[float, float]] = deque(maxlen=self.config.estimator.history)
         self.reset()
 
     # -- state ---------------------------------------------------------------------------------
@@ -491,21 +495,36 @@ class VisualOdometry:
     def _motion_covariance(self, est: FrameEstimate, dt: float) -> np.ndarray:
         """The estimator's 5x5 covariance, widened by the focal length's uncertainty while it
         is self-calibrated (a relative focal error ``e`` scales every rotation angle by about
-        ``1 + e``) and by the yaw error the estimator's own covariance misses (`_yaw_excess`,
-        measured before this step; the step's yaw rate and predicted variance then join its
-        history)."""
+        ``1 + e``) and by the yaw and heading errors the estimator's own covariance misses
+        (`_yaw_excess`, `_heading_excess`, measured before this step; the step's yaw rate,
+        heading and predicted variances then join their histories)."""
         cov = est.cov.copy()
         if self._focal is not None and self._camera is None:
             rel = min(self._focal.relative_std, 1.0)
             angle = float(np.linalg.norm(so3_log(est.R)))
             cov[:3, :3] += np.eye(3) * (angle * rel) ** 2
+        R_lc = self._estimator.R_lc
+        yaw = float(so3_log(R_lc @ est.R @ R_lc.T)[1])
         if dt > 0:
-            R_lc = self._estimator.R_lc
             up = R_lc[1]                    # the level vertical in the camera frame
             excess = self._yaw_excess() * dt * dt
-            rate = float(so3_log(R_lc @ est.R @ R_lc.T)[1]) / dt
-            self._yaw_rates.append((rate, float(up @ cov[:3, :3] @ up) / (dt * dt)))
+            self._yaw_rates.append((yaw / dt, float(up @ cov[:3, :3] @ up) / (dt * dt)))
             cov[:3, :3] += excess * np.outer(up, up)
+        # The heading of travel: the horizontal angle of the camera's motion (-t) in the level
+        # frame; its gradient through the direction's tangent basis gives its variance.
+        x, _, z = -(R_lc @ est.t)
+        horizontal = x * x + z * z
+        if horizontal > 0:
+            g = (R_lc.T @ np.array([z, 0.0, -x]) / horizontal) @ -est.basis       # (2,)
+            gg = float(g @ g)
+            if gg > 0:
+                excess = self._heading_excess()
+                # Along an arc the heading of travel turns by half the camera's yaw, which is
+                # -yaw (``yaw`` rotates points, not the camera).
+                self._headings.append((math.atan2(x, z) + 0.5 * yaw,
+                                       float(g @ cov[3:5, 3:5] @ g)))
+                v = g / gg                  # the direction change that moves the heading by 1
+                cov[3:5, 3:5] += excess * np.outer(v, v)
         return cov
 
     def _yaw_excess(self) -> float:
@@ -525,6 +544,24 @@ class VisualOdometry:
         change = np.diff(h[:, 0])
         spread = MAD_TO_SIGMA * float(np.median(np.abs(change - np.median(change))))
         return max(0.5 * spread * spread - float(np.median(h[:, 1])), 0.0)
+
+    def _heading_excess(self) -> float:
+        """Variance (rad^2) of the heading-of-travel error that the estimator's covariance does
+        not account for, measured online without ground truth like `_yaw_excess`: relative to
+        the car, the camera moves in a direction that changes only with the curvature (the
+        heading of travel less half the step's yaw), so the robust spread of that direction over
+        the recent steps, less the variance the estimator predicted, is the excess (real
+        changes only add to it). Why: the direction's error is what moves the position across
+        the track (KITTI 05, a dev script: 0.40 deg rms per step against a predicted 0.04 deg,
+        and at 20 m the cross-track error was 0.076 m against a standard deviation of
+        0.007 m)."""
+        if len(self._headings) < _EXCESS_MIN_STEPS:
+            return 0.0
+        h = np.array(self._headings)
+        mean = math.atan2(float(np.sin(h[:, 0]).sum()), float(np.cos(h[:, 0]).sum()))
+        offset = wrap_angle(h[:, 0] - mean)
+        spread = MAD_TO_SIGMA * float(np.median(np.abs(offset - np.median(offset))))
+        return max(spread * spread - float(np.median(h[:, 1])), 0.0)
 
     def _offer_focal_pair(self, gray: np.ndarray, camera: CameraModel, alpha: float,
                           extracted: dict[int, AffineCorrespondences]) -> None:
