@@ -165,6 +165,38 @@ def test_speed_source_falls_back_before_the_first_speed_message():
     assert {r.scale_source for r in results[1:]} == {'ground'}
 
 
+def test_a_step_covariance_is_its_first_order_propagation(rng):
+    """compose's analytic Jacobian of the step against central differences of the composed
+    pose's log (at 1e-4: smaller steps lose digits in se3_log's small-angle terms)."""
+    from planar_vo.core.conventions import se3, se3_log, so3_exp
+    from planar_vo.core.robust.general import tangent_basis
+    from planar_vo.pipeline.motion import compose, relative_pose
+
+    for _ in range(20):
+        R = so3_exp(rng.normal(0.0, 0.3, 3))
+        t = rng.normal(size=3)
+        t /= np.linalg.norm(t)
+        B, s = tangent_basis(t), rng.uniform(0.05, 3.0)
+        L = rng.normal(size=(6, 6))
+        Sm = L @ L.T
+        T1 = se3(so3_exp(rng.normal(size=3)), rng.normal(size=3))
+        pose, cov, step = compose(T1, np.eye(6), R, t, B, Sm[:5, :5], s, Sm[5, 5])
+        T21 = invert(relative_pose(R, t, s))
+        J = np.empty((6, 6))
+        for k in range(6):
+            out = []
+            for sign in (1.0, -1.0):
+                d = np.zeros(6)
+                d[k] = sign * 1e-4
+                tk = t + B @ d[3:5]
+                out.append(se3_log(T21 @ relative_pose(so3_exp(d[:3]) @ R,
+                                                       tk / np.linalg.norm(tk), s + d[5])))
+            J[:, k] = (out[0] - out[1]) / 2e-4
+        Sm[:5, 5] = Sm[5, :5] = 0.0             # the step length is independent of (w, d)
+        np.testing.assert_allclose(step, J @ Sm @ J.T, rtol=1e-6, atol=1e-7 * np.abs(step).max())
+        np.testing.assert_allclose(pose, T1 @ relative_pose(R, t, s), atol=1e-12)
+
+
 def test_covariance_is_derived_and_grows_along_the_drive():
     _, results, _ = _run('left')
     covs = np.array([r.pose_covariance for r in results[1:]])

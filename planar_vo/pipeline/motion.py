@@ -11,7 +11,7 @@ Conventions (`planar_vo.core.conventions`):
 
 `compose` gives the camera pose ``T_w2 = T_w1 T_12`` with ``T_12 = [R^T | -s R^T t]`` and
 ``Sigma_2 = Ad(T_12^-1) Sigma_1 Ad(T_12^-1)^T + J Sigma_m J^T`` (first order; ``J`` is the
-Jacobian of ``xi_12`` with respect to ``(w, d, s)``, by central differences). `to_base` moves a
+Jacobian of ``xi_12`` with respect to ``(w, d, s)``). `to_base` moves a
 pose and its covariance to ``base_link`` through the mount; `ros_pose_covariance` turns the
 body-frame covariance into the 6x6 of ``nav_msgs/Odometry`` (REP-103 order x, y, z, roll,
 pitch, yaw; position and small rotations in the parent frame); `flatten` gives the 2D output
@@ -29,8 +29,7 @@ from planar_vo.core.conventions import (
     invert,
     planar_pose,
     se3,
-    se3_log,
-    so3_exp,
+    skew,
     yaw_of,
 )
 
@@ -64,22 +63,17 @@ def compose(T1: np.ndarray, S1: np.ndarray, R: np.ndarray, t: np.ndarray, B: np.
         s, var_s: the step length (m) and its variance (m^2).
     """
     T12 = relative_pose(R, t, s)
-    T21 = invert(T12)
-    J = np.empty((6, 6))
-    eps = 1e-7
-    for k in range(6):
-        out = []
-        for sign in (1.0, -1.0):
-            d = np.zeros(6)
-            d[k] = sign * eps
-            tk = t + B @ d[3:5]
-            out.append(se3_log(T21 @ relative_pose(so3_exp(d[:3]) @ R,
-                                                   tk / np.linalg.norm(tk), s + d[5])))
-        J[:, k] = (out[0] - out[1]) / (2.0 * eps)
+    # xi_12 of the perturbed step, to first order (R <- exp([w]x) R, t <- t + B d, s <- s + ds):
+    # phi = -w, rho = -s [t]x w - s B d - t ds.
+    J = np.zeros((6, 6))
+    J[:3, :3] = -np.eye(3)
+    J[3:, :3] = -s * skew(t)
+    J[3:, 3:5] = -s * B
+    J[3:, 5] = -t
     Sm = np.zeros((6, 6))
     Sm[:5, :5] = cov5
     Sm[5, 5] = var_s
-    Ad = adjoint(T21)
+    Ad = adjoint(invert(T12))
     step = J @ Sm @ J.T
     return T1 @ T12, Ad @ S1 @ Ad.T + step, step
 
