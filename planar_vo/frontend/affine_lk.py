@@ -10,10 +10,11 @@ bilinear resampling of image 2 plus small matrix products.
 
 All patches are processed together: one ``np.take`` gathers every template sample, one
 ``cv2.remap`` samples every warped patch per iteration, and the per-patch sums (Hessian, gradient)
-are matrix products of the ``(N, S)`` sample arrays with a fixed ``(S, k)`` matrix of offset
-monomials, one ``cv2.gemm`` call each. The offset ``b`` is eliminated by centring (its Schur
-complement), leaving a 6x6 system per patch whose inverse is computed once by a vectorised
-Cholesky factorisation. There is no Python loop over patches.
+are products of the ``(N, S)`` sample arrays with a fixed matrix of offset monomials (one
+``cv2.gemm`` for the Hessians, once; ``np.einsum`` on each patch's own row per iteration, so that
+a patch's result does not depend on the other patches of its batch). The offset ``b`` is
+eliminated by centring (its Schur complement), leaving a 6x6 system per patch whose inverse is
+computed once by a vectorised Cholesky factorisation. There is no Python loop over patches.
 """
 
 from __future__ import annotations
@@ -267,8 +268,7 @@ def _gauss_newton_step(T: np.ndarray, G: np.ndarray, Hinv: np.ndarray, image2: n
     # Gradient sum_x SD^T r: (Gx r, Gy r) against (1, ox, oy), q = (M, 6) in the order
     # (tx, a00, a01, ty, a10, a11); T and warped are centred, so the offset's Schur complement
     # (mean steepest-descent image times sum(r)) vanishes.
-    q = np.einsum('mks,js->mkj', G * r[:, None, :], mono).reshape(m, 6)
-    q = q.astype(np.float64)
+    q = np.einsum('mks,js->mkj', G * r[:, None, :], mono).reshape(m, 6).astype(np.float64)
     d = Hinv[:, 0] * -q[:, 0]                                       # (6, M), order of q
     for j in range(1, _NPARAM):
         d -= Hinv[:, j] * q[:, j]

@@ -533,9 +533,8 @@ class FlowExtractor:
 
     def _refine(self, template: Template, image2: np.ndarray, p2: np.ndarray, A: np.ndarray,
                 iterations: int | None = None) -> PatchRefinement:
-        """`refine_affines` + `score_refinement`, in two halves when there are many patches, on
-        two threads unless OpenCV is set to one (numpy and OpenCV release the GIL in the heavy
-        calls)."""
+        """`refine_affines` + `score_refinement`; many patches run in two halves on two threads
+        unless OpenCV is set to one (numpy and OpenCV release the GIL in the heavy calls)."""
         cfg = self.config
         iterations = cfg.lk_iterations if iterations is None else iterations
         max_iterations = max(cfg.lk_max_iterations, iterations)
