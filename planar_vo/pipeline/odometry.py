@@ -541,9 +541,7 @@ class VisualOdometry:
         if len(self._yaw_rates) < _EXCESS_MIN_STEPS:
             return 0.0
         h = np.array(self._yaw_rates)
-        change = np.diff(h[:, 0])
-        spread = MAD_TO_SIGMA * float(np.median(np.abs(change - np.median(change))))
-        return max(0.5 * spread * spread - float(np.median(h[:, 1])), 0.0)
+        return _excess_variance(np.diff(h[:, 0]), h[:, 1], 0.5)
 
     def _heading_excess(self) -> float:
         """Variance (rad^2) of the heading-of-travel error that the estimator's covariance does
@@ -559,9 +557,7 @@ class VisualOdometry:
             return 0.0
         h = np.array(self._headings)
         mean = math.atan2(float(np.sin(h[:, 0]).sum()), float(np.cos(h[:, 0]).sum()))
-        offset = wrap_angle(h[:, 0] - mean)
-        spread = MAD_TO_SIGMA * float(np.median(np.abs(offset - np.median(offset))))
-        return max(spread * spread - float(np.median(h[:, 1])), 0.0)
+        return _excess_variance(wrap_angle(h[:, 0] - mean), h[:, 1])
 
     def _offer_focal_pair(self, gray: np.ndarray, camera: CameraModel, alpha: float,
                           extracted: dict[int, AffineCorrespondences]) -> None:
@@ -860,6 +856,13 @@ _START_NORMAL_STD = math.radians(1.0)
 # The tilt estimator's wobble follows the measured non-planarity when it changed by more than
 # this share (each change triggers a refit).
 _WOBBLE_CHANGE = 0.2
+
+
+def _excess_variance(values: np.ndarray, predicted: np.ndarray, share: float = 1.0) -> float:
+    """``share`` times the squared robust spread (MAD) of ``values``, less the median of the
+    ``predicted`` variances, at least 0 (`_yaw_excess`, `_heading_excess`)."""
+    spread = MAD_TO_SIGMA * float(np.median(np.abs(values - np.median(values))))
+    return max(share * spread * spread - float(np.median(predicted)), 0.0)
 
 
 def _with_timings(result: FrameResult, timings: dict[str, float]) -> FrameResult:
