@@ -31,6 +31,7 @@ def ransac_planar_motion(q1, q2, A, w, config: VotingConfig, clusters: np.ndarra
     if valid.size < config.min_inliers:
         return failed_estimate(n, 'too_few_candidates', int(valid.size))
     B = _ac_matrix(q1, q2, A)
+    rows = refine.design_rows(B)
     sp, sa = config.point_noise, config.affine_noise
     rng = np.random.default_rng(config.seed)
     p = w[valid] / w[valid].sum()
@@ -43,7 +44,7 @@ def ransac_planar_motion(q1, q2, A, w, config: VotingConfig, clusters: np.ndarra
 
     def whiten(theta: float, beta: float) -> np.ndarray:
         _, g, h = refine.residual_terms(q1, q2, A, B, theta, beta)
-        return B / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)[:, :, None]
+        return refine.whiten_rows(rows, g, h, sp, sa)
 
     def score(theta: float, beta: float) -> tuple[float, np.ndarray]:
         r, g, h = refine.residual_terms(q1, q2, A, B, theta, beta)
@@ -74,7 +75,7 @@ def ransac_planar_motion(q1, q2, A, w, config: VotingConfig, clusters: np.ndarra
             theta, beta = float(th[k]), float(be[k])
             inl = chi2[:, k] <= config.inlier_chi2
             if np.count_nonzero(inl) >= 2:                                      # local optimisation
-                t2, b2, _, _ = refine.fit_whitened(whiten(theta, beta).reshape(-1, 4),
+                t2, b2, _, _ = refine.fit_whitened(whiten(theta, beta),
                                                    np.repeat(w * inl, 3), theta, beta)
                 s2, _ = score(t2, b2)
                 if s2 <= scores[k]:

@@ -66,6 +66,9 @@ class VotingStats:
     focal_std: float = float('nan')
 
 
+_DEFAULT_CONFIG = VotingConfig()        # frozen: one instance serves every call without a config
+
+
 def check_inputs(q1, q2, A, weights, config):
     """Checked ``q1, q2, A``, weights (ones when None) and config (defaults when None)."""
     q1, q2, A = _check_ac('q1', q1, 'q2', q2, A)
@@ -77,7 +80,7 @@ def check_inputs(q1, q2, A, weights, config):
         same_length(q1=q1, weights=w)
         if np.any(w < 0):
             raise ConfigError(f'weights: expected non-negative values, got minimum {w.min()}')
-    config = VotingConfig() if config is None else config
+    config = _DEFAULT_CONFIG if config is None else config
     if not isinstance(config, VotingConfig):
         raise ConfigError(f'config: expected VotingConfig, got {type(config).__name__}')
     return q1, q2, A, w, config

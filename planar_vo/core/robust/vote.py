@@ -111,6 +111,7 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     # noise scales, and the resulting whitening is kept for a first refinement (the vote is
     # within a degree, where the first-order standard deviations barely change).
     B = _ac_matrix(q1, q2, A)
+    rows = refine.design_rows(B)
     theta0 = alpha0 + beta0
     r, g, h = refine.residual_terms(q1, q2, A, B, theta0, beta0)
     beta_offsets = np.abs(histogram.wrap(b_near - beta0))
@@ -119,9 +120,9 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     sa_cap = config.max_noise_factor * config.affine_noise
     sp, sa = refine.robust_scales(r[members], g[members], h[members])
     sp, sa = min(sp, sp_cap), min(sa, sa_cap)
-    Bw = B / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)[:, :, None]
+    wrows = refine.whiten_rows(rows, g, h, sp, sa)
     theta, beta, inliers, cov, rms = refine.select_and_refine(
-        Bw, w, theta0, beta0, config, passes=1, covariance=not config.refine)
+        wrows, w, theta0, beta0, config, passes=1, covariance=not config.refine)
     if config.refine and np.count_nonzero(inliers) >= max(config.min_inliers, 4):
         # Second round: noise scales from the inliers at the refined motion (clean, so the
         # median is the right statistic), then the same selection and refinement again.
@@ -129,11 +130,12 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
         sample = thin(np.flatnonzero(inliers))
         sp, sa = refine.robust_scales(r[sample], g[sample], h[sample], quantile=0.5)
         sp, sa = min(sp, sp_cap), min(sa, sa_cap)
-        Bw = B / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)[:, :, None]
+        wrows = refine.whiten_rows(rows, g, h, sp, sa)
         theta, beta, inliers, cov, rms = refine.select_and_refine(
-            Bw, w, theta, beta, config, clusters, passes=3)
+            wrows, w, theta, beta, config, clusters, passes=3)
     elif config.refine:
-        _, _, _, cov, rms = refine.select_and_refine(Bw, w, theta, beta, config, clusters, passes=1)
+        _, _, _, cov, rms = refine.select_and_refine(wrows, w, theta, beta, config, clusters,
+                                                     passes=1)
     motion = PlanarMotion(float(wrap_angle(theta - beta)), float(wrap_angle(beta)))
     num_inliers = int(np.count_nonzero(inliers))
     # The refined motion must stay in the voted peak: leaving it means the inliers' constraints
