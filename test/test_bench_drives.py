@@ -250,7 +250,7 @@ def test_drive_folders_are_found_or_refused(data, tmp_path):
 def test_bad_options_are_one_line_and_exit_1(data, tmp_path, capsys, options, message):
     assert main(['bench', 'drives', '--data', str(data), '--out', str(tmp_path), *options]) == 1
     err = capsys.readouterr().err
-    assert err.startswith(f'planar_vo bench: error: {message}') and err.count('\n') == 1
+    assert err.startswith(f'planar_vo bench drives: error: {message}') and err.count('\n') == 1
     assert not (tmp_path / 'drives.md').exists()
 
 

@@ -110,11 +110,11 @@ def test_every_help_page_prints(capsys):
     (['demo', '--seed', '-1', '--frames', '3'],
      'planar_vo demo: error: --seed: expected an integer in [0, 2^32), got -1'),
     (['bench', 'paper', '--quick', '--seed', '-1'],
-     'planar_vo bench: error: --seed: expected an integer of at least 0, got -1'),
+     'planar_vo bench paper: error: --seed: expected an integer of at least 0, got -1'),
     (['bench', 'paper', '--quick', '--jobs', '0'],
-     'planar_vo bench: error: --jobs: expected an integer of at least 1, got 0'),
+     'planar_vo bench paper: error: --jobs: expected an integer of at least 1, got 0'),
     (['bench', 'frontend', '--asift-pairs', '-1'],
-     'planar_vo bench: error: --asift-pairs: expected an integer of at least 0, got -1'),
+     'planar_vo bench frontend: error: --asift-pairs: expected an integer of at least 0, got -1'),
     (['demo', '--frames', '100000'],
      'planar_vo demo: error: --frames: expected at most 392 (the demo drive), got 100000'),
     (['demo', '--solvers', '--sigmas', 'inf'],
@@ -132,17 +132,18 @@ def test_every_help_page_prints(capsys):
     (['eval', 'planar_vo_demo/odometry.tum', '--gt', 'x.tum', '--out-dir', ' '],
      'planar_vo eval: error: --out-dir: an empty path; expected the folder for the report'),
     (['bench', 'pipeline', '--out', ''],
-     'planar_vo bench: error: --out: an empty path; expected the folder for the report'),
+     'planar_vo bench pipeline: error: --out: an empty path; expected the folder for the report'),
     (['bench', 'pipeline', '--frames', '9'],
-     'planar_vo bench: error: --frames: expected at least 10, got 9'),
+     'planar_vo bench pipeline: error: --frames: expected at least 10, got 9'),
     (['bench', 'pipeline', '--kitti', 'nowhere'],
-     "planar_vo bench: error: --kitti: 'nowhere' is not a KITTI sequence folder (no calib.txt)"),
+     "planar_vo bench pipeline: error: --kitti: 'nowhere' is not a KITTI sequence folder "
+     "(no calib.txt)"),
     (['bench', 'fleet', '--bags', '1'],
-     'planar_vo bench: error: --bags, --frames, --repeat: expected at least 2, 10 and 1, got 1, '
-     '100, 2'),
+     'planar_vo bench fleet: error: --bags, --frames, --repeat: expected at least 2, 10 and 1, '
+     'got 1, 100, 2'),
     (['bench', 'speed', '--repeats', '0', '--sizes', '9'],
-     'planar_vo bench: error: --repeats, --sizes: expected at least 1 and sizes of at least 10, '
-     'got 0, [9]'),
+     'planar_vo bench speed: error: --repeats, --sizes: expected at least 1 and sizes of at '
+     'least 10, got 0, [9]'),
 ])
 def test_bad_options_are_refused_before_any_work(tmp_path, monkeypatch, capsys, argv, message):
     """One line and exit code 1, and nothing touched: a previous demo folder survives a bad
@@ -159,7 +160,7 @@ def test_bad_options_are_refused_before_any_work(tmp_path, monkeypatch, capsys, 
 def test_bench_output_folder_is_checked_first(tmp_path, capsys):
     (tmp_path / 'file').write_text('')
     assert main(['bench', 'paper', '--quick', '--out', str(tmp_path / 'file')]) == 1
-    assert capsys.readouterr().err.strip() == (f"planar_vo bench: error: --out: "
+    assert capsys.readouterr().err.strip() == (f"planar_vo bench paper: error: --out: "
                                                f"'{tmp_path / 'file'}' exists and is not a folder")
     assert main(['bench', 'fleet', '--work', str(tmp_path / 'file'),
                  '--out', str(tmp_path / 'o')]) == 1

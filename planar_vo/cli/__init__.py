@@ -127,7 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from planar_vo.pipeline.threads import limit_blas_threads
 
     limit_blas_threads()        # idle OpenBLAS workers busy-wait: one thread is faster here
-    command = f'planar_vo {args.command}'        # before run(): bench replaces args.command
+    command = args.parser.prog       # the command as typed: 'planar_vo bench drives'
     with stop_signals_interrupt():
         try:
             return int(args.run(args) or 0)
