@@ -463,7 +463,7 @@ def test_without_ray_one_line_and_exit_1(drives, tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, 'ray', None)          # import ray -> ImportError
     assert main(['fleet', 'run', str(drives['drive_a']), '--out', str(tmp_path / 'o')]) == 1
     err = capsys.readouterr().err.strip()
-    assert err == ("planar_vo fleet: error: ray is not installed; fleet runs need the fleet "
+    assert err == ("planar_vo fleet run: error: ray is not installed; fleet runs need the fleet "
                    "extra: pip install 'planar_vo[fleet]'")
     assert not (tmp_path / 'o').exists()
 
@@ -475,8 +475,8 @@ def test_an_unreachable_head_address_is_one_line_and_exit_1(drives, tmp_path, ca
             '127.0.0.1:1']
     assert main(args) == 1
     err = capsys.readouterr().err.strip()
-    assert err.startswith("planar_vo fleet: error: --address: cannot reach Ray at '127.0.0.1:1' "
-                          'within 5 s') and '\n' not in err
+    assert err.startswith("planar_vo fleet run: error: --address: cannot reach Ray at "
+                          "'127.0.0.1:1' within 5 s") and '\n' not in err
     assert main(args[:-1] + ['head-without-port']) == 1
     assert "expected 'auto', 'host:port' or 'ray://host:port'" in capsys.readouterr().err
 
@@ -488,7 +488,7 @@ def test_a_fleet_whose_every_run_failed_exits_1(drives, tmp_path, capsys):
     assert main(args) == 1
     captured = capsys.readouterr()
     assert '0 ok, 2 failed' in captured.out
-    assert captured.err.strip() == 'planar_vo fleet: error: all 2 runs failed'
+    assert captured.err.strip() == 'planar_vo fleet run: error: all 2 runs failed'
 
 
 def test_replay_and_the_node_never_import_ray(drives, tmp_path):
@@ -528,7 +528,7 @@ def test_bad_arguments_are_one_line_and_exit_1(drives, tmp_path, capsys, extra, 
 
 def test_no_bags_is_an_error(tmp_path, capsys):
     assert main(['fleet', 'run', '--out', str(tmp_path / 'o')]) == 1
-    assert capsys.readouterr().err == ('planar_vo fleet: error: BAG: expected BAG arguments or '
+    assert capsys.readouterr().err == ('planar_vo fleet run: error: BAG: expected BAG arguments or '
                                        '--manifest FILE, got none\n')
 
 

@@ -265,7 +265,7 @@ def test_bench_stopped_by_sigterm_stops_its_child_and_reports_once(tmp_path):
             if proc.poll() is None:
                 proc.kill()
     assert proc.returncode == 143
-    assert err.splitlines()[-1] == 'planar_vo bench: interrupted by SIGTERM'
+    assert err.splitlines()[-1] == 'planar_vo bench paper: interrupted by SIGTERM'
     assert err.count('interrupted') == 1
     wait_for(lambda: not _alive(child), 10, 'the child to be gone')
     assert partial_leftovers(tmp_path) == []
