@@ -98,6 +98,6 @@ def run(args: argparse.Namespace) -> int:
         return 130
     if result.rows and all(row['status'] == 'failed' for row in result.rows):
         # Nothing usable came out (every row names its reason above): a script must see it.
-        print(f'planar_vo fleet run: error: all {len(result.rows)} runs failed', file=sys.stderr)
+        print(f'{args.parser.prog}: error: all {len(result.rows)} runs failed', file=sys.stderr)
         return 1
     return 0
