@@ -73,9 +73,17 @@ def residual_terms(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, B: np.ndarray,
     return r, g, h
 
 
+def _variance(g: np.ndarray, h: np.ndarray, sp: float, sa: float) -> np.ndarray:
+    """First-order residual variances ``sp^2 g + sa^2 h`` ``(N, 3)`` (kept off zero)."""
+    var = g * (sp * sp)
+    var += (sa * sa) * h
+    var += 1e-300
+    return var
+
+
 def whitened(r: np.ndarray, g: np.ndarray, h: np.ndarray, sp: float, sa: float) -> np.ndarray:
     """Residuals divided by their first-order standard deviations, shape ``(N, 3)``."""
-    return r / np.sqrt(sp * sp * g + sa * sa * h + 1e-300)
+    return r / np.sqrt(_variance(g, h, sp, sa))
 
 
 def design_rows(B: np.ndarray) -> np.ndarray:
@@ -88,10 +96,7 @@ def whiten_rows(rows: np.ndarray, g: np.ndarray, h: np.ndarray, sp: float, sa: f
                 ) -> np.ndarray:
     """`design_rows` ``(4, 3N)`` divided by their first-order standard deviations (the
     whitening of `whitened`, applied to the rows instead of the residuals)."""
-    var = g * (sp * sp)
-    var += (sa * sa) * h
-    var += 1e-300
-    return rows / np.sqrt(var.ravel())
+    return rows / np.sqrt(_variance(g, h, sp, sa).ravel())
 
 
 def robust_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, quantile: float = 0.25, *,
