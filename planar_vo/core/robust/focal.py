@@ -31,7 +31,7 @@ from planar_vo.core.robust.types import (
     failed_estimate,
 )
 from planar_vo.core.robust.vote import vote_planar_motion
-from planar_vo.core.solvers import _ac_matrix, solve_1acf
+from planar_vo.core.solvers import solve_1acf
 from planar_vo.errors import ConfigError
 
 __all__ = [
@@ -170,7 +170,7 @@ def _refine_focal(p1, p2, A, w, clusters, theta, beta, log_f, sp, sa, focal_rang
         f = math.exp(lf)
         q1, q2 = p1 / f, p2 / f
         spf = sp_px / f
-        r, g, h = refine.residual_terms(q1, q2, A, _ac_matrix(q1, q2, A), th, be)
+        r, g, h = refine.residual_terms(q1, q2, A, refine.design_rows(q1, q2, A), th, be)
         return (r / np.sqrt(spf * spf * g + sa * sa * h + 1e-300)).ravel()
 
     sw = np.repeat(np.sqrt(w), 3)

@@ -11,7 +11,7 @@ from planar_vo.core.conventions import wrap_angle
 from planar_vo.core.robust import refine
 from planar_vo.core.robust.options import VotingConfig
 from planar_vo.core.robust.types import PlanarMotion, VotingStats, failed_estimate
-from planar_vo.core.solvers import _ac_matrix, solve_1ac
+from planar_vo.core.solvers import solve_1ac
 
 __all__ = ['ransac_planar_motion']
 
@@ -30,8 +30,7 @@ def ransac_planar_motion(q1, q2, A, w, config: VotingConfig, clusters: np.ndarra
     valid = np.flatnonzero(np.isfinite(alpha_c) & (w > 0))
     if valid.size < config.min_inliers:
         return failed_estimate(n, 'too_few_candidates', int(valid.size))
-    B = _ac_matrix(q1, q2, A)
-    rows = refine.design_rows(B)
+    rows = refine.design_rows(q1, q2, A)
     sp, sa = config.point_noise, config.affine_noise
     rng = np.random.default_rng(config.seed)
     p = w[valid] / w[valid].sum()
@@ -43,11 +42,11 @@ def ransac_planar_motion(q1, q2, A, w, config: VotingConfig, clusters: np.ndarra
     batch = 32
 
     def whiten(theta: float, beta: float) -> np.ndarray:
-        _, g, h = refine.residual_terms(q1, q2, A, B, theta, beta)
+        _, g, h = refine.residual_terms(q1, q2, A, rows, theta, beta)
         return refine.whiten_rows(rows, g, h, sp, sa)
 
     def score(theta: float, beta: float) -> tuple[float, np.ndarray]:
-        r, g, h = refine.residual_terms(q1, q2, A, B, theta, beta)
+        r, g, h = refine.residual_terms(q1, q2, A, rows, theta, beta)
         chi2 = (refine.whitened(r, g, h, sp, sa) ** 2).sum(axis=1)
         return float((w * np.minimum(chi2, config.inlier_chi2)).sum()), chi2 <= config.inlier_chi2
 
@@ -57,7 +56,7 @@ def ransac_planar_motion(q1, q2, A, w, config: VotingConfig, clusters: np.ndarra
         th = alpha_c[idx] + beta_c[idx]
         be = beta_c[idx]
         x = np.stack([np.cos(th), np.sin(th), np.cos(be), np.sin(be)])        # (4, H)
-        r = np.einsum('nij,jh->nih', B, x)                                     # (N, 3, H)
+        r = (rows.T @ x).reshape(n, 3, -1)                                     # (N, 3, H)
         st, ct, sb = np.sin(th), np.cos(th), np.sin(be)
         cb = np.cos(be)
         u1, v1, u2, v2 = (q1[:, 0, None], q1[:, 1, None], q2[:, 0, None], q2[:, 1, None])

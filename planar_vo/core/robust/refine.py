@@ -11,6 +11,13 @@ covariance is a cluster-robust sandwich (`cluster_covariance`).
 Layout: the whitened rows are held transposed, ``(4, 3N)`` (`design_rows`, `whiten_rows`), so
 that per-row weights broadcast along the contiguous axis and each fit is one matrix product
 (numpy's element-wise loops over an inner axis of 4 cost about four times as much).
+
+Large arrays: at thousands of ACs the rows are hundreds of kB. Blocks of that size that are
+allocated and freed again and again are, in the C library's allocator, returned to the kernel
+and faulted in afresh page by page; a vote that built several per call took about 150 page
+faults per call at 4,000 ACs. So the rows are built and whitened in place and a caller can
+hand in its buffers (``out``, ``scratch``): a vote then touches two such arrays and no new
+pages.
 """
 
 from __future__ import annotations
@@ -42,9 +49,10 @@ _POINT_SCALE_FLOOR = 1e-9
 _AFFINE_SCALE_FLOOR = 1e-8
 
 
-def residual_terms(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, B: np.ndarray,
+def residual_terms(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, rows: np.ndarray,
                    theta: float, beta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Residuals ``r = B x`` (N, 3) and their gradient norms w.r.t. points and affines.
+    """Residuals ``r = B x`` (N, 3) and their gradient norms w.r.t. points and affines
+    (``rows``: the ACs' `design_rows`).
 
     With ``x = [cos th, sin th, cos b, sin b]`` the rows are (minimal.py):
 
@@ -56,7 +64,7 @@ def residual_terms(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, B: np.ndarray,
     """
     ct, st, cb, sb = math.cos(theta), math.sin(theta), math.cos(beta), math.sin(beta)
     x = np.array([ct, st, cb, sb])
-    r = (B.reshape(-1, 4) @ x).reshape(-1, 3)       # one matrix-vector product, not N small ones
+    r = (x @ rows).reshape(-1, 3)                   # one matrix-vector product, not N small ones
     u1, v1, u2, v2 = q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1]
     a1, a2, a3, a4 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
     g = np.empty((q1.shape[0], 3))
@@ -86,17 +94,42 @@ def whitened(r: np.ndarray, g: np.ndarray, h: np.ndarray, sp: float, sa: float) 
     return r / np.sqrt(_variance(g, h, sp, sa))
 
 
-def design_rows(B: np.ndarray) -> np.ndarray:
-    """The constraint rows ``B`` ``(N, 3, 4)`` transposed to ``(4, 3N)`` (contiguous; column
-    ``3 i + k`` is AC ``i``'s row ``k``)."""
-    return np.ascontiguousarray(B.reshape(-1, 4).T)
-
-
-def whiten_rows(rows: np.ndarray, g: np.ndarray, h: np.ndarray, sp: float, sa: float
+def design_rows(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, out: np.ndarray | None = None
                 ) -> np.ndarray:
+    """The ACs' constraint rows (`planar_vo.core.solvers.planar_ac_matrix`) transposed,
+    ``(4, 3N)``: column ``3 i + k`` is AC ``i``'s row ``k``. Written straight into one array,
+    ``out`` when given (no ``(N, 3, 4)`` intermediate; see `select_and_refine` on large
+    arrays)."""
+    u1, v1, u2, v2 = q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1]
+    a1, a2, a3, a4 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
+    rows = np.empty((4, 3 * q1.shape[0])) if out is None else out
+    epi, aff1, aff2 = rows[:, 0::3], rows[:, 1::3], rows[:, 2::3]
+    np.negative(v2, out=epi[0])                           # [-v2, u1 v2, v1, -u2 v1]
+    np.multiply(u1, v2, out=epi[1])
+    epi[2] = v1
+    np.multiply(u2, v1, out=epi[3])
+    np.negative(epi[3], out=epi[3])
+    np.negative(a3, out=aff1[0])                          # [-a3, v2 + a3 u1, 0, -a1 v1]
+    np.multiply(a3, u1, out=aff1[1])
+    aff1[1] += v2
+    aff1[2] = 0.0
+    np.multiply(a1, v1, out=aff1[3])
+    np.negative(aff1[3], out=aff1[3])
+    np.negative(a4, out=aff2[0])                          # [-a4, a4 u1, 1, -u2 - a2 v1]
+    np.multiply(a4, u1, out=aff2[1])
+    aff2[2] = 1.0
+    np.multiply(a2, v1, out=aff2[3])
+    aff2[3] += u2
+    np.negative(aff2[3], out=aff2[3])
+    return rows
+
+
+def whiten_rows(rows: np.ndarray, g: np.ndarray, h: np.ndarray, sp: float, sa: float,
+                out: np.ndarray | None = None) -> np.ndarray:
     """`design_rows` ``(4, 3N)`` divided by their first-order standard deviations (the
-    whitening of `whitened`, applied to the rows instead of the residuals)."""
-    return rows / np.sqrt(_variance(g, h, sp, sa).ravel())
+    whitening of `whitened`, applied to the rows instead of the residuals); into ``out`` when
+    given (a buffer of the same shape, reused across calls: see `select_and_refine`)."""
+    return np.divide(rows, np.sqrt(_variance(g, h, sp, sa).ravel()), out=out)
 
 
 def robust_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, quantile: float = 0.25, *,
@@ -184,12 +217,13 @@ def spatial_clusters(q: np.ndarray, k: int) -> np.ndarray:
     return iu * k + iv
 
 
-def fit_whitened(rows: np.ndarray, w3: np.ndarray, theta: float, beta: float
-                 ) -> tuple[float, float, np.ndarray, float]:
+def fit_whitened(rows: np.ndarray, w3: np.ndarray, theta: float, beta: float,
+                 scratch: np.ndarray | None = None) -> tuple[float, float, np.ndarray, float]:
     """Least squares over ``(theta, beta)`` of the whitened rows ``rows`` ``(4, 3N)``
     (`whiten_rows`) with row weights ``w3`` ``(3N,)``; returns ``theta, beta``, the
-    Gauss-Newton matrix ``H`` and the objective (see `minimize_form`)."""
-    M = (rows * w3) @ rows.T
+    Gauss-Newton matrix ``H`` and the objective (see `minimize_form`). ``scratch``: an
+    optional buffer shaped like ``rows`` for the weighted rows."""
+    M = np.multiply(rows, w3, out=scratch) @ rows.T
     return minimize_form(M, theta, beta)
 
 
@@ -199,14 +233,16 @@ def _per_ac(x: np.ndarray) -> np.ndarray:
 
 
 def cluster_covariance(rows: np.ndarray, w: np.ndarray, theta: float, beta: float, H: np.ndarray,
-                       f: float, clusters: np.ndarray | None) -> tuple[np.ndarray, float]:
+                       f: float, clusters: np.ndarray | None, scratch: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, float]:
     """Covariance of ``(theta, beta)`` at the solution of `fit_whitened`, and the whitened RMS.
 
     Cluster-robust (a sandwich ``H^-1 (sum_c s_c s_c^T) H^-1`` with ``s_c`` the summed score
     ``J^T e`` of cluster ``c``; Liang and Zeger 1986): neighbouring ACs share errors (one
     surface, overlapping patches, one fitted homography), which the plain ``sigma^2 H^-1``
     ignores and which would make it overconfident. Never smaller than ``sigma^2 H^-1`` with the
-    posterior variance factor. Neither depends on the scale of ``w``.
+    posterior variance factor. Neither depends on the scale of ``w``. ``scratch``: an optional
+    buffer shaped like ``rows`` for the residuals and their derivatives.
     """
     m = int(np.count_nonzero(w > 0))
     wsum = float(w.sum())
@@ -219,8 +255,9 @@ def cluster_covariance(rows: np.ndarray, w: np.ndarray, theta: float, beta: floa
     if clusters is not None:
         ct, st, cb, sb = math.cos(theta), math.sin(theta), math.cos(beta), math.sin(beta)
         # Per-row residual and its derivatives, contracted to per-AC scores J^T e.
-        e, de_t, de_b = np.array([[ct, st, cb, sb], [-st, ct, 0.0, 0.0],
-                                  [0.0, 0.0, -sb, cb]]) @ rows
+        e, de_t, de_b = np.matmul(np.array([[ct, st, cb, sb], [-st, ct, 0.0, 0.0],
+                                            [0.0, 0.0, -sb, cb]]), rows,
+                                  out=None if scratch is None else scratch[:3])
         s0 = np.bincount(clusters, weights=w * _per_ac(e * de_t))
         s1 = np.bincount(clusters, weights=w * _per_ac(e * de_b))
         meat = np.array([[s0 @ s0, s0 @ s1], [s0 @ s1, s1 @ s1]])
@@ -232,11 +269,16 @@ def cluster_covariance(rows: np.ndarray, w: np.ndarray, theta: float, beta: floa
 
 def select_and_refine(rows: np.ndarray, w: np.ndarray, theta: float, beta: float,
                       config: VotingConfig, clusters: np.ndarray | None = None,
-                      passes: int = 4, covariance: bool = True):
+                      passes: int = 4, covariance: bool = True, scratch: np.ndarray | None = None):
     """Inlier selection (chi-square of the whitened residuals) alternated with refitting, until
     the inlier set no longer changes (at most ``passes`` times); then, if asked, the
-    covariance. ``rows``: the whitened rows ``(4, 3N)`` (`whiten_rows`)."""
+    covariance. ``rows``: the whitened rows ``(4, 3N)`` (`whiten_rows`).
+
+    ``scratch``: a buffer shaped like ``rows`` for the fits' weighted rows and the covariance
+    (one is allocated when not given; see the module docstring on large arrays)."""
     n = w.shape[0]
+    if scratch is None:
+        scratch = np.empty_like(rows)
     inliers = np.zeros(n, bool)
     H, f = np.full((2, 2), np.nan), float('nan')
     fitted = False
@@ -249,11 +291,11 @@ def select_and_refine(rows: np.ndarray, w: np.ndarray, theta: float, beta: float
         if fitted and np.array_equal(selected, inliers):
             break                                   # the last fit already used this set
         inliers = selected
-        t2, b2, H, f = fit_whitened(rows, np.repeat(w * selected, 3), theta, beta)
+        t2, b2, H, f = fit_whitened(rows, np.repeat(w * selected, 3), theta, beta, scratch)
         fitted = True
         if config.refine:
             theta, beta = t2, b2
     if not covariance or not np.count_nonzero(inliers):
         return theta, beta, inliers, np.full((2, 2), np.inf), float('nan')
-    cov, rms = cluster_covariance(rows, w * inliers, theta, beta, H, f, clusters)
+    cov, rms = cluster_covariance(rows, w * inliers, theta, beta, H, f, clusters, scratch)
     return theta, beta, inliers, cov, rms

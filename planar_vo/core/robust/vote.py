@@ -37,12 +37,7 @@ from planar_vo.core.robust.types import (
     check_inputs,
     failed_estimate,
 )
-from planar_vo.core.solvers import (
-    _ac_matrix,
-    _ac_null_vectors,
-    _cheirality_flip,
-    solve_1ac,
-)
+from planar_vo.core.solvers import _ac_null_vectors, _cheirality_flip, solve_1ac
 
 __all__ = ['PlanarMotion', 'VotingStats', 'vote_planar_motion']
 
@@ -77,19 +72,18 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     if config.method == 'ransac':
         return ransac_planar_motion(q1, q2, A, w, config, clusters)
     n = q1.shape[0]
+    nv = None
     if config.refine_candidates:
         alpha_c, beta_c = solve_1ac(q1, q2, A, refine=True)
-        signed = True
     else:
+        # The null vector n ~ [cos th, sin th, cos b, sin b] gives alpha = th - b directly, by
+        # one arctan2 of the angle difference (the two pairs' norms are positive factors).
         # Alpha does not depend on the null vector's sign (flipping it adds pi to both angles),
-        # so cheirality is resolved below only for the ACs that vote on beta.
+        # so beta and its cheirality are resolved below only for the ACs that vote on beta.
         nv = _ac_null_vectors(q1, q2, A)
-        theta_c = np.arctan2(nv[:, 1], nv[:, 0])
-        beta_c = np.arctan2(nv[:, 3], nv[:, 2])
-        alpha_c = histogram.wrap(theta_c - beta_c)
-        alpha_c[((nv[:, 0] == 0.0) & (nv[:, 1] == 0.0)) | ((nv[:, 2] == 0.0)
-                                                           & (nv[:, 3] == 0.0))] = np.nan
-        signed = False
+        n0, n1, n2, n3 = nv.T
+        alpha_c = np.arctan2(n1 * n2 - n0 * n3, n0 * n2 + n1 * n3)
+        alpha_c[((n0 == 0.0) & (n1 == 0.0)) | ((n2 == 0.0) & (n3 == 0.0))] = np.nan
     valid = np.isfinite(alpha_c) & (w > 0)
     num_candidates = int(np.count_nonzero(valid))
     if num_candidates < config.min_inliers:
@@ -98,44 +92,50 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     a_v, w_v = alpha_c[valid_idx], w[valid_idx]
 
     exclusion = 6.0 * config.kernel_bins * histogram.TWO_PI / config.bins
-    alpha0, sharpness, ambiguity, bw = histogram.peak(a_v, w_v, config, exclusion)
-    near_alpha = np.abs(histogram.wrap(a_v - alpha0)) <= 3.0 * bw
+    alpha0, sharpness, ambiguity, bw, offsets = histogram.peak(a_v, w_v, config, exclusion)
+    near_alpha = np.abs(offsets) <= 3.0 * bw
     near_idx = thin(valid_idx[near_alpha])
-    b_near = beta_c[near_idx]
-    if not signed:
+    if nv is None:
+        b_near = beta_c[near_idx]
+    else:
+        b_near = np.arctan2(nv[near_idx, 3], nv[near_idx, 2])
         flip = _cheirality_flip(q1[near_idx], q2[near_idx], alpha_c[near_idx], b_near)
         b_near = histogram.wrap(b_near + np.pi * flip)
-    beta0, _, _, bw_b = histogram.peak(b_near, w[near_idx], config, exclusion)
+    beta0, _, _, bw_b, beta_offsets = histogram.peak(b_near, w[near_idx], config, exclusion)
+    beta_offsets = np.abs(beta_offsets)
 
     # Residual terms at the voted motion: the peak's members (near both modes) calibrate the
     # noise scales, and the resulting whitening is kept for a first refinement (the vote is
     # within a degree, where the first-order standard deviations barely change).
-    B = _ac_matrix(q1, q2, A)
-    rows = refine.design_rows(B)
+    rows = refine.design_rows(q1, q2, A)
     theta0 = alpha0 + beta0
-    r, g, h = refine.residual_terms(q1, q2, A, B, theta0, beta0)
-    beta_offsets = np.abs(histogram.wrap(b_near - beta0))
+    r, g, h = refine.residual_terms(q1, q2, A, rows, theta0, beta0)
     members = near_idx[beta_offsets <= 3.0 * bw_b]
     sp_cap = config.max_noise_factor * config.point_noise
     sa_cap = config.max_noise_factor * config.affine_noise
     sp, sa = refine.robust_scales(r[members], g[members], h[members])
     sp, sa = min(sp, sp_cap), min(sa, sa_cap)
-    wrows = refine.whiten_rows(rows, g, h, sp, sa)
+    # The rows are whitened in place (and rebuilt in the same buffer for the second round):
+    # with one scratch buffer for the fits, two arrays of the rows' size serve every step
+    # below (see `refine.select_and_refine` on why).
+    wrows, scratch = refine.whiten_rows(rows, g, h, sp, sa, out=rows), np.empty_like(rows)
     theta, beta, inliers, cov, rms = refine.select_and_refine(
-        wrows, w, theta0, beta0, config, passes=1, covariance=not config.refine)
+        wrows, w, theta0, beta0, config, passes=1, covariance=not config.refine,
+        scratch=scratch)
     if config.refine and np.count_nonzero(inliers) >= max(config.min_inliers, 4):
         # Second round: noise scales from the inliers at the refined motion (clean, so the
         # median is the right statistic), then the same selection and refinement again.
-        r, g, h = refine.residual_terms(q1, q2, A, B, theta, beta)
+        rows = refine.design_rows(q1, q2, A, out=wrows)
+        r, g, h = refine.residual_terms(q1, q2, A, rows, theta, beta)
         sample = thin(np.flatnonzero(inliers))
         sp, sa = refine.robust_scales(r[sample], g[sample], h[sample], quantile=0.5)
         sp, sa = min(sp, sp_cap), min(sa, sa_cap)
-        wrows = refine.whiten_rows(rows, g, h, sp, sa)
+        wrows = refine.whiten_rows(rows, g, h, sp, sa, out=rows)
         theta, beta, inliers, cov, rms = refine.select_and_refine(
-            wrows, w, theta, beta, config, clusters, passes=3)
+            wrows, w, theta, beta, config, clusters, passes=3, scratch=scratch)
     elif config.refine:
         _, _, _, cov, rms = refine.select_and_refine(wrows, w, theta, beta, config, clusters,
-                                                     passes=1)
+                                                     passes=1, scratch=scratch)
     motion = PlanarMotion(float(wrap_angle(theta - beta)), float(wrap_angle(beta)))
     num_inliers = int(np.count_nonzero(inliers))
     # The refined motion must stay in the voted peak: leaving it means the inliers' constraints
