@@ -66,21 +66,38 @@ def _epipolar_rows(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     return np.stack([-v2, u1 * v2, v1, -u2 * v1], axis=-1)
 
 
-def _ac_matrix(q1: np.ndarray, q2: np.ndarray, A: np.ndarray) -> np.ndarray:
-    u1, v1 = q1[:, 0], q1[:, 1]
-    u2, v2 = q2[:, 0], q2[:, 1]
+def _ac_rows(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, out: np.ndarray | None = None
+             ) -> np.ndarray:
+    """The rows of every AC's ``B`` (module docstring) transposed, ``(4, 3N)``: column
+    ``3 i + k`` is AC ``i``'s row ``k``; written into ``out`` when given. The one builder of the
+    AC constraints: `_ac_matrix` is a view of it, and the refinement keeps this layout."""
+    u1, v1, u2, v2 = q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1]
     a1, a2, a3, a4 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
-    B = np.empty((q1.shape[0], 3, 4))
-    B[:, 0] = _epipolar_rows(q1, q2)
-    B[:, 1, 0] = -a3
-    B[:, 1, 1] = v2 + a3 * u1
-    B[:, 1, 2] = 0.0
-    B[:, 1, 3] = -a1 * v1
-    B[:, 2, 0] = -a4
-    B[:, 2, 1] = a4 * u1
-    B[:, 2, 2] = 1.0
-    B[:, 2, 3] = -u2 - a2 * v1
-    return B
+    rows = np.empty((4, 3 * q1.shape[0])) if out is None else out
+    epi, aff1, aff2 = rows[:, 0::3], rows[:, 1::3], rows[:, 2::3]
+    np.negative(v2, out=epi[0])                           # [-v2, u1 v2, v1, -u2 v1]
+    np.multiply(u1, v2, out=epi[1])
+    epi[2] = v1
+    np.multiply(u2, v1, out=epi[3])
+    np.negative(epi[3], out=epi[3])
+    np.negative(a3, out=aff1[0])                          # [-a3, v2 + a3 u1, 0, -a1 v1]
+    np.multiply(a3, u1, out=aff1[1])
+    aff1[1] += v2
+    aff1[2] = 0.0
+    np.multiply(a1, v1, out=aff1[3])
+    np.negative(aff1[3], out=aff1[3])
+    np.negative(a4, out=aff2[0])                          # [-a4, a4 u1, 1, -u2 - a2 v1]
+    np.multiply(a4, u1, out=aff2[1])
+    aff2[2] = 1.0
+    np.multiply(a2, v1, out=aff2[3])
+    aff2[3] += u2
+    np.negative(aff2[3], out=aff2[3])
+    return rows
+
+
+def _ac_matrix(q1: np.ndarray, q2: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """``B`` ``(N, 3, 4)`` of every AC: a view of `_ac_rows`."""
+    return _ac_rows(q1, q2, A).T.reshape(-1, 3, 4)
 
 
 def planar_ac_matrix(q1: np.ndarray, q2: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -93,7 +110,7 @@ def planar_ac_matrix(q1: np.ndarray, q2: np.ndarray, A: np.ndarray) -> np.ndarra
     Returns:
         ``B``, shape ``(N, 3, 4)``: row 0 epipolar, rows 1-2 affine.
     """
-    return _ac_matrix(*_check_ac('q1', q1, 'q2', q2, A))
+    return np.ascontiguousarray(_ac_matrix(*_check_ac('q1', q1, 'q2', q2, A)))
 
 
 def _det3(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ import numpy as np
 
 from planar_vo.core.robust.options import VotingConfig
 from planar_vo.core.robust.stats import HALF_NORMAL_Q25, MAD_TO_SIGMA, lower_quantile
+from planar_vo.core.solvers import _ac_rows
 
 __all__ = [
     'cluster_covariance',
@@ -96,39 +97,17 @@ def whitened(r: np.ndarray, g: np.ndarray, h: np.ndarray, sp: float, sa: float) 
 
 def design_rows(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, out: np.ndarray | None = None
                 ) -> np.ndarray:
-    """The ACs' constraint rows (`planar_vo.core.solvers.planar_ac_matrix`) transposed,
-    ``(4, 3N)``: column ``3 i + k`` is AC ``i``'s row ``k``. Written straight into one array,
-    ``out`` when given (no ``(N, 3, 4)`` intermediate; see `select_and_refine` on large
-    arrays)."""
-    u1, v1, u2, v2 = q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1]
-    a1, a2, a3, a4 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
-    rows = np.empty((4, 3 * q1.shape[0])) if out is None else out
-    epi, aff1, aff2 = rows[:, 0::3], rows[:, 1::3], rows[:, 2::3]
-    np.negative(v2, out=epi[0])                           # [-v2, u1 v2, v1, -u2 v1]
-    np.multiply(u1, v2, out=epi[1])
-    epi[2] = v1
-    np.multiply(u2, v1, out=epi[3])
-    np.negative(epi[3], out=epi[3])
-    np.negative(a3, out=aff1[0])                          # [-a3, v2 + a3 u1, 0, -a1 v1]
-    np.multiply(a3, u1, out=aff1[1])
-    aff1[1] += v2
-    aff1[2] = 0.0
-    np.multiply(a1, v1, out=aff1[3])
-    np.negative(aff1[3], out=aff1[3])
-    np.negative(a4, out=aff2[0])                          # [-a4, a4 u1, 1, -u2 - a2 v1]
-    np.multiply(a4, u1, out=aff2[1])
-    aff2[2] = 1.0
-    np.multiply(a2, v1, out=aff2[3])
-    aff2[3] += u2
-    np.negative(aff2[3], out=aff2[3])
-    return rows
+    """The ACs' constraint rows transposed, ``(4, 3N)``: column ``3 i + k`` is AC ``i``'s row
+    ``k`` (`planar_vo.core.solvers._ac_rows`), written into ``out`` when given (see the module
+    docstring on large arrays)."""
+    return _ac_rows(q1, q2, A, out)
 
 
 def whiten_rows(rows: np.ndarray, g: np.ndarray, h: np.ndarray, sp: float, sa: float,
                 out: np.ndarray | None = None) -> np.ndarray:
     """`design_rows` ``(4, 3N)`` divided by their first-order standard deviations (the
     whitening of `whitened`, applied to the rows instead of the residuals); into ``out`` when
-    given (a buffer of the same shape, reused across calls: see `select_and_refine`)."""
+    given (a buffer of the same shape, reused across calls: see the module docstring)."""
     return np.divide(rows, np.sqrt(_variance(g, h, sp, sa).ravel()), out=out)
 
 
