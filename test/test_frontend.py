@@ -325,6 +325,52 @@ def test_extractor_reports_stage_counts(mild_pair):
     assert ex.stats['accepted'] == len(acs) <= ex.stats['fb_consistent'] <= ex.stats['candidates']
 
 
+def _turn_homography(yaw_deg: float) -> np.ndarray:
+    """Image 1 -> image 2 of a camera turning by ``yaw_deg`` (the infinite homography)."""
+    return K @ rotation_y(np.deg2rad(yaw_deg)) @ np.linalg.inv(K)
+
+
+@pytest.fixture(scope='module')
+def turn_pair():
+    return _homography_pair(_turn_homography(8.0), seed=4)
+
+
+@pytest.mark.parametrize('predicted_yaw', [8.0, 6.5, 0.0])
+def test_warped_extraction_gives_the_acs_of_the_given_images(turn_pair, predicted_yaw):
+    """A turn of 8 deg (35 px at the centre); the prediction exact, 1.5 deg off, or none: the
+    ACs are those of the original images, mapped back exactly, patches inside image 1."""
+    ex = ACExtractor()
+    acs = ex.extract_warped(*turn_pair, _turn_homography(predicted_yaw))
+    point, affine = _errors(acs, _turn_homography(8.0))
+    assert len(acs) > 250
+    assert np.median(point) < 0.05 and np.percentile(point, 95) < 0.15
+    assert np.median(affine) < 0.015 and np.percentile(affine, 95) < 0.04
+    margin = ex.config.patch_radius + 1
+    assert np.all((acs.p1 >= margin) & (acs.p1 <= np.array([W, H]) - 1 - margin))
+    assert ex.extract_more(lambda p: np.ones(len(p), bool)) is None
+
+
+def test_warped_extraction_by_the_identity_is_plain_extraction(mild_pair):
+    ex = ACExtractor()
+    plain = ex.extract(*mild_pair)
+    warped = ex.extract_warped(*mild_pair, np.eye(3))
+    margin = ex.config.patch_radius + 1
+    inside = np.all((plain.p1 >= margin) & (plain.p1 <= np.array([W, H]) - 1 - margin), axis=1)
+    assert 0 < len(warped) == inside.sum()
+    for name in ('p1', 'p2', 'A', 'weights'):
+        np.testing.assert_array_equal(getattr(warped, name), getattr(plain, name)[inside])
+
+
+@pytest.mark.parametrize(('Hmat', 'match'), [
+    (np.eye(2), r'H: expected a finite 3x3 homography, got shape \(2, 2\)'),
+    (np.full((3, 3), np.nan), r'H: expected a finite 3x3 homography'),
+    (np.diag([1.0, 1.0, 0.0]), r'H: expected an invertible homography, got condition number'),
+])
+def test_warped_extraction_rejects_a_bad_homography(mild_pair, Hmat, match):
+    with pytest.raises(InputError, match=match):
+        ACExtractor().extract_warped(*mild_pair, Hmat)
+
+
 @pytest.mark.parametrize(('image1', 'image2', 'match'), [
     ([[1, 2]], np.zeros((64, 64), np.uint8), r'image1: expected a numpy uint8 image array .* '
                                              r'got list'),

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import threading
 
+import cv2
 import numpy as np
 
 from planar_vo.config import FrontendConfig
 from planar_vo.core.correspondences import AffineCorrespondences
+from planar_vo.core.homography import homography_jacobian
 from planar_vo.errors import InputError
 from planar_vo.frontend.images import check_pair
 
@@ -66,6 +68,51 @@ class ACExtractor:
         self._last = extractor
         self.stats = dict(extractor.stats)
         return acs
+
+    def extract_warped(self, image1: np.ndarray, image2: np.ndarray, H: np.ndarray,
+                       method: str | None = None) -> AffineCorrespondences:
+        """ACs from ``image1`` to ``image2`` found after warping ``image1`` by ``H``.
+
+        ``H`` (3x3, pixels of image 1 -> image 2) predicts image 2, e.g. ``K R K^-1`` of the
+        rotation between the views: image 1 is resampled by it (bilinear), the ACs are extracted
+        between the warped image and image 2, and mapped back exactly (``p1 = H^-1(p1')``,
+        ``A = A' J_H(p1)``), so they are ACs between the given images whatever the prediction's
+        error; ACs whose patch would reach outside image 1 are dropped. Why: ACs extracted with
+        a turn's rotation left in the flow carry an affine bias that the focal self-calibration
+        turns into a focal length about 12 % short (`planar_vo.pipeline.calibration.focal`);
+        the odometry itself is not affected (measured, README Findings). ``extract_more`` is not
+        available after this call (its candidates would be in the warped image).
+
+        Raises:
+            InputError: ``H`` is not a finite, invertible 3x3 matrix; as `extract` otherwise.
+        """
+        H = np.asarray(H, dtype=np.float64)
+        if H.shape != (3, 3) or not np.all(np.isfinite(H)):
+            raise InputError(f'H: expected a finite 3x3 homography, got shape {H.shape}')
+        cond = np.linalg.cond(H)
+        if not (np.isfinite(cond) and cond < 1e12):
+            raise InputError(f'H: expected an invertible homography, got condition number '
+                             f'{cond:.3g}')
+        gray1, gray2 = check_pair(image1, image2)
+        height, width = gray1.shape
+        warped = cv2.warpPerspective(gray1, H, (width, height), flags=cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        acs = self.extract(warped, gray2, method)
+        self._last = None
+        H_inv = np.linalg.inv(H)
+
+        def back(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
+                return homography_jacobian(H_inv, p, with_points=True)
+
+        def same(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return p, np.broadcast_to(np.eye(2), (len(p), 2, 2))
+
+        acs = acs.transformed(back, same)
+        margin = self.config.patch_radius + 1
+        inside = ((acs.p1[:, 0] >= margin) & (acs.p1[:, 0] <= width - 1 - margin)
+                  & (acs.p1[:, 1] >= margin) & (acs.p1[:, 1] <= height - 1 - margin))
+        return acs if inside.all() else acs.subset(inside)
 
     def extract_more(self, select) -> AffineCorrespondences | None:
         """More ACs on the last pair where ``select(points) -> bool mask`` keeps candidates:
