@@ -31,7 +31,7 @@ from planar_vo.sim.drive import render_drive
 CAMERA = CameraModel.pinhole(640, 480, 500.0)
 HEIGHT = 1.65
 DRIVE = 'straight_turn'
-PIPELINE_RUNS = ('planar_vo', 'planar_vo_focal')
+PIPELINE_RUNS = ('planar_vo', 'planar_vo_focal', 'planar_vo_focal_pp')
 PEER_RUNS = tuple(f'{e}_{s}' for s in SOURCES for e in FIVE_POINT)
 
 
@@ -113,6 +113,11 @@ def test_planar_vo_runs_are_reported_with_their_focal_length(report):
     assert focal['settings'] == {'mount.height': HEIGHT, 'camera.estimate_focal': True}
     assert isinstance(focal['adopted'], bool) and focal['status'].startswith('focal length ')
     assert focal['in_use_px'] > 0 and focal['pairs'] >= 0
+    given = drive['focal']['principal_point_given']
+    assert given['settings'] == {'mount.height': HEIGHT, 'camera.estimate_focal': True,
+                                 'camera.cx': CAMERA.cx, 'camera.cy': CAMERA.cy}
+    assert given['in_use_px'] > 0 and given['status'].startswith('focal length ')
+    assert drive['runs']['planar_vo_focal_pp']['odometry_pct'] > 90.0
     six = drive['focal']['six_point']
     assert six['pairs'] == 14 and six['vote'] == 'median of the per-pair focal lengths'
     assert len(six['per_pair_px']) == 14

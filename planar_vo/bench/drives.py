@@ -299,6 +299,12 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
         # One pass over the bag's frames: the stamps, the focal run and the peers.
         true_steps = np.linalg.norm(np.diff(seq.poses[:, :3, 3], axis=0), axis=1)
         self_cal = FocalRun(PlanarVoConfig.from_flat(focal_settings)) if focal else None
+        # The same with the principal point given (what a user who knows it sets): the
+        # focal length's dependence on the assumed principal point, measured.
+        pp_settings = {**focal_settings, 'camera.cx': float(seq.P0[0, 2]),
+                       'camera.cy': float(seq.P0[1, 2])}
+        self_cal_pp = FocalRun(PlanarVoConfig.from_flat(pp_settings),
+                               label=FOCAL_PP_LABEL) if focal else None
         peer = (PeerOdometry(FIVE_POINT if peers else (), SOURCES if peers else (), focal=focal)
                 if peers or focal else None)
         stamps = []
@@ -308,6 +314,7 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
                 stamps.append(frame.stamp_ns)
                 if self_cal is not None:
                     self_cal.add(frame)
+                    self_cal_pp.add(frame)
                 if peer is not None:
                     peer.add(frame.image, frame.camera, true_steps[i - 1] if i else 0.0)
     stamps = np.array(stamps, dtype=np.int64)
@@ -318,6 +325,7 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
     runs = {'planar_vo': calibrated.aligned(stamps)}
     if self_cal is not None:
         runs['planar_vo_focal'] = self_cal.run.aligned(stamps)
+        runs['planar_vo_focal_pp'] = self_cal_pp.run.aligned(stamps)
     if peer is not None:
         runs.update(peer.runs(stamps))
     out = {
@@ -330,6 +338,8 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
     if focal:
         out['focal'] = {'self_calibrated': {'settings': focal_settings,
                                             **self_cal.summary(float(seq.P0[0, 0]))},
+                        'principal_point_given': {'settings': pp_settings,
+                                                  **self_cal_pp.summary(float(seq.P0[0, 0]))},
                         'six_point': peer.focal_summary(float(seq.P0[0, 0]))}
     return out
 
@@ -409,13 +419,18 @@ def replay_planar_vo(bag: Path, out: Path, config, *, progress: bool = False) ->
                           'replay_odometry': summary.odometry_out})
 
 
+FOCAL_LABEL = 'planar_vo, self-calibrated focal (no CameraInfo)'
+FOCAL_PP_LABEL = 'planar_vo, self-calibrated focal, principal point given (camera.cx, cy)'
+
+
 class FocalRun:
     """planar_vo without CameraInfo, self-calibrating its focal length, frame by frame."""
 
-    def __init__(self, config) -> None:
+    def __init__(self, config, label: str = FOCAL_LABEL) -> None:
         from planar_vo.pipeline import VisualOdometry
 
         self.config = config
+        self.label = label
         self.vo = VisualOdometry(config)
         self.stamps: list[float] = []
         self.results: list = []
@@ -429,8 +444,7 @@ class FocalRun:
 
     @property
     def run(self) -> OdometryRun:
-        return _pipeline_run('planar_vo, self-calibrated focal (no CameraInfo)',
-                             _scale_label(self.config), self.stamps, self.results,
+        return _pipeline_run(self.label, _scale_label(self.config), self.stamps, self.results,
                              {'focal_status': self.vo.focal_status()})
 
     def summary(self, true_focal: float) -> dict:
@@ -597,16 +611,22 @@ def focal_table(drive: dict) -> str:
 
     key, _ = _protocol(drive)
     true = drive['true_focal_px']
-    cal, self_cal = drive['runs']['planar_vo'], drive['runs']['planar_vo_focal']
-    f, six = drive['focal']['self_calibrated'], drive['focal']['six_point']
-    if f['adopted']:
-        status = f"self-calibrated at frame {f['adopted_at_frame']}"
-    else:
-        status = (f"not adopted ({f['pairs']} turning pairs in {f['blocks']} blocks); runs on "
-                  f"the provisional {f['in_use_px']:.1f} px")
+    cal = drive['runs']['planar_vo']
+    six = drive['focal']['six_point']
+
+    def status(f: dict) -> str:
+        if f['adopted']:
+            return f"self-calibrated at frame {f['adopted_at_frame']}"
         if not math.isfinite(f['focal_px']):
-            status = (f"no estimate (no turning pair); runs on the provisional "
-                      f"{f['in_use_px']:.1f} px")
+            return (f"no estimate (no turning pair); runs on the provisional "
+                    f"{f['in_use_px']:.1f} px")
+        return (f"not adopted ({f['pairs']} turning pairs in {f['blocks']} blocks); runs on "
+                f"the provisional {f['in_use_px']:.1f} px")
+
+    def self_calibrated(run: str, key: str) -> list[str]:
+        f, r = drive['focal'][key], drive['runs'][run]
+        return [r['label'], _fmt(f['focal_px'], 4), _fmt(f['error_pct']), status(f),
+                _fmt(f['std_px']), _fmt(f['error_over_std']), *odometry(r)]
 
     def odometry(r: dict) -> list[str]:
         return [_fmt(r['odometry_pct']), _fmt(_get(r, 'yaw_change_error_deg', 'mean')),
@@ -620,9 +640,8 @@ def focal_table(drive: dict) -> str:
     rows = [
         ['planar_vo, calibrated (CameraInfo)', _fmt(true, 4), '0', 'given', '-', '-',
          *odometry(cal)],
-        ['planar_vo, self-calibrated focal (no CameraInfo)', _fmt(f['focal_px'], 4),
-         _fmt(f['error_pct']), status, _fmt(f['std_px']), _fmt(f['error_over_std']),
-         *odometry(self_cal)],
+        self_calibrated('planar_vo_focal', 'self_calibrated'),
+        self_calibrated('planar_vo_focal_pp', 'principal_point_given'),
         [six['label'], _fmt(six['focal_px'], 4), _fmt(six['error_pct']),
          f"median of {six['pairs_with_focal']} of {six['pairs']} pairs (IQR {_fmt(q25)}-"
          f"{_fmt(q75)} px), {_fmt(six['estimator_ms_median'])} ms / pair", '-', '-',
@@ -711,16 +730,19 @@ def summary_table(results: dict) -> str:
         rows = []
         for name, drive in focal.items():
             f, six = drive['focal']['self_calibrated'], drive['focal']['six_point']
+            pp = drive['focal']['principal_point_given']
             status = (f"adopted at frame {f['adopted_at_frame']}" if f['adopted']
                       else 'provisional')
             rows.append([name, _fmt(drive['true_focal_px'], 4), _fmt(f['focal_px'], 4),
                          _fmt(f['error_pct']), status, _fmt(f['std_px']),
-                         _fmt(f['error_over_std']), _fmt(six['focal_px'], 4),
+                         _fmt(f['error_over_std']), _fmt(pp['focal_px'], 4),
+                         _fmt(pp['error_pct']), _fmt(pp['std_px']), _fmt(six['focal_px'], 4),
                          _fmt(six['error_pct'])])
         lines += ['', markdown_table(
             ['drive', 'true focal (px)', 'planar_vo self-calibrated (px)', 'error (%)', 'status',
-             'reported std (px)', 'abs. error / std', 'PoseLib six-point, median (px)',
-             'error (%)'], rows, 'lrrrlrrrr')]
+             'reported std (px)', 'abs. error / std', 'principal point given (px)',
+             'error (%)', 'reported std (px)', 'PoseLib six-point, median (px)', 'error (%)'],
+            rows, 'lrrrlrrrrrrr')]
     return '\n'.join(lines)
 
 
@@ -736,11 +758,12 @@ def method_notes(height: float) -> str:
     return '\n'.join([
         '## How the rows were run',
         '',
-        f'- **planar_vo** (both runs): the shipped defaults ({shipped}) plus the one setting a '
+        f'- **planar_vo** (every run): the shipped defaults ({shipped}) plus the one setting a '
         f'user of the car knows, mount.height {height:g} m. Calibrated: the drive imported '
         f'with import_kitti and replayed with replay_bag (CameraInfo from calib.txt). '
         f'Self-calibrated: the same frames without CameraInfo, camera.estimate_focal true; the '
-        f'principal point is then assumed at the image centre.',
+        f'principal point is then assumed at the image centre; "principal point given": the '
+        f'same with camera.cx and camera.cy from calib.txt (a user who knows them).',
         f'- **Five-point peers**, frame to frame, {THRESHOLD_PX:g} px threshold, on (a) the '
         f'point parts of the ACs our front-end (default FrontendConfig) extracts between '
         f'consecutive frames, (b) the same front-end\'s ACs without its per-frame budget '
