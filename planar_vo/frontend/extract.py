@@ -79,7 +79,7 @@ class ACExtractor:
         ``A = A' J_H(p1)``), so they are ACs between the given images whatever the prediction's
         error; ACs whose patch would reach outside image 1 are dropped. Why: ACs extracted with
         a turn's rotation left in the flow carry an affine bias that the focal self-calibration
-        turns into a focal length about 12 % short (`planar_vo.pipeline.calibration.focal`);
+        turns into a focal length 5-7 % shorter (KITTI 05, `planar_vo.pipeline.calibration.focal`);
         the odometry itself is not affected (measured, README Findings). ``extract_more`` is not
         available after this call (its candidates would be in the warped image).
 

@@ -580,7 +580,7 @@ class VisualOdometry:
         on KITTI 05 (the true principal point given): the frame's own ACs, found with the
         rotation in the flow, put the focal length 7.6 % short, the de-rotated ones 0.7 %; on
         the same turning pairs their affines disagree with the ground truth's motion by up to
-        0.011 on the side of the image the scene moves in from, against 0.002 (README
+        0.011 on one side of the image (x > 200 px from the centre), against 0.002 (README
         Findings). This costs a front-end run per turning pair (every other keyframe in a
         turn)."""
         current = self._keyframes.current

@@ -15,7 +15,7 @@ profile uses the calibrated 1AC machinery, unbiased at any trial focal length.
 The pairs' ACs are extracted with the turn taken out of the optical flow (the earlier keyframe
 warped by the odometry's rotation, `ACExtractor.extract_warped`): the frame's own ACs, found
 with the rotation in the flow, carry a small affine bias (up to 0.01 against the ground truth's
-motion on KITTI 05's turn) that the profiles turn into a focal length 7-13 % short.
+motion on KITTI 05's turn) that the profiles turn into a focal length 5-7 % shorter.
 """
 
 from __future__ import annotations
