@@ -168,7 +168,7 @@ class BagWriter:
                 raise BagError(f"out: {self.outcome}") from err
             finally:
                 self._remove_tmp()
-            self.kept = True
+            self.kept = True           # inside the block: a deferred stop signal comes after
 
     def discard(self, reason: str) -> None:
         """Remove the bag instead of finishing it: nothing is kept at `path`, and `outcome`
@@ -180,7 +180,7 @@ class BagWriter:
             with suppress(Exception):
                 writer.abort()
             self._remove_tmp()
-        self._failure = reason
+            self._failure = reason
 
     def _remove_tmp(self) -> None:
         tmp, self._tmp = self._tmp, None
@@ -242,7 +242,9 @@ class BagWriter:
                 self._failure = 'removed after a failed write'
                 raise BagError(f"out: cannot write to bag '{self.path}' ({_reason(err)})"
                                ) from err
-        self.counts[topic] += 1
+            # Counted inside the block: a stop signal deferred to its end must not leave a
+            # written message uncounted.
+            self.counts[topic] += 1
 
     def write_message(self, topic: str, log_time_ns: int, msg: Any) -> None:
         """Serialize a rosbags message of the topic's type and write it."""

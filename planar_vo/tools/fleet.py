@@ -35,7 +35,7 @@ tries again. Any other exception is a bug: a ``failed`` row naming it, not kept.
 
 Resuming: a job whose ``result.json`` matches it (same bag path, same bag files by size and
 modification time, same configuration) is skipped; anything else in its folder is a partial
-result and is deleted before the job runs again. Ctrl-C cancels the running tasks and writes
+result and is deleted before the job runs again. Ctrl-C stops the running tasks and writes
 the summary of the complete results.
 """
 
@@ -547,8 +547,14 @@ def _failure(ray, err: Exception, job: FleetJob, retries: int) -> dict | None:
 
 
 def _execute(ray, jobs: Sequence[FleetJob], todo: list[int], out_dir: Path, retries: int,
-             records: dict[int, dict], bar) -> bool:
-    """Submit the jobs `todo`, collect their records; True if interrupted by Ctrl-C."""
+             records: dict[int, dict], bar, cancel: bool) -> bool:
+    """Submit the jobs `todo`, collect their records; True if interrupted by Ctrl-C.
+
+    On Ctrl-C the tasks still running are cancelled only with ``cancel`` (a Ray the caller
+    started, which outlives the run). Otherwise ending the session stops them: Ray ends the
+    tasks of a driver that shuts down, and ``ray.cancel`` racing a task's completion can abort
+    the driver in Ray's core worker ("Tried to complete task that was not pending", seen once
+    in a CI run of the Ctrl-C test; ray-project/ray PR 54527 names the race)."""
     task = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=False)(run_job)
     refs = {task.options(name=f'planar_vo_fleet:{jobs[i].label}').remote(jobs[i], str(out_dir)):
             i for i in todo}
@@ -572,8 +578,9 @@ def _execute(ray, jobs: Sequence[FleetJob], todo: list[int], out_dir: Path, retr
                 elapsed = time.perf_counter() - start
                 bar.set_postfix_str(f'{frames / elapsed:.0f} frames/s, {failed} failed')
     except KeyboardInterrupt:
-        for ref in pending:
-            ray.cancel(ref, force=True)
+        if cancel:
+            for ref in pending:
+                ray.cancel(ref, force=True)
         return True
     return False
 
@@ -597,8 +604,9 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
         command: the command line, recorded in the report.
 
     Returns:
-        A `FleetRun`. Ctrl-C (KeyboardInterrupt) cancels the tasks still running and returns
-        with ``interrupted`` set, after writing the summary of the complete results.
+        A `FleetRun`. Ctrl-C (KeyboardInterrupt) stops the tasks still running (ending the
+        session, or cancelling them in a Ray the caller started) and returns with
+        ``interrupted`` set, after writing the summary of the complete results.
 
     Raises:
         DependencyError: Ray is missing (only checked when a job must run).
@@ -625,13 +633,16 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
     todo = [i for i in range(len(jobs)) if i not in records]
     if todo:
         t0 = time.perf_counter()
+        ray_module = sys.modules.get('ray')
+        callers = ray_module is not None and ray_module.is_initialized()
         with ray_session(address, workers, retries) as ray:
             run.ray_start_s = time.perf_counter() - t0
             bar = tqdm(total=len(jobs), initial=len(records), desc='fleet', unit='bag',
                        file=sys.stderr, disable=not progress, leave=False)
             t0 = time.perf_counter()
             try:
-                run.interrupted = _execute(ray, jobs, todo, out_dir, retries, records, bar)
+                run.interrupted = _execute(ray, jobs, todo, out_dir, retries, records, bar,
+                                           cancel=callers)
             finally:
                 run.tasks_s = time.perf_counter() - t0
                 bar.close()

@@ -35,6 +35,7 @@ from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import BagError, InputError, OutputError
 from planar_vo.io.images import CameraFrame, CameraFrameDecoder, resolve_camera_topics
+from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
 from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
 from planar_vo.pipeline.types import DropReason, FrameResult
@@ -279,10 +280,11 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                     reason = None if result.ok else getattr(result.reason, 'value',
                                                             str(result.reason))
                     if result.ok:
-                        writer.write(frame.stamp_ns, result.pose, result.pose_covariance,
-                                     result.twist, result.twist_covariance,
-                                     log_time_ns=frame.log_time_ns)
-                        poses.add(frame.stamp_ns, result.pose)
+                        with deferred_interrupts():    # the bag and the TUM poses agree
+                            writer.write(frame.stamp_ns, result.pose, result.pose_covariance,
+                                         result.twist, result.twist_covariance,
+                                         log_time_ns=frame.log_time_ns)
+                            poses.add(frame.stamp_ns, result.pose)
                         sources[str(getattr(result, 'scale_source', 'unknown'))] += 1
                     else:
                         _count_drop(dropped, reason, frame, result.message)

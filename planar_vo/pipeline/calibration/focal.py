@@ -163,10 +163,13 @@ class OnlineFocalCalibrator:
     uncalibrated and says so (`status`).
 
     Measured on KITTI 05 (one 90-deg turn, principal point at the image centre; `planar_vo bench
-    drives`): 617.2 +- 78.3 px (truth 707.1: -1.15 sigma), not adopted; an earlier version's
-    per-AC calibrator gave 603.7 +- 4.4 px there, adopted (-23 sigma).
+    drives`): 652.6 +- 68.4 px (truth 707.1: -0.80 sigma), not adopted; with the principal
+    point given 702.3 +- 44.9 px (-0.11 sigma). On the frame's own ACs (before the pairs were
+    de-rotated) it was 617.2 +- 78.3 px; an earlier version's per-AC calibrator gave 603.7 +-
+    4.4 px there, adopted (-23 sigma).
 
-    Where that bias comes from (dev scripts on the 19 KITTI 05 pairs): about half is the
+    Where the bias on the frame's own ACs came from (dev scripts on the 19 KITTI 05 pairs,
+    before the de-rotation): about half is the
     principal point (with the true one configured: 649.8 px, -8 %); the rest follows each
     turning pair's own rotation axis, tilted 1-14 deg from the vertical by the car's roll and
     pitch in the turn (the pipeline's per-pair estimates of that tilt agree with the ground
@@ -176,7 +179,11 @@ class OnlineFocalCalibrator:
     tilted less than 3-5 deg (the same focal length); profiles about each pair's estimated
     tilted axis (+3 % or -14 %, depending on how the roll is carried to other trial focal
     lengths); first-order re-levelling (moves it the wrong way); more Lucas-Kanade iterations
-    in the front-end (+0.5 %).
+    in the front-end (+0.5 %). Estimating the principal point along with the focal length:
+    the summed cost of the turn's pairs (ground-truth de-rotation and levelling, fixed noise
+    scales) varies by only 0.7 % over an assumed cx from -40 to +40 px of the true one, lowest
+    at +40 px, while the focal length at its minimum moves by about 3 px per px: the pairs do not
+    identify the principal point.
 
     Args:
         width, height: image size (pixels).
