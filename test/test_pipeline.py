@@ -322,6 +322,57 @@ def test_first_steps_yaw_is_widened_by_the_nominal_accuracy_until_the_excess_is_
     assert np.all(growth[11:] < 0.2 * nominal), growth[11:]
 
 
+def test_first_steps_heading_nominal_is_the_shared_error_read_as_a_turn_of_travel():
+    """Before the heading's excess can be measured, the nominal AC accuracy ``d`` is carried to
+    the direction of travel as ``d sum(b/Z) / sum((b/Z)^2)`` over the inliers (``b/Z``: the
+    baseline over each point's distance from the second camera), exactly on noise-free
+    geometry; points within 3 deg of the epipole carry no depth and are left out."""
+    import dataclasses
+
+    from planar_vo.core.correspondences import AffineCorrespondences
+    from planar_vo.core.robust.general import tangent_basis
+    from planar_vo.pipeline.estimator import FrameEstimate
+
+    rng = np.random.default_rng(3)
+    n, b = 200, 0.8
+    X1 = np.column_stack([rng.uniform(-8, 8, n), rng.uniform(-2, 1.5, n), rng.uniform(4, 60, n)])
+    X1[:5] = [[0.0, 0.0, 20.0], [0.1, 0.0, 30.0], [0.0, -0.2, 15.0], [0.3, 0.1, 50.0],
+              [0.0, 0.0, 10.0]]                           # near the epipole: left out
+    R = np.eye(3)
+    t = np.array([0.0, 0.0, -b])                          # X2 = R X1 + t: straight ahead
+    X2 = X1 @ R.T + t
+    q1, q2 = X1[:, :2] / X1[:, 2:], X2[:, :2] / X2[:, 2:]
+    inliers = np.ones(n, bool)
+    inliers[-20:] = False                                 # outliers do not count
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}))
+    vo._norm = AffineCorrespondences(q1, q2, np.broadcast_to(np.eye(2), (n, 2, 2)).copy())
+    est = FrameEstimate(R, t / b, np.eye(5), np.zeros((3, 2)), inliers, True, None,
+                        (0.0, 0.0, True), {})
+    distance = np.linalg.norm(X2, axis=1)
+    # The angle at the first camera between the point and the second camera (straight ahead).
+    off_axis = np.linalg.norm(np.cross(X1 / np.linalg.norm(X1, axis=1)[:, None],
+                                       [0.0, 0.0, 1.0]), axis=1)
+    keep = inliers & (off_axis > 0.05)
+    assert np.count_nonzero(inliers & ~keep) >= 5
+    p = b / distance[keep]
+    expected = vo.config.voting.point_noise * p.sum() / (p @ p)
+    assert np.sqrt(vo._heading_nominal(est)) == pytest.approx(expected, rel=1e-9)
+    # The first steps' direction covariance carries it: the heading's variance grows by it.
+    est.basis = tangent_basis(est.t)
+    R_lc = vo._estimator.R_lc
+    x, _, z = -(R_lc @ est.t)
+    g = (R_lc.T @ np.array([z, 0.0, -x]) / (x * x + z * z)) @ -est.basis
+    grown = vo._motion_covariance(est, 0.1)[3:5, 3:5] - est.cov[3:5, 3:5]
+    assert g @ grown @ g == pytest.approx(expected ** 2, rel=1e-9)
+    # Faster (a longer baseline at the same depths): the same shared error is a smaller turn.
+    X2 = X1 + 2 * t
+    vo._norm = dataclasses.replace(vo._norm, p2=X2[:, :2] / X2[:, 2:])
+    assert vo._heading_nominal(est) < 0.6 * expected ** 2
+    # No inlier away from the epipole: nothing to carry it by.
+    est.inliers = np.zeros(n, bool)
+    assert vo._heading_nominal(est) == 0.0
+
+
 def test_flat_output_keeps_x_y_yaw_and_states_the_flat_world():
     config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
                                        'odometry': {'output': 'flat'}})
