@@ -594,7 +594,8 @@ class VisualOdometry:
         n2 = np.linalg.norm(d2, axis=1)
         sin_parallax = np.linalg.norm(np.cross(d1, d2), axis=1) / (n1 * n2)
         # b / Z of each inlier away from the epipole (where both sines vanish).
-        inverse = sin_parallax[sin_centre > _EPIPOLE_SIN] / sin_centre[sin_centre > _EPIPOLE_SIN]
+        away = sin_centre > _EPIPOLE_SIN
+        inverse = sin_parallax[away] / sin_centre[away]
         power = float(inverse @ inverse)
         if not power > 0:
             return 0.0

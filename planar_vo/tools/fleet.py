@@ -634,7 +634,7 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
     if todo:
         t0 = time.perf_counter()
         ray_module = sys.modules.get('ray')
-        callers = ray_module is not None and ray_module.is_initialized()
+        callers_ray = ray_module is not None and ray_module.is_initialized()
         with ray_session(address, workers, retries) as ray:
             run.ray_start_s = time.perf_counter() - t0
             bar = tqdm(total=len(jobs), initial=len(records), desc='fleet', unit='bag',
@@ -642,7 +642,7 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
             t0 = time.perf_counter()
             try:
                 run.interrupted = _execute(ray, jobs, todo, out_dir, retries, records, bar,
-                                           cancel=callers)
+                                           cancel=callers_ray)
             finally:
                 run.tasks_s = time.perf_counter() - t0
                 bar.close()
