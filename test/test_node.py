@@ -262,9 +262,10 @@ def write_faulty_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
     """A bag of the drive's first 30 frames with faults injected, in this order (F3 = frame 3):
 
     no camera info for F0-F2, then camera info with every image: F0 and F1 are no_camera_info,
-    F2 waits in the node's slot for the first CameraInfo (it comes 50 ms before F3: DDS does not
-    order two topics, and with the 1 us lead of a driver F3 itself overtook it on a loaded
-    machine, so F2 was counted no_camera_info) and starts the keyframe chain; F6 as 32FC1 and
+    F2 waits for the first CameraInfo (it comes 50 ms before F3; DDS does not order two topics,
+    and on a loaded machine F3 overtook it, so the node lets F2 wait for F3's CameraInfo even
+    then: `test_images_wait_for_the_first_camera_info_whatever_the_order_of_arrival`) and starts
+    the keyframe chain; F6 as 32FC1 and
     F7 as yuv422 (bad_image x2); a camera info with K all zeros before F8 (ignored, the last
     valid one stays); F9 black and F10 saturated (blank_image x2); F12 twice (duplicate_stamp);
     after F13 the image of F11 again (out_of_order); F14 and F15 missing (a gap); F18 at half
@@ -743,6 +744,40 @@ def test_frames_stamped_1_ns_apart_are_not_duplicates(local_node, drive_bag):
     assert [s['result'] for s in statuses(node)] == ['first_frame', 'ok', 'ok', 'ok']
     assert [stamp_to_ns(m.header.stamp) for m in node.published['odom']] == \
         [t0 + 1, t0 + 2, t0 + 3]
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize('order', ['info_first', 'image_first', 'two_images_first'])
+def test_images_wait_for_the_first_camera_info_whatever_the_order_of_arrival(
+        local_node, drive_bag, order):
+    """F0-F2 come without CameraInfo, F3-F5 each with one of their own stamp. However DDS
+    interleaves the two topics (F3's CameraInfo before F3, after it, or after F4 too), F0 and F1
+    are counted no_camera_info, F2 (the newest image before the first CameraInfo) starts the
+    keyframe chain with it, and F3-F5 are ok, each status in stamp order."""
+    import copy
+
+    node = local_node(MOUNT_PARAMS)
+    info, images = _bag_messages(drive_bag, 6)
+    infos = {}
+    for i in (3, 4, 5):
+        infos[i] = copy.deepcopy(info)
+        infos[i].header.stamp = images[i].header.stamp
+    sequence = {
+        'info_first': ['F0', 'F1', 'F2', 'I3', 'F3', 'I4', 'F4', 'I5', 'F5'],
+        'image_first': ['F0', 'F1', 'F2', 'F3', 'I3', 'F4', 'I4', 'F5', 'I5'],
+        'two_images_first': ['F0', 'F1', 'F2', 'F3', 'F4', 'I3', 'I4', 'I5', 'F5'],
+    }[order]
+    for item in sequence:
+        k = int(item[1])
+        if item[0] == 'I':
+            node._on_camera_info(infos[k])
+        else:
+            node._on_image(images[k])
+    node.flush_pending()
+    assert [(int(s['stamp_ns']), s['result']) for s in statuses(node)] == [
+        (stamp_to_ns(images[k].header.stamp), result) for k, result in enumerate(
+            ['no_camera_info', 'no_camera_info', 'first_frame', 'ok', 'ok', 'ok'])]
+    assert len(node.published['odom']) == 3
 
 
 def test_a_new_frame_rate_is_learned_not_counted_as_lost_frames(local_node):

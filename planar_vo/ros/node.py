@@ -140,6 +140,9 @@ _PERIOD_WINDOW = 20
 # Gaps in a row of lengths within this share of their median are a new frame rate.
 _RATE_CHANGE_GAPS, _RATE_CHANGE_SPREAD = 3, 0.2
 _INT64_MAX = 2 ** 63 - 1
+# Images that may wait for the first CameraInfo: the one it was published with may come after
+# the next images on a loaded machine (DDS does not order two topics).
+_PENDING_IMAGES = 3
 # The QoS policies the subscriptions let `qos_overrides.*` change, and the values rclpy knows.
 _QOS_POLICIES = tuple(kind.name.lower() for kind in
                       QoSOverridingOptions.with_default_policies().policy_kinds)
@@ -250,7 +253,7 @@ class PlanarVoNode(Node):
             self._image_sub = self.create_subscription(
                 Image, 'image', self._on_image, qos_profile=sensor_qos(),
                 qos_overriding_options=overriding)
-        self._pending: tuple | None = None
+        self._pending: list[tuple] = []       # images waiting for the first CameraInfo
         # With estimate_focal the pipeline runs without CameraInfo: no image waits for one.
         camera = self.config.camera
         self._expects_camera_info = camera.fx <= 0 and not camera.estimate_focal
@@ -440,23 +443,38 @@ class PlanarVoNode(Node):
                                            mono16_shift=self._mono16_shift))
 
     def _image(self, msg: Image | CompressedImage, decode) -> None:
-        """Until the first CameraInfo has arrived, an image waits in one slot for it: a driver
-        publishes both with the same stamp but DDS does not order two topics, so the first image
-        may arrive first. It runs when the CameraInfo comes, or as soon as another image does
-        (then counted ``no_camera_info``, like every image that finds no camera model)."""
+        """Until the first CameraInfo has arrived, images wait for it (at most
+        ``_PENDING_IMAGES``, the oldest counted ``no_camera_info`` when another arrives): a driver
+        publishes both with the same stamp, but DDS does not order two topics, so an image may
+        arrive before its CameraInfo, and on a loaded machine the next image may too. When the
+        first CameraInfo comes (`_on_camera_info`), the image with its stamp and the newest one
+        before it run with it; older waiting images are counted ``no_camera_info``, like every
+        image that finds no camera model."""
         self._last_image = time.monotonic()
         if self._camera is None and self._expects_camera_info:
-            self.flush_pending()
-            self._pending = (msg, decode)
+            if len(self._pending) >= _PENDING_IMAGES:
+                self._frame(*self._pending.pop(0))
+            self._pending.append((msg, decode))
             return
         self.flush_pending()
         self._frame(msg, decode)
 
     def flush_pending(self) -> None:
-        """Process the image waiting for the first CameraInfo, if any."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            self._frame(*pending)
+        """Process the images waiting for the first CameraInfo, if any, in arrival order."""
+        pending, self._pending = self._pending, []
+        for item in pending:
+            self._frame(*item)
+
+    def _release_pending(self, info_stamp_ns: int) -> None:
+        """The first CameraInfo (stamp ``info_stamp_ns``) has arrived, before its camera model
+        is set: the waiting images older than the newest one stamped before it never get one
+        (counted ``no_camera_info`` now); the rest wait for `flush_pending`."""
+        stamps = [stamp_to_ns(msg.header.stamp) for msg, _ in self._pending]
+        before = [k for k, s in enumerate(stamps) if s < info_stamp_ns]
+        stale = set(before[:-1])
+        for k in sorted(stale):
+            self._frame(*self._pending[k])
+        self._pending = [item for k, item in enumerate(self._pending) if k not in stale]
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
@@ -467,6 +485,8 @@ class PlanarVoNode(Node):
                 'no valid camera model yet'
             self._warn('camera_info', f'ignoring camera_info: {err}; {kept}')
             return
+        if self._camera is None and self._pending:
+            self._release_pending(stamp_to_ns(msg.header.stamp))
         if camera != self._camera and self._camera is not None:
             # Rate-limited: two drivers publishing on one topic change it every message.
             self._counters['camera_changes'] += 1
