@@ -342,29 +342,11 @@ class MotionEstimator:
         q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
         n = len(acs)
         sp, sa = coarse
-        _, chi2_0, _, R0, t0 = best_start
         pick = (np.linspace(0, n - 1, _SCREEN_SIZE).astype(np.intp) if n > _SCREEN_SIZE
                 else np.arange(n))
         sample, Ms = acs.subset(pick), M[pick]
         qs1, qs2, As, ws = sample.p1, sample.p2, sample.A, sample.weights
-        # (a) Graduated non-convexity from the best start: scales several times those measured
-        # at the start (inliers of a start ~1 deg off are not yet down-weighted), halved every
-        # round down to the first answer's.
-        active = (chi2_0 <= GATE) & (w > 0)
-        E0 = essential(R0, t0)
-        g0, h0 = residual_variances(E0, q1, q2, A)
-        r0 = (M.reshape(-1, 9) @ E0.ravel()).reshape(n, 3)
-        spg, sag = noise_scales(r0, g0, h0, active)
-        spg, sag = _GNC_INFLATION * max(spg, sp), _GNC_INFLATION * max(sag, sa)
-        target = (min(first.sp, sp), min(first.sa, sa))
-        annealed = {'shrink': 0.5, 'target': target}
-        # (b) The same rotation with straight-ahead travel: a start on the other side of the
-        # rotation-translation (bas-relief) valley.
-        forward = -R0 @ (self.R_lc.T @ np.array([0.0, 0.0, 1.0]))
-        starts = [('gnc', R0, t0, spg, sag, annealed),
-                  ('forward', R0, forward, spg, sag, annealed)]
-        if revote_only:
-            starts = []
+        starts = [] if revote_only else self._restarts(acs, M, best_start, first, coarse)
         # (c) Sequential consensus: a vote on the ACs the first answer leaves unexplained.
         rest = w * ~first.inliers
         if np.count_nonzero(rest) >= self.config.min_inliers:
@@ -410,6 +392,28 @@ class MotionEstimator:
                     q1, q2, A, w, found.R, found.t, active, found.sp, found.sa,
                     prior=prior, config=self.config, M=M)))
         return answers, screened
+
+    def _restarts(self, acs, M, best_start, first, coarse) -> list:
+        """Second hypotheses (a) and (b) of `_second_hypotheses`: ``(label, R, t, sp, sa,
+        schedule)``."""
+        q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
+        sp, sa = coarse
+        _, chi2_0, _, R0, t0 = best_start
+        # (a) Graduated non-convexity from the best start: scales several times those measured
+        # at the start (inliers of a start ~1 deg off are not yet down-weighted), halved every
+        # round down to the first answer's.
+        active = (chi2_0 <= GATE) & (w > 0)
+        E0 = essential(R0, t0)
+        g0, h0 = residual_variances(E0, q1, q2, A)
+        r0 = (M.reshape(-1, 9) @ E0.ravel()).reshape(len(acs), 3)
+        spg, sag = noise_scales(r0, g0, h0, active)
+        spg, sag = _GNC_INFLATION * max(spg, sp), _GNC_INFLATION * max(sag, sa)
+        target = (min(first.sp, sp), min(first.sa, sa))
+        annealed = {'shrink': 0.5, 'target': target}
+        # (b) The same rotation with straight-ahead travel: a start on the other side of the
+        # rotation-translation (bas-relief) valley.
+        forward = -R0 @ (self.R_lc.T @ np.array([0.0, 0.0, 1.0]))
+        return [('gnc', R0, t0, spg, sag, annealed), ('forward', R0, forward, spg, sag, annealed)]
 
     def _decide(self, acs, M, answers, prior, vote, vstats, screened=0) -> FrameEstimate:
         """The winning answer, its reliability, and the state update."""
