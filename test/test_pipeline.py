@@ -580,6 +580,35 @@ def test_lost_tracking_restarts_on_the_next_real_frame_with_inflated_covariance(
     assert abs(step - true_step) < 0.1 * true_step
 
 
+@pytest.mark.parametrize('after_loss', [False, True])
+def test_a_chain_started_on_a_garbled_frame_restarts_at_the_next_frame(after_loss):
+    """Noise is not blank, so a garbled frame can start a keyframe chain (the first frame, or
+    the first after lost tracking). No real frame can match it: the first one that finds no
+    correspondences with it drops it, and the frame after that starts a new chain, instead of
+    max_lost_frames (5) more frames lost against the noise."""
+    trajectory, images, _ = _drive('straight')
+    stamps = [float(t) for t in trajectory.stamps]
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'odometry': {'max_lost_frames': 2}})
+    vo = VisualOdometry(config, CAMERA)
+    rng = np.random.default_rng(0)
+    k = 0
+    if after_loss:
+        for k in range(3):
+            assert vo.process(images[k], stamps[k]).ok or k == 0
+        for k in range(3, 5):                       # lost tracking: noise twice
+            assert not vo.process(rng.integers(0, 255, (480, 640), np.uint8), stamps[k]).ok
+        k = 5
+    start = vo.process(rng.integers(0, 255, (480, 640), np.uint8), stamps[k])
+    assert start.reason is (DropReason.REINITIALISED if after_loss else DropReason.FIRST_FRAME)
+    lost = vo.process(images[k + 1], stamps[k + 1])
+    assert lost.reason is DropReason.TOO_FEW_CORRESPONDENCES
+    assert 'first keyframe matched nothing' in lost.message
+    again = vo.process(images[k + 2], stamps[k + 2])
+    assert again.reason is DropReason.REINITIALISED
+    assert all(vo.process(images[i], stamps[i]).ok for i in range(k + 3, k + 6))
+
+
 def test_a_camera_model_change_restarts_the_chain_only_when_the_image_moves():
     # A recalibration that moves the image by a hundredth of a pixel keeps the keyframe chain:
     # every frame is tracked. A model that moves it by pixels (fx 500 -> 520) starts a new

@@ -30,6 +30,9 @@ class Keyframe:
         bias: ``(3,)`` the position error (m, world frame) one standard deviation of the
             steps' shared scale errors makes (`VisualOdometry._road_step`).
         age: frames tracked against it so far.
+        matched: a later frame found correspondences with it, or it was itself tracked (a
+            keyframe of a running chain); False for a chain's first keyframe until a frame
+            matches it.
     """
 
     image: np.ndarray
@@ -39,6 +42,7 @@ class Keyframe:
     index: int
     bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     age: int = 0
+    matched: bool = True
 
 
 class KeyframeChain:

@@ -322,6 +322,7 @@ class VisualOdometry:
             return self._lost_frame(stamp, DropReason.TOO_FEW_CORRESPONDENCES,
                                     f'{len(acs)} correspondences (minimum '
                                     f'{self.config.odometry.min_correspondences})', len(acs))
+        keyframe.matched = True
         parallax = float(np.median(np.linalg.norm(acs.p2 - acs.p1, axis=1)))
         if parallax < self.config.keyframe.stationary_parallax:
             return self._stationary(keyframe, stamp, len(acs))
@@ -790,9 +791,11 @@ class VisualOdometry:
     def _lost_frame(self, stamp: float, reason: DropReason, message: str, count: int,
                     inliers: int = 0) -> FrameResult:
         """No update from this frame. After ``odometry.max_lost_frames`` in a row the keyframe
-        is dropped: the next usable frame starts a new keyframe chain (`_restart_chain`). The
+        is dropped: the next usable frame starts a new keyframe chain (`_start_chain`). The
         failed frame itself never becomes the keyframe, since it may be the cause (a blank or
-        garbled image would leave the next real frame without correspondences)."""
+        garbled image would leave the next real frame without correspondences). A chain's first
+        keyframe that the first frame after it finds no correspondences with is dropped at once:
+        it may be the garbled one."""
         if self._keyframes.current is None and not self._restart:
             return self._drop(stamp, reason, message, count, inliers)
         self._lost += 1
@@ -800,7 +803,15 @@ class VisualOdometry:
         if keyframe is not None:
             keyframe.age += 1
         self._state = TrackingState.LOST
-        if self._lost >= self.config.odometry.max_lost_frames and not self._restart:
+        if (reason is DropReason.TOO_FEW_CORRESPONDENCES and keyframe is not None
+                and not keyframe.matched and not self._restart):
+            # A chain's first keyframe that no frame has matched may itself be garbled (noise
+            # is not blank): the next frames could never match it either.
+            self._keyframes.clear()
+            self._restart = 'a first keyframe that no frame matched'
+            message += ('; the new chain\'s first keyframe matched nothing: the next usable '
+                        'frame starts a new keyframe chain')
+        elif self._lost >= self.config.odometry.max_lost_frames and not self._restart:
             self._keyframes.clear()
             self._restart = 'lost tracking'
             message += '; tracking lost: the next usable frame starts a new keyframe chain'
@@ -823,7 +834,8 @@ class VisualOdometry:
             reason, message = (DropReason.TIME_JUMP_BACK,
                                f'time jumped back to {stamp:.9f}: tracking reset, pose at the '
                                f'origin, new keyframe chain')
-        self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov, self._bias)
+        self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov,
+                            self._bias).matched = False
         self._state = (TrackingState.TRACKING if reason is DropReason.FIRST_FRAME
                        else TrackingState.REINITIALISED)
         self._restart = ''
