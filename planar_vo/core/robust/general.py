@@ -32,6 +32,7 @@ data. The result carries the 5x5 covariance of ``(w, d)``.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -173,14 +174,19 @@ def _essential_jacobian(R: np.ndarray, t: np.ndarray, B: np.ndarray) -> np.ndarr
     """``d vec(E) / d(w, d)`` (9, 5) for ``R <- exp([w]x) R``, ``t <- t + B d``.
 
     ``[t]x [e_k]x = e_k t^T - t_k I``, so ``dE/dw_k = e_k (t^T R) - t_k R``; ``dE/dd_m =
-    [B_m]x R``.
+    [B_m]x R``. Built from few numpy calls: at this size their overhead is the cost.
     """
-    D = np.empty((3, 3, 5))
-    D[:, :, :3] = -np.multiply.outer(R, t)
-    D[np.arange(3), :, np.arange(3)] += t @ R
-    D[:, :, 3] = skew(B[:, 0]) @ R
-    D[:, :, 4] = skew(B[:, 1]) @ R
-    return D.reshape(9, 5)
+    D = np.empty((9, 5))
+    D[:, :3] = np.multiply.outer(R.ravel(), -t)
+    tR = t @ R
+    D[0:3, 0] += tR
+    D[3:6, 1] += tR
+    D[6:9, 2] += tR
+    (x0, x1), (y0, y1), (z0, z1) = B.tolist()
+    S = np.array([[[0.0, -z0, y0], [z0, 0.0, -x0], [-y0, x0, 0.0]],
+                  [[0.0, -z1, y1], [z1, 0.0, -x1], [-y1, x1, 0.0]]])
+    D[:, 3:] = (S @ R).reshape(2, 9).T
+    return D
 
 
 # --------------------------------------------------------------------------------------------
@@ -222,15 +228,23 @@ class PlanarPrior:
         ``d c / d w = -R^T [t]x``, ``d c / d d = -R^T B`` (camera-1 frame), rotated by ``R_lc``.
         """
         terms = self.level_terms(R, t)
-        s = np.array([self.sigma_rot, self.sigma_rot, self.sigma_elev])
+        inv = self._inverse_sigmas
+        M = self.R_lc @ R.T
+        c = -(M @ t)
+        tx, ty, tz = t.tolist()
+        (b00, b01), (b10, b11), (b20, b21) = B.tolist()
+        dc = -(M @ np.array([[0.0, -tz, ty, b00, b01], [tz, 0.0, -tx, b10, b11],
+                             [-ty, tx, 0.0, b20, b21]]))
         J = np.zeros((3, 5))
         J[0, :3] = self.R_lc[0]
         J[1, :3] = self.R_lc[2]
-        c = -self.R_lc @ (R.T @ t)
-        dc = np.concatenate([-self.R_lc @ R.T @ skew(t), -self.R_lc @ R.T @ B], axis=1)
         J[2] = (dc[1] - c[1] * (c @ dc)) / max(math.sqrt(max(1.0 - c[1] ** 2, 1e-12)), 1e-6)
-        inv = np.where(np.isfinite(s), 1.0 / s, 0.0)
         return (terms - self.mean) * inv, J * inv[:, None]
+
+    @functools.cached_property
+    def _inverse_sigmas(self) -> np.ndarray:
+        s = np.array([self.sigma_rot, self.sigma_rot, self.sigma_elev])
+        return np.where(np.isfinite(s), 1.0 / s, 0.0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -321,19 +335,24 @@ def _minimize_form(G: np.ndarray, R: np.ndarray, t: np.ndarray, prior: PlanarPri
             f += float(p @ p)
         return f
 
-    f = cost(R, t, delta)
+    e = essential(R, t).ravel()
+    f = float(e @ G @ e) + (float(p0 @ p0) if prior is not None else 0.0)
     H = np.zeros((5, 5))
-    for _ in range(_GN_STEPS):
+    for k in range(_GN_STEPS):
+        if k:
+            B = tangent_basis(t)
+            e = essential(R, t).ravel()
         D = _essential_jacobian(R, t, B)
-        e = essential(R, t).ravel()
         GD = G @ D
         H = D.T @ GD
         grad = GD.T @ e
         if prior is not None:
             H = H + Hp
             grad = grad + Jp.T @ (p0 + Jp @ delta)
+        Hr = H.copy()
+        Hr.flat[::6] += 1e-12 * np.trace(H)
         try:
-            step = -np.linalg.solve(H + 1e-12 * np.trace(H) * np.eye(5), grad)
+            step = -np.linalg.solve(Hr, grad)
         except np.linalg.LinAlgError:
             break
         for _ in range(5):
@@ -348,7 +367,6 @@ def _minimize_form(G: np.ndarray, R: np.ndarray, t: np.ndarray, prior: PlanarPri
             break
         R, t, f = Rn, tn, fn
         delta = delta + step
-        B = tangent_basis(t)
         if float(np.abs(step).max()) < _STEP_TOLERANCE:
             break
     return R, t, H
