@@ -581,32 +581,46 @@ def test_lost_tracking_restarts_on_the_next_real_frame_with_inflated_covariance(
 
 
 @pytest.mark.parametrize('after_loss', [False, True])
-def test_a_chain_started_on_a_garbled_frame_restarts_at_the_next_frame(after_loss):
+def test_a_chain_started_on_a_garbled_frame_restarts_after_two_misses(after_loss):
     """Noise is not blank, so a garbled frame can start a keyframe chain (the first frame, or
-    the first after lost tracking). No real frame can match it: the first one that finds no
-    correspondences with it drops it, and the frame after that starts a new chain, instead of
-    max_lost_frames (5) more frames lost against the noise."""
+    the first after lost tracking). No real frame can match it: when the first two frames after
+    it find no correspondences with it, it is dropped and the next frame starts a new chain,
+    instead of max_lost_frames (5) frames lost against the noise."""
     trajectory, images, _ = _drive('straight')
     stamps = [float(t) for t in trajectory.stamps]
-    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
-                                       'odometry': {'max_lost_frames': 2}})
-    vo = VisualOdometry(config, CAMERA)
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
     rng = np.random.default_rng(0)
     k = 0
     if after_loss:
         for k in range(3):
             assert vo.process(images[k], stamps[k]).ok or k == 0
-        for k in range(3, 5):                       # lost tracking: noise twice
+        for k in range(3, 8):                       # lost tracking: noise five times
             assert not vo.process(rng.integers(0, 255, (480, 640), np.uint8), stamps[k]).ok
-        k = 5
+        k = 8
     start = vo.process(rng.integers(0, 255, (480, 640), np.uint8), stamps[k])
     assert start.reason is (DropReason.REINITIALISED if after_loss else DropReason.FIRST_FRAME)
-    lost = vo.process(images[k + 1], stamps[k + 1])
-    assert lost.reason is DropReason.TOO_FEW_CORRESPONDENCES
-    assert 'first keyframe matched nothing' in lost.message
-    again = vo.process(images[k + 2], stamps[k + 2])
+    first = vo.process(images[k + 1], stamps[k + 1])
+    assert first.reason is DropReason.TOO_FEW_CORRESPONDENCES
+    assert 'matched nothing' not in first.message
+    second = vo.process(images[k + 2], stamps[k + 2])
+    assert second.reason is DropReason.TOO_FEW_CORRESPONDENCES
+    assert 'first keyframe matched nothing' in second.message
+    again = vo.process(images[k + 3], stamps[k + 3])
     assert again.reason is DropReason.REINITIALISED
-    assert all(vo.process(images[i], stamps[i]).ok for i in range(k + 3, k + 6))
+    assert all(vo.process(images[i], stamps[i]).ok for i in range(k + 4, k + 7))
+
+
+def test_one_garbled_frame_after_a_chain_starts_leaves_its_keyframe():
+    """The other order: a real first keyframe, then one garbled frame. The keyframe is kept
+    (one frame without correspondences may be the garbled one itself), and the next real frame
+    is tracked against it."""
+    trajectory, images, _ = _drive('straight')
+    stamps = [float(t) for t in trajectory.stamps]
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    assert vo.process(images[0], stamps[0]).reason is DropReason.FIRST_FRAME
+    noise = np.random.default_rng(0).integers(0, 255, (480, 640), np.uint8)
+    assert vo.process(noise, stamps[1]).reason is DropReason.TOO_FEW_CORRESPONDENCES
+    assert all(vo.process(images[i], stamps[i]).ok for i in range(2, 5))
 
 
 def test_a_camera_model_change_restarts_the_chain_only_when_the_image_moves():

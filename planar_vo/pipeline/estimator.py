@@ -14,17 +14,17 @@ the current mount tilt ``R_lc``, camera -> level camera):
    every round, noise scales from the data, the soft planar prior); the other start too when
    it is a different motion and not clearly worse;
 4. second hypotheses when the answer explains less than half of the ACs (and less than 0.8 of
-   the recent typical share) or did not settle: graduated non-convexity from the best start,
+   the recent typical share) or used all its rounds: graduated non-convexity from the best start,
    the same rotation with straight-ahead travel (the other side of the rotation-translation
    valley), and a vote on the ACs the answer leaves unexplained. Each is first refined on an
    even sample of at most ``_SCREEN_SIZE`` ACs (it only has to find its basin); one that lands
    on the first answer's motion confirms it and is dropped, one that lands elsewhere with a
    support that could matter is refined again on all ACs and competes. A first answer that
-   settled at the nominal accuracy of ACs (``voting.point_noise``, ``affine_noise``) is in its
-   basin and gets only the vote on the unexplained ACs, and that only when its inliers could
-   matter: with random outliers (50-70 %, the estimator tests' 108 pairs) the graduated and
-   straight-ahead starts only ever confirmed such an answer, and found the right one exactly
-   where the first answer had not settled;
+   settled before its last round at the nominal accuracy of ACs (``voting.point_noise``,
+   ``affine_noise``) is in its basin and gets only the vote on the unexplained ACs, and that
+   only when its inliers could matter: with random outliers (50-70 %, the estimator tests' 108
+   pairs) the graduated and straight-ahead starts only ever confirmed such an answer, and found
+   the right one exactly where the first answer had used all its rounds;
 5. the answers compete on their support (MSAC gain over explaining nothing) at the tightest of
    their noise scales; an unconverged winner gets more rounds;
 6. reliability: a competitor with at least ``ambiguity_ratio`` of the winner's support
@@ -320,7 +320,7 @@ class MotionEstimator:
         share = float(w[first.inliers].sum() / max(w.sum(), 1e-300))
         typical = (float(np.median(self._shares)) if len(self._shares) >= _HISTORY_MIN
                    else 1.0)
-        unsettled = first.rounds >= self.config.rounds or not first.converged
+        unsettled = first.rounds >= self.config.rounds         # it used all its rounds
         if unsettled or share < min(_RECHECK_SHARE, _RECHECK_RELATIVE * typical):
             # A settled first answer at the nominal accuracy of ACs is in its basin: only
             # another coherent motion among the ACs it leaves unexplained could beat it.
@@ -335,7 +335,7 @@ class MotionEstimator:
 
     def _second_hypotheses(self, acs, level, M, best_start, first, prior, coarse, start_scales,
                            revote_only: bool = False):
-        """Other answers when the first explains too little or did not settle (module
+        """Other answers when the first explains too little or used all its rounds (module
         docstring, step 4): each screened on an even sample of the ACs, refined on all of them
         only when it found a motion other than the first answer's with a support that could
         matter. Returns the answers and the number of hypotheses screened."""

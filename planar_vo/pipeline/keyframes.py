@@ -33,6 +33,7 @@ class Keyframe:
         matched: a later frame found correspondences with it, or it was itself tracked (a
             keyframe of a running chain); False for a chain's first keyframe until a frame
             matches it.
+        misses: frames since it that found too few correspondences with it.
     """
 
     image: np.ndarray
@@ -43,6 +44,7 @@ class Keyframe:
     bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     age: int = 0
     matched: bool = True
+    misses: int = 0
 
 
 class KeyframeChain:

@@ -794,8 +794,8 @@ class VisualOdometry:
         is dropped: the next usable frame starts a new keyframe chain (`_start_chain`). The
         failed frame itself never becomes the keyframe, since it may be the cause (a blank or
         garbled image would leave the next real frame without correspondences). A chain's first
-        keyframe that the first frame after it finds no correspondences with is dropped at once:
-        it may be the garbled one."""
+        keyframe that the first two frames after it find too few correspondences with is
+        dropped then: it is the garbled one."""
         if self._keyframes.current is None and not self._restart:
             return self._drop(stamp, reason, message, count, inliers)
         self._lost += 1
@@ -803,10 +803,13 @@ class VisualOdometry:
         if keyframe is not None:
             keyframe.age += 1
         self._state = TrackingState.LOST
-        if (reason is DropReason.TOO_FEW_CORRESPONDENCES and keyframe is not None
-                and not keyframe.matched and not self._restart):
-            # A chain's first keyframe that no frame has matched may itself be garbled (noise
-            # is not blank): the next frames could never match it either.
+        if keyframe is not None and reason is DropReason.TOO_FEW_CORRESPONDENCES:
+            keyframe.misses += 1
+        if (keyframe is not None and not keyframe.matched
+                and keyframe.misses >= _UNMATCHED_MISSES and not self._restart):
+            # A chain's first keyframe that two frames in a row found no correspondences with
+            # is the garbled one (noise is not blank), not they: no later frame would match it
+            # either. (One such frame may be the garbled one itself: the keyframe is kept.)
             self._keyframes.clear()
             self._restart = 'a first keyframe that no frame matched'
             message += ('; the new chain\'s first keyframe matched nothing: the next usable '
@@ -912,6 +915,10 @@ class VisualOdometry:
 _SAME_CAMERA_SHIFT = 0.5
 # Variance (m^2 or rad^2) that says "unknown": a unit step has no metric length.
 _UNKNOWN = 1e6
+# Frames with too few correspondences against a chain's first keyframe, before any frame matched
+# it, that drop it (`_lost_frame`): one may be a garbled frame itself, two in a row implicate the
+# keyframe.
+_UNMATCHED_MISSES = 2
 # ACs whose ray is within this sine (about 3 deg) of the epipole carry no depth for
 # `_heading_nominal`.
 _EPIPOLE_SIN = 0.05

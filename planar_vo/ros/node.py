@@ -447,9 +447,9 @@ class PlanarVoNode(Node):
         ``_PENDING_IMAGES``, the oldest counted ``no_camera_info`` when another arrives): a driver
         publishes both with the same stamp, but DDS does not order two topics, so an image may
         arrive before its CameraInfo, and on a loaded machine the next image may too. When the
-        first CameraInfo comes (`_on_camera_info`), the image with its stamp and the newest one
-        before it run with it; older waiting images are counted ``no_camera_info``, like every
-        image that finds no camera model."""
+        first CameraInfo comes (`_on_camera_info`), the images stamped at or after it and the
+        newest one before it run with it; older waiting images are counted ``no_camera_info``,
+        like every image that finds no camera model."""
         self._last_image = time.monotonic()
         if self._camera is None and self._expects_camera_info:
             if len(self._pending) >= _PENDING_IMAGES:
