@@ -342,10 +342,6 @@ class MotionEstimator:
         q1, q2, A, w = acs.p1, acs.p2, acs.A, acs.weights
         n = len(acs)
         sp, sa = coarse
-        pick = (np.linspace(0, n - 1, _SCREEN_SIZE).astype(np.intp) if n > _SCREEN_SIZE
-                else np.arange(n))
-        sample, Ms = acs.subset(pick), M[pick]
-        qs1, qs2, As, ws = sample.p1, sample.p2, sample.A, sample.weights
         starts = [] if revote_only else self._restarts(acs, M, best_start, first, coarse)
         # (c) Sequential consensus: a vote on the ACs the first answer leaves unexplained.
         rest = w * ~first.inliers
@@ -364,6 +360,12 @@ class MotionEstimator:
                     sa2 = v2.affine_scale if math.isfinite(v2.affine_scale) else sa
                     starts.append(('revote', R2, t2, sp2, sa2, {}))
         answers, screened = [], 0
+        if not starts:
+            return answers, screened          # (the usual case of a settled first answer)
+        pick = (np.linspace(0, n - 1, _SCREEN_SIZE).astype(np.intp) if n > _SCREEN_SIZE
+                else np.arange(n))
+        sample, Ms = acs.subset(pick), M[pick]
+        qs1, qs2, As, ws = sample.p1, sample.p2, sample.A, sample.weights
         for label, R_s, t_s, sp_s, sa_s, schedule in starts:
             chi2 = chi_square(Ms, qs1, qs2, As, R_s, t_s, sp_s, sa_s)
             active = (chi2 <= GATE) & (ws > 0)
