@@ -235,9 +235,10 @@ RANGE = r'outside the range of a ROS time stamp \(0 to 2147483647\.999999999 s: 
     (('-0.3', '-0.2', '-0.1', '0'), {'start': 0},
      rf'stamps: times\.txt plus start gives -0\.3 to 0 s, {RANGE}'),
     (None, {'rate_hz': 1e-300},
-     rf'stamps: rate_hz 1e-300 plus start gives 1700000000 to 3e\+300 s, {RANGE}'),
-    (None, {'rate_hz': 1e12}, r'stamps: rate_hz 1000000000000\.0 gives frames 0 and 1 the same '
-                              r'stamp 1700000000000000000 ns; frames must be at least 1 ns apart'),
+     rf'stamps: the rate 1e-300 Hz plus start gives 1700000000 to 3e\+300 s, {RANGE}'),
+    (None, {'rate_hz': 1e12},
+     r'stamps: the rate 1000000000000\.0 Hz gives frames 0 and 1 the same '
+     r'stamp 1700000000000000000 ns; frames must be at least 1 ns apart'),
     (None, {'rate_hz': 10**400}, r'rate_hz: expected a positive frame rate, got 1000'),
     (None, {'camera_height': 10**400}, r'camera_height: expected a positive height in metres'),
 ], ids=['times_1e12', 'start_1e30', 'start_10**400', 'negative_times', 'rate_1e-300',

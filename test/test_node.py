@@ -756,7 +756,10 @@ def test_images_wait_for_the_first_camera_info_whatever_the_order_of_arrival(
     keyframe chain with it, and F3-F5 are ok, each status in stamp order."""
     import copy
 
+    from sensor_msgs.msg import CameraInfo
+
     node = local_node(MOUNT_PARAMS)
+    node.create_publisher(CameraInfo, 'camera_info', 1)     # the driver's, not yet publishing
     info, images = _bag_messages(drive_bag, 6)
     infos = {}
     for i in (3, 4, 5):
@@ -778,6 +781,55 @@ def test_images_wait_for_the_first_camera_info_whatever_the_order_of_arrival(
         (stamp_to_ns(images[k].header.stamp), result) for k, result in enumerate(
             ['no_camera_info', 'no_camera_info', 'first_frame', 'ok', 'ok', 'ok'])]
     assert len(node.published['odom']) == 3
+
+
+@pytest.mark.timeout(60)
+def test_without_a_camera_info_publisher_images_do_not_wait(local_node, drive_bag):
+    """No CameraInfo publisher on the graph: the first three images wait (the grace for
+    discovering the driver's publisher), then each image is counted no_camera_info and its
+    status published as it comes; the first CameraInfo then starts tracking at once."""
+    node = local_node(MOUNT_PARAMS)
+    info, images = _bag_messages(drive_bag, 8)
+    published = []
+    for msg in images[:6]:
+        node._on_image(msg)
+        published.append(len(statuses(node)))
+    assert published == [0, 0, 0, 4, 5, 6]
+    assert [int(s['stamp_ns']) for s in statuses(node)] == \
+        [stamp_to_ns(m.header.stamp) for m in images[:6]]
+    assert node.outcomes['no_camera_info'] == 6
+    node._on_camera_info(info)
+    for msg in images[6:]:
+        node._on_image(msg)
+    assert [s['result'] for s in statuses(node)][6:] == ['first_frame', 'ok']
+
+
+@pytest.mark.timeout(60)
+def test_every_waiting_image_is_counted_when_publishing_fails_at_shutdown(
+        monkeypatch, local_node, drive_bag):
+    """flush_pending at shutdown: publishing the first waiting image's status raises (a context
+    already shut down); the other waiting images are still processed and counted, and the
+    error is raised after them."""
+    from sensor_msgs.msg import CameraInfo
+
+    node = local_node(MOUNT_PARAMS)
+    node.create_publisher(CameraInfo, 'camera_info', 1)
+    _, images = _bag_messages(drive_bag, 3)
+    for msg in images:
+        node._on_image(msg)
+    assert not statuses(node) and sum(node.outcomes.values()) == 0    # all three wait
+    calls = []
+
+    def publish(msg):
+        calls.append(msg)
+        if len(calls) == 1:
+            raise RuntimeError('context is not valid')
+
+    monkeypatch.setattr(node._status_pub, 'publish', publish)
+    with pytest.raises(RuntimeError, match='context is not valid'):
+        node.flush_pending()
+    assert node.outcomes['no_camera_info'] == 3 and len(calls) == 3
+    assert not node._pending
 
 
 def test_a_new_frame_rate_is_learned_not_counted_as_lost_frames(local_node):

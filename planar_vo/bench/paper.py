@@ -146,9 +146,9 @@ def run_experiments(sigmas: Sequence[float], *, runs: int, samples: int, seed: i
     """
     from tqdm import tqdm
 
-    if runs < 1 or samples < 1:
-        raise InputError(f'runs and samples: expected at least 1, got runs={runs}, '
-                         f'samples={samples}')
+    for name, value in (('runs', runs), ('samples', samples)):
+        if value < 1:                       # named as the CLI's options (--runs, --samples)
+            raise InputError(f'{name}: expected at least 1, got {value}')
     if not sigmas or any(not (0.0 <= s < math.inf) for s in sigmas):
         raise InputError(f'sigmas: expected finite non-negative noise levels, got {list(sigmas)}')
     names = [m.name for m in METHODS] if methods is None else list(methods)

@@ -57,7 +57,7 @@ def _check_common(args: argparse.Namespace) -> None:
 
     from planar_vo.errors import InputError, OutputError
 
-    for name, low in (('seed', 0), ('jobs', 1), ('asift_pairs', 0)):
+    for name, low in (('seed', 0), ('jobs', 1), ('asift_pairs', 0), ('runs', 1), ('samples', 1)):
         value = getattr(args, name, None)
         if value is not None and value < low:
             raise InputError(f'--{name.replace("_", "-")}: expected an integer of at least '

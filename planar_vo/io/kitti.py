@@ -330,7 +330,7 @@ def _stamps(seq: KittiSequence, rate_hz: float | None, start_ns: int) -> np.ndar
             less than 1 ns apart (e.g. an absurd frame rate); nothing has been written then.
     """
     if rate_hz is not None:
-        source = f'rate_hz {rate_hz!r}'
+        source = f'the rate {rate_hz!r} Hz'
         period_ns = Decimal(1_000_000_000) / Decimal(repr(rate_hz))
         offsets = [int((i * period_ns).to_integral_value()) for i in range(len(seq.images))]
     else:

@@ -254,6 +254,7 @@ class PlanarVoNode(Node):
                 Image, 'image', self._on_image, qos_profile=sensor_qos(),
                 qos_overriding_options=overriding)
         self._pending: list[tuple] = []       # images waiting for the first CameraInfo
+        self._images_seen = 0                 # images received (the CameraInfo wait's grace)
         # With estimate_focal the pipeline runs without CameraInfo: no image waits for one.
         camera = self.config.camera
         self._expects_camera_info = camera.fx <= 0 and not camera.estimate_focal
@@ -449,9 +450,18 @@ class PlanarVoNode(Node):
         arrive before its CameraInfo, and on a loaded machine the next image may too. When the
         first CameraInfo comes (`_on_camera_info`), the images stamped at or after it and the
         newest one before it run with it; older waiting images are counted ``no_camera_info``,
-        like every image that finds no camera model."""
+        like every image that finds no camera model. Nothing waits for a CameraInfo that nobody
+        publishes: once ``_PENDING_IMAGES`` images have come (the grace for discovering the
+        driver's CameraInfo publisher after its image publisher), an image with no CameraInfo
+        publisher on the graph is counted at once, its status published with it."""
         self._last_image = time.monotonic()
+        self._images_seen += 1
         if self._camera is None and self._expects_camera_info:
+            if (self._images_seen > _PENDING_IMAGES
+                    and not self.count_publishers(self._camera_info_sub.topic_name)):
+                self.flush_pending()
+                self._frame(msg, decode)
+                return
             if len(self._pending) >= _PENDING_IMAGES:
                 self._frame(*self._pending.pop(0))
             self._pending.append((msg, decode))
@@ -460,10 +470,18 @@ class PlanarVoNode(Node):
         self._frame(msg, decode)
 
     def flush_pending(self) -> None:
-        """Process the images waiting for the first CameraInfo, if any, in arrival order."""
+        """Process the images waiting for the first CameraInfo, if any, in arrival order. Each
+        is counted before it is published, and every one is processed even if publishing one
+        raises (at shutdown); the first such error is raised after the last."""
         pending, self._pending = self._pending, []
+        error = None
         for item in pending:
-            self._frame(*item)
+            try:
+                self._frame(*item)
+            except Exception as err:  # noqa: BLE001 - re-raised below, after the others
+                error = error or err
+        if error is not None:
+            raise error
 
     def _release_pending(self, info_stamp_ns: int) -> None:
         """The first CameraInfo (stamp ``info_stamp_ns``) has arrived, before its camera model
