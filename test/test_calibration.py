@@ -14,7 +14,7 @@ from planar_vo.config.sections import CameraConfig
 from planar_vo.core.conventions import normal_from_tilt, rotation_y
 from planar_vo.core.homography import apply_homography
 from planar_vo.core.robust import combine_profiles, pair_profile, shifted_profile
-from planar_vo.core.robust.stats import few_cluster_factor, student_t_quantile
+from planar_vo.core.robust.stats import _student_t_mass, few_cluster_factor, student_t_quantile
 from planar_vo.errors import ConfigError, InputError
 from planar_vo.frontend import leveling_rotation
 from planar_vo.pipeline.calibration import (
@@ -63,6 +63,21 @@ def test_student_t_quantiles_match_tables():
     assert few_cluster_factor(1) == math.inf
     with pytest.raises(ValueError, match=r'expected 0 < p < 1 and nu >= 1'):
         student_t_quantile(1.0, 3)
+
+
+@pytest.mark.parametrize('p', [0.5000001, 0.6, 0.8413447460685429, 0.975, 0.9986501019683699,
+                               0.999999])
+def test_student_t_quantiles_match_closed_forms_over_the_tail(p):
+    """The closed forms for 1 and 2 degrees of freedom, to near machine precision (p itself is
+    rounded: the far tail's condition number), and the CDF at the quantile for many."""
+    student_t_quantile.cache_clear()
+    assert student_t_quantile(p, 1) == pytest.approx(math.tan(math.pi * (p - 0.5)), rel=1e-9)
+    assert student_t_quantile(p, 2) == pytest.approx((2 * p - 1) / math.sqrt(2 * p * (1 - p)),
+                                                     rel=1e-9)
+    for nu in (3, 7, 30, 199, 5000):
+        t = student_t_quantile(p, nu)
+        theta = math.atan(t / math.sqrt(nu))
+        assert 0.5 * (1.0 + _student_t_mass(theta, nu)) == pytest.approx(p, abs=1e-13)
 
 
 # --------------------------------------------------------------------------------------------

@@ -79,19 +79,41 @@ def _student_t_mass(theta: float, nu: int) -> float:
 @functools.lru_cache(maxsize=256)
 def student_t_quantile(p: float, nu: int) -> float:
     """Quantile of Student's t with ``nu`` (integer >= 1) degrees of freedom at ``p`` in
-    ``(0, 1)``, by bisection on the closed-form CDF (`_student_t_mass`; no scipy). Cached."""
+    ``(0, 1)``, by safeguarded Newton on the closed-form CDF (`_student_t_mass`; no scipy).
+    Cached.
+
+    In ``theta = atan(t / sqrt(nu))`` the mass has the derivative ``2 c cos(theta)^(nu - 1)``
+    with ``c = Gamma((nu + 1) / 2) / (sqrt(pi) Gamma(nu / 2))``; Newton converges in a few
+    steps where the bisection it replaced took 60 evaluations of the ``O(nu)`` series (a
+    millisecond for each new ``nu`` of a growing cluster count). A step that leaves the
+    bracket kept by the signs bisects it instead."""
     if not (0.0 < p < 1.0) or nu < 1:
         raise ValueError(f'student_t_quantile: expected 0 < p < 1 and nu >= 1, got {p}, {nu}')
     if p < 0.5:
         return -student_t_quantile(1.0 - p, nu)
     target, lo, hi = 2.0 * p - 1.0, 0.0, 0.5 * math.pi
-    for _ in range(60):                                   # theta to ~1e-18 rad
-        mid = 0.5 * (lo + hi)
-        if _student_t_mass(mid, nu) < target:
-            lo = mid
+    log_c = math.lgamma(0.5 * (nu + 1)) - math.lgamma(0.5 * nu) - 0.5 * math.log(math.pi)
+    # Start at the normal quantile (Abramowitz and Stegun 26.2.23, within 4.5e-4), which the
+    # t quantile approaches from above as nu grows.
+    r = math.sqrt(-2.0 * math.log(1.0 - p))
+    z = r - (2.515517 + 0.802853 * r + 0.010328 * r * r) / (
+        1.0 + 1.432788 * r + 0.189269 * r * r + 0.001308 * r ** 3)
+    theta = math.atan(max(z, 1e-3) / math.sqrt(nu))
+    for _ in range(200):
+        excess = _student_t_mass(theta, nu) - target
+        if excess < 0.0:
+            lo = theta
         else:
-            hi = mid
-    return math.sqrt(nu) * math.tan(0.5 * (lo + hi))
+            hi = theta
+        slope = 2.0 * math.exp(log_c + (nu - 1) * math.log(math.cos(theta)))
+        new = theta - excess / slope if slope > 0.0 else lo - 1.0
+        if not lo < new < hi:
+            new = 0.5 * (lo + hi)
+        if abs(new - theta) <= 4.5e-16 * theta or hi - lo <= 4.5e-16 * hi:   # 2 ulp
+            theta = new
+            break
+        theta = new
+    return math.sqrt(nu) * math.tan(theta)
 
 
 def few_cluster_factor(clusters: int, sigmas: float = 3.0) -> float:
