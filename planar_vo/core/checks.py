@@ -47,17 +47,19 @@ def as_array(
         min_items: minimum size of the first dimension when it is free.
         finite: reject NaN and infinity.
     """
-    expected = f'{name}: expected a numeric array of shape {shape_str(shape)}'
+    def expected() -> str:                         # built for an error only (hot path)
+        return f'{name}: expected a numeric array of shape {shape_str(shape)}'
+
     try:
         arr = np.asarray(value)
     except (TypeError, ValueError) as err:        # ragged nesting
-        raise InputError(f'{expected}, got {type(value).__name__}') from err
+        raise InputError(f'{expected()}, got {type(value).__name__}') from err
     if arr.dtype.kind not in _REAL_KINDS:
-        raise InputError(f'{expected} of real numbers, got {arr.dtype} values')
+        raise InputError(f'{expected()} of real numbers, got {arr.dtype} values')
     try:
         arr = arr.astype(np.float64, copy=False)
     except (TypeError, ValueError) as err:        # objects that are not real numbers
-        raise InputError(f'{expected}, got {type(value).__name__}') from err
+        raise InputError(f'{expected()}, got {type(value).__name__}') from err
     except OverflowError as err:                  # Python ints beyond float64 (10**400)
         raise InputError(f'{name}: expected finite values, got a number too large for float64 '
                          f'({err})') from err

@@ -66,10 +66,12 @@ class AffineCorrespondences:
         g1, J1 = map1(self.p1)
         g2, J2 = map2(self.p2)
         ok = np.isfinite(g1).all(1) & np.isfinite(g2).all(1)
-        ok &= np.isfinite(J1).all((1, 2)) & np.isfinite(J2).all((1, 2))
+        # A map's Jacobian is (N, 2, 2), or (2, 2) for a linear map (the same for every item:
+        # the arithmetic below broadcasts it, item by item the same numbers).
+        ok &= np.isfinite(J1).all((-2, -1)) & np.isfinite(J2).all((-2, -1))
         # Dropped items may hold inf or NaN: their arithmetic is discarded.
         with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
-            j00, j01, j10, j11 = J1[:, 0, 0], J1[:, 0, 1], J1[:, 1, 0], J1[:, 1, 1]
+            j00, j01, j10, j11 = J1[..., 0, 0], J1[..., 0, 1], J1[..., 1, 0], J1[..., 1, 1]
             det = j00 * j11 - j01 * j10
             ok &= det != 0.0
             inv_det = 1.0 / np.where(ok, det, 1.0)
@@ -81,10 +83,10 @@ class AffineCorrespondences:
             m10 = (a10 * j11 - a11 * j10) * inv_det
             m11 = (a11 * j00 - a10 * j01) * inv_det
             A = np.empty_like(self.A, dtype=np.float64)
-            A[:, 0, 0] = J2[:, 0, 0] * m00 + J2[:, 0, 1] * m10
-            A[:, 0, 1] = J2[:, 0, 0] * m01 + J2[:, 0, 1] * m11
-            A[:, 1, 0] = J2[:, 1, 0] * m00 + J2[:, 1, 1] * m10
-            A[:, 1, 1] = J2[:, 1, 0] * m01 + J2[:, 1, 1] * m11
+            A[:, 0, 0] = J2[..., 0, 0] * m00 + J2[..., 0, 1] * m10
+            A[:, 0, 1] = J2[..., 0, 0] * m01 + J2[..., 0, 1] * m11
+            A[:, 1, 0] = J2[..., 1, 0] * m00 + J2[..., 1, 1] * m10
+            A[:, 1, 1] = J2[..., 1, 0] * m01 + J2[..., 1, 1] * m11
         if ok.all():
             return AffineCorrespondences(g1, g2, A, self.weights), ok
         return AffineCorrespondences(g1[ok], g2[ok], A[ok], self.weights[ok]), ok
@@ -107,7 +109,7 @@ class AffineCorrespondences:
     def normalized(self, camera1, camera2=None) -> AffineCorrespondences:
         """Ideal normalised coordinates ``K^-1 undistort(p)`` of `CameraModel` s."""
         camera2 = camera1 if camera2 is None else camera2
-        return self.transformed(camera1.pixel_to_normalized, camera2.pixel_to_normalized)
+        return self.transformed(_normalizer(camera1), _normalizer(camera2))
 
     @staticmethod
     def concatenate(items: list[AffineCorrespondences]) -> AffineCorrespondences:
@@ -118,3 +120,18 @@ class AffineCorrespondences:
                                      np.concatenate([c.p2 for c in items]),
                                      np.concatenate([c.A for c in items]),
                                      np.concatenate([c.weights for c in items]))
+
+
+def _normalizer(camera):
+    """The map pixels -> ideal normalised coordinates of a `CameraModel`, with its Jacobian:
+    `CameraModel.pixel_to_normalized`, or without distortion the same linear map with its one
+    (2, 2) Jacobian (no (N, 2, 2) copy of it; the same numbers)."""
+    if camera.is_distorted:
+        return camera.pixel_to_normalized
+    L_inv = np.linalg.inv(camera.K[:2, :2])
+    centre = camera.K[:2, 2]
+
+    def linear(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return (np.asarray(p, dtype=np.float64) - centre) @ L_inv.T, L_inv
+
+    return linear

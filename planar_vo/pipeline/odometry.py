@@ -730,13 +730,14 @@ class VisualOdometry:
                               max_depth=cfg.ground_max_depth,
                               affine_sigma=cfg.ground_affine_std, gate=cfg.ground_gate,
                               min_count=cfg.ground_min_correspondences,
-                              lateral_std=cfg.ground_lateral_std)
+                              lateral_std=cfg.ground_lateral_std, check=False)
 
         before = self.road_normal
         rs = measure(before[0], before[1], cfg.ground_normal_std)
         shared = before[2]      # the drive's normal error in this step's normal (rad)
         if self._road is not None and rs.count:
-            if feed and self._road.add(norm.p1, norm.p2, est.R, est.t, rs.mask, norm.weights):
+            if feed and self._road.add(norm.p1, norm.p2, est.R, est.t, rs.mask, norm.weights,
+                                       check=False):
                 self._road_fed = True
                 fit = self._road.update(before[0], before[1])
                 if fit is not None:
@@ -748,7 +749,7 @@ class VisualOdometry:
             # suspension and the road's camber and slope changes (``ground_normal_std``): its
             # own fit, shrunk towards the average by their precisions.
             one = pair_road_normal(norm.p1, norm.p2, est.R, est.t, rs.mask, norm.weights,
-                                   pitch, roll)
+                                   pitch, roll, check=False)
             prior = cfg.ground_normal_std ** 2
             if one is not None and math.isfinite(one.pitch_std) and math.isfinite(one.roll_std):
                 gain_p = prior / (prior + one.pitch_std ** 2)

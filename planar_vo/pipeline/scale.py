@@ -355,6 +355,12 @@ def road_rays(q: np.ndarray, n: np.ndarray, height: float,
             raise ConfigError(f'{name}: expected a positive number of metres, got {value}')
     if not math.isfinite(min_elevation):
         raise ConfigError(f'min_elevation: expected a finite number, got {min_elevation}')
+    return _road_rays(q, n, height, max_depth, min_elevation)
+
+
+def _road_rays(q: np.ndarray, n: np.ndarray, height: float, max_depth: float,
+               min_elevation: float) -> np.ndarray:
+    """`road_rays` on checked arguments (``n`` unit)."""
     dn = n[0] * q[:, 0] + n[1] * q[:, 1] + n[2]
     with np.errstate(divide='ignore'):
         depth = height / np.where(dn > 0, dn, np.inf) * np.sqrt(1.0 + (q * q).sum(axis=1))
@@ -371,7 +377,7 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
                gate: float = ScaleConfig.ground_gate,
                min_count: int = ScaleConfig.ground_min_correspondences,
                lateral_std: float = 0.0,
-               s_prior: float | None = None) -> RoadScale:
+               s_prior: float | None = None, check: bool = True) -> RoadScale:
     """Step length from road ACs, for a general motion and an explicit road normal.
 
     Everything is in the frame of camera 1 (not levelled; the normal carries the tilt): the
@@ -434,6 +440,9 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
             distance from the line of travel; 0 weighs all alike.
         s_prior: step (m) to start the road test from (e.g. the last step); None: the weighted
             median of all candidates.
+        check: False skips the checks of the arguments (for a caller whose arrays are checked
+            already, e.g. the pipeline at every frame: they cost about a third of the call);
+            ``t`` and ``n`` are normalised either way.
 
     Returns:
         A `RoadScale`.
@@ -443,34 +452,40 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
             ``t`` or ``n``, negative weights or sigmas, bad cluster labels.
         ConfigError: a non-positive height, noise scale, gate or depth, ``min_count < 1``.
     """
-    q1 = as_array('q1', q1, (None, 2), min_items=0)
-    q2 = as_array('q2', q2, (None, 2), min_items=0)
-    A = as_array('A', A, (None, 2, 2), min_items=0)
-    count = same_length(q1=q1, q2=q2, A=A)
-    R = as_rotation('R', R)
-    t = _unit('t', t)
-    n = _unit('n', n)
-    w = np.ones(count) if weights is None else as_array('weights', weights, (None,),
-                                                        min_items=0)
-    same_length(q1=q1, weights=w)
-    if np.any(w < 0):
-        raise InputError(f'weights: expected non-negative values, got minimum {w.min()}')
-    for name, value in (('sigma_rot', sigma_rot), ('sigma_normal', sigma_normal)):
-        if not (math.isfinite(value) and value >= 0.0):
-            raise InputError(f'{name}: expected a non-negative angle (rad), got {value}')
-    for name, value in (('height', height), ('max_depth', max_depth),
-                        ('point_sigma', point_sigma), ('affine_sigma', affine_sigma),
-                        ('gate', gate)):
-        if not (math.isfinite(value) and value > 0.0):
-            raise ConfigError(f'{name}: expected a positive number, got {value}')
-    if not (math.isfinite(lateral_std) and lateral_std >= 0.0):
-        raise ConfigError(f'lateral_std: expected a non-negative distance (m), got '
-                          f'{lateral_std}')
-    if not (math.isfinite(min_elevation) and min_count >= 1):
-        raise ConfigError(f'min_elevation, min_count: expected a finite number and at least 1, '
-                          f'got {min_elevation}, {min_count}')
-    if s_prior is not None and not (math.isfinite(s_prior) and s_prior > 0.0):
-        raise InputError(f's_prior: expected a positive step (m) or None, got {s_prior}')
+    if check:
+        q1 = as_array('q1', q1, (None, 2), min_items=0)
+        q2 = as_array('q2', q2, (None, 2), min_items=0)
+        A = as_array('A', A, (None, 2, 2), min_items=0)
+        count = same_length(q1=q1, q2=q2, A=A)
+        R = as_rotation('R', R)
+        t = _unit('t', t)
+        n = _unit('n', n)
+        w = np.ones(count) if weights is None else as_array('weights', weights, (None,),
+                                                            min_items=0)
+        same_length(q1=q1, weights=w)
+        if np.any(w < 0):
+            raise InputError(f'weights: expected non-negative values, got minimum {w.min()}')
+        for name, value in (('sigma_rot', sigma_rot), ('sigma_normal', sigma_normal)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise InputError(f'{name}: expected a non-negative angle (rad), got {value}')
+        for name, value in (('height', height), ('max_depth', max_depth),
+                            ('point_sigma', point_sigma), ('affine_sigma', affine_sigma),
+                            ('gate', gate)):
+            if not (math.isfinite(value) and value > 0.0):
+                raise ConfigError(f'{name}: expected a positive number, got {value}')
+        if not (math.isfinite(lateral_std) and lateral_std >= 0.0):
+            raise ConfigError(f'lateral_std: expected a non-negative distance (m), got '
+                              f'{lateral_std}')
+        if not (math.isfinite(min_elevation) and min_count >= 1):
+            raise ConfigError(f'min_elevation, min_count: expected a finite number and at least '
+                              f'1, got {min_elevation}, {min_count}')
+        if s_prior is not None and not (math.isfinite(s_prior) and s_prior > 0.0):
+            raise InputError(f's_prior: expected a positive step (m) or None, got {s_prior}')
+    else:
+        count = q1.shape[0]
+        t = t / float(np.linalg.norm(t))
+        n = n / float(np.linalg.norm(n))
+        w = np.ones(count) if weights is None else weights
     if clusters is None:
         ij = np.floor(q1 / _CLUSTER_CELL).astype(np.int64) if count else np.zeros((0, 2), int)
         if count:
@@ -482,7 +497,7 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
                        np.zeros(count, bool), np.zeros(3), np.zeros(2))
     h = float(height)
     # Only rays that meet the road within max_depth count: the rest of the maths runs on those.
-    below = np.flatnonzero(road_rays(q1, n, h, max_depth, min_elevation) & (w > 0))
+    below = np.flatnonzero(_road_rays(q1, n, h, max_depth, min_elevation) & (w > 0))
     if below.size < min_count:
         return failed
     dn = n[0] * q1[below, 0] + n[1] * q1[below, 1] + n[2]      # n . Q1
@@ -495,7 +510,10 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
     if idx.size < min_count:
         return failed
     ws, labels = w[below], labels[below]
-    side = np.cross(n, t)                       # across the line of travel, in the road
+    # n x t: across the line of travel, in the road (numpy's cross costs more than the rest
+    # of this block at this size; the same products in the same order).
+    (n0, n1, n2), (t0, t1, t2) = n.tolist(), t.tolist()
+    side = np.array([n1 * t2 - n2 * t1, n2 * t0 - n0 * t2, n0 * t1 - n1 * t0])
     side_norm = float(np.linalg.norm(side))
     if lateral_std > 0.0 and side_norm > 1e-6:
         # Lateral offset of the road point X1 = lam Q1 from the line of travel.

@@ -100,7 +100,7 @@ class RoadNormalCalibrator:
         return self._stored
 
     def add(self, q1: np.ndarray, q2: np.ndarray, R: np.ndarray, t: np.ndarray,
-            road: np.ndarray, weights: np.ndarray | None = None) -> bool:
+            road: np.ndarray, weights: np.ndarray | None = None, *, check: bool = True) -> bool:
         """Store one frame pair's road ACs.
 
         Args:
@@ -109,25 +109,31 @@ class RoadNormalCalibrator:
                 (any norm), ``X2 = R X1 + s t``.
             road: ``(N,)`` bool, the road ACs (e.g. `RoadScale.mask`).
             weights: per-AC quality ``(N,)``, non-negative.
+            check: False skips the checks of the arguments (a caller whose arrays are checked
+                already: the pipeline, at every frame).
 
         Returns:
             Whether the pair was stored (it needs at least 10 road ACs in front of both views).
         """
-        q1 = as_array('q1', q1, (None, 2), min_items=0)
-        q2 = as_array('q2', q2, (None, 2), min_items=0)
-        R = as_rotation('R', R)
-        t = as_array('t', t, (3,))
-        if not np.linalg.norm(t) > 0.0:
-            raise InputError(f't: expected a non-zero direction, got {t.tolist()}')
-        road = np.asarray(road)
-        if road.dtype != bool or road.shape != (len(q1),):
-            raise InputError(f'road: expected a bool mask of shape ({len(q1)},), got '
-                             f'{road.dtype} {road.shape}')
-        w = np.ones(len(q1)) if weights is None else as_array('weights', weights, (None,),
-                                                              min_items=0)
-        same_length(q1=q1, q2=q2, weights=w)
-        if np.any(w < 0):
-            raise InputError(f'weights: expected non-negative values, got minimum {w.min()}')
+        if check:
+            q1 = as_array('q1', q1, (None, 2), min_items=0)
+            q2 = as_array('q2', q2, (None, 2), min_items=0)
+            R = as_rotation('R', R)
+            t = as_array('t', t, (3,))
+            if not np.linalg.norm(t) > 0.0:
+                raise InputError(f't: expected a non-zero direction, got {t.tolist()}')
+            road = np.asarray(road)
+            if road.dtype != bool or road.shape != (len(q1),):
+                raise InputError(f'road: expected a bool mask of shape ({len(q1)},), got '
+                                 f'{road.dtype} {road.shape}')
+            w = np.ones(len(q1)) if weights is None else as_array('weights', weights, (None,),
+                                                                  min_items=0)
+            same_length(q1=q1, q2=q2, weights=w)
+            if np.any(w < 0):
+                raise InputError(f'weights: expected non-negative values, got minimum '
+                                 f'{w.min()}')
+        else:
+            w = np.ones(len(q1)) if weights is None else weights
         idx = np.flatnonzero(road & (w > 0))
         if idx.size > self.per_frame:
             idx = idx[np.linspace(0, idx.size - 1, self.per_frame).astype(int)]
@@ -224,13 +230,13 @@ class RoadNormalCalibrator:
 
 def pair_road_normal(q1: np.ndarray, q2: np.ndarray, R: np.ndarray, t: np.ndarray,
                      road: np.ndarray, weights: np.ndarray | None, pitch0: float, roll0: float,
-                     iterations: int = 4) -> TiltEstimate | None:
+                     iterations: int = 4, *, check: bool = True) -> TiltEstimate | None:
     """The road normal from one frame pair's road ACs alone (all of them), by the same fit as
     `RoadNormalCalibrator` started from ``(pitch0, roll0)``, with its model-based standard
     deviations (one frame: no clusters to sandwich). None with fewer than 10 road ACs in
     front of both views or a degenerate fit. Arguments as in `RoadNormalCalibrator.add`."""
     count = int(np.count_nonzero(np.asarray(road, dtype=bool)))
     one = RoadNormalCalibrator(per_frame=max(count, _MIN_ROAD), max_frames=2)
-    if not one.add(q1, q2, R, t, road, weights):
+    if not one.add(q1, q2, R, t, road, weights, check=check):
         return None
     return one.estimate(pitch0, roll0, iterations=iterations)
