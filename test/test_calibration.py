@@ -61,6 +61,7 @@ def test_student_t_quantiles_match_tables():
     assert few_cluster_factor(2, 3.0) == pytest.approx(math.tan(math.pi * (q - 0.5)) / 3.0)
     assert few_cluster_factor(1000, 3.0) == pytest.approx(1.0, abs=0.01)
     assert few_cluster_factor(1) == math.inf
+    assert student_t_quantile(0.5, 7) == 0.0                      # the median, exactly
     with pytest.raises(ValueError, match=r'expected 0 < p < 1 and nu >= 1'):
         student_t_quantile(1.0, 3)
 

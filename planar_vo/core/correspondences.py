@@ -62,7 +62,8 @@ class AffineCorrespondences:
 
     def transformed_kept(self, map1, map2) -> tuple[AffineCorrespondences, np.ndarray]:
         """`transformed` and the ``(N,)`` bool mask of the items it kept, so that other arrays
-        item by item with these ACs can be cut the same way."""
+        item by item with these ACs can be cut the same way. A map may return one ``(2, 2)``
+        Jacobian for all items (a linear map) instead of ``(N, 2, 2)``."""
         g1, J1 = map1(self.p1)
         g2, J2 = map2(self.p2)
         ok = np.isfinite(g1).all(1) & np.isfinite(g2).all(1)

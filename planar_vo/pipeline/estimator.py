@@ -345,7 +345,7 @@ class MotionEstimator:
         starts = [] if revote_only else self._restarts(acs, M, best_start, first, coarse)
         # (c) Sequential consensus: a vote on the ACs the first answer leaves unexplained.
         # The vote runs on those ACs alone: the others would vote with weight 0, which changes
-        # nothing but its cost (half of it with 50 % outliers, nine tenths with 10 %).
+        # the answer only by rounding (the fits' sums in another order) but adds to its cost.
         unexplained = np.flatnonzero(w * ~first.inliers > 0)
         if unexplained.size >= self.config.min_inliers:
             rest, w_rest = level.subset(unexplained), w[unexplained]

@@ -459,8 +459,10 @@ class PlanarVoNode(Node):
         if self._camera is None and self._expects_camera_info:
             if (self._images_seen > _PENDING_IMAGES
                     and not self.count_publishers(self._camera_info_sub.topic_name)):
-                self.flush_pending()
-                self._frame(msg, decode)
+                try:
+                    self.flush_pending()
+                finally:
+                    self._frame(msg, decode)
                 return
             if len(self._pending) >= _PENDING_IMAGES:
                 self._frame(*self._pending.pop(0))
