@@ -164,7 +164,10 @@ class Probe:
         self._saved = {k: os.environ.get(k) for k in env}
         os.environ.update(env)
         self.context = Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        # args=[]: the probe's process arguments (node-cpu's node arguments, pytest's) are
+        # not ROS arguments of the probe.
+        rclpy.init(args=[], context=self.context,
+                   signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('test_probe', context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

@@ -16,6 +16,7 @@ from planar_vo.bench.drives import (
     find_drives,
     first_frames,
     level_world,
+    paired_yaw,
     stress_folder,
 )
 from planar_vo.bench.odometry import FIVE_POINT, SOURCES, OdometryRun, chain_camera_motions
@@ -100,6 +101,47 @@ def test_peers_on_rendered_frames_are_near_the_truth(report):
         assert run['sim3_scale'] == pytest.approx(1.0, abs=0.01), key
         assert run['kitti_short']['segments'] == 1 and run['kitti_short']['t_rel_pct'] < 1.0, key
         assert run['estimator_ms_per_frame']['median'] > 0.0, key
+
+
+def test_every_peer_is_compared_with_planar_vo_frame_by_frame(report):
+    """The paired yaw comparison: over frames both runs have, the mean of the per-frame
+    differences is the difference of the means; 14 frame pairs are too few for the
+    batch-means standard error; the yaw target's line quotes the best PoseLib row's."""
+    text, results = report
+    runs = results['drives'][DRIVE]['runs']
+    ours = runs['planar_vo']
+    assert '_yaw_abs_deg' not in ours
+    for key in PEER_RUNS:
+        paired = runs[key]['yaw_paired_vs_planar_vo']
+        assert '_yaw_abs_deg' not in runs[key]
+        if ours['odometry_pct'] == 100.0 and runs[key]['odometry_pct'] == 100.0:
+            assert paired['frames'] == 14
+            assert paired['mean_diff_deg'] == pytest.approx(
+                ours['yaw_change_error_deg']['mean'] - runs[key]['yaw_change_error_deg']['mean'],
+                abs=1e-12)
+        assert paired['se_deg'] is None                    # NaN is null in the JSON
+    assert 'frame by frame, planar_vo minus that row' in text
+    assert '_yaw_abs_deg' not in json.dumps(results)           # nor in the stress runs
+
+
+def test_paired_yaw_mean_and_batch_means_standard_error():
+    """Frame pairs by their two stamps: a run that lost frame 20 has the pair (19, 21), which
+    the other run does not; the mean difference and its batch-means standard error."""
+    ours = {(s, s + 1): 1.0 + 0.01 * s for s in range(40)}
+    theirs = {(s, s + 1): 0.5 + 0.01 * s for s in range(5, 45) if s not in (19, 20)}
+    theirs[(19, 21)] = 9.0                                        # lost frame 20: not paired
+    theirs[(10, 11)] = float('nan')                               # dropped
+    p = paired_yaw(ours, theirs)
+    assert p['frames'] == 32 and p['mean_diff_deg'] == pytest.approx(0.5)
+    assert p['se_deg'] == pytest.approx(0.0, abs=1e-15)           # every difference is 0.5
+    d = np.random.default_rng(0).normal(size=100)
+    p = paired_yaw({(s, s + 1): float(x) for s, x in enumerate(d)},
+                   {(s, s + 1): 0.0 for s in range(100)})
+    means = [b.mean() for b in np.array_split(d, 10)]
+    assert p['mean_diff_deg'] == pytest.approx(d.mean())
+    assert p['se_deg'] == pytest.approx(np.std(means, ddof=1) / np.sqrt(10))
+    p = paired_yaw({(1, 2): 1.0}, {(2, 3): 1.0})
+    assert p['frames'] == 0 and np.isnan(p['mean_diff_deg']) and np.isnan(p['se_deg'])
 
 
 def test_planar_vo_runs_are_reported_with_their_focal_length(report):

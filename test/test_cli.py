@@ -142,6 +142,9 @@ def test_every_help_page_prints(capsys):
     (['bench', 'pipeline', '--kitti', 'nowhere'],
      "planar_vo bench pipeline: error: --kitti: 'nowhere' is not a KITTI sequence folder "
      "(no calib.txt)"),
+    (['bench', 'frontend', '--kitti', 'nowhere'],
+     "planar_vo bench frontend: error: --kitti: 'nowhere' is not a KITTI excerpt folder "
+     "(no poses.txt)"),
     (['bench', 'fleet', '--bags', '1'],
      'planar_vo bench fleet: error: --bags, --frames, --repeat: expected at least 2, 10 and 1, '
      'got 1, 100, 2'),

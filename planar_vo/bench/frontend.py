@@ -64,9 +64,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='pairs for ASIFT, about 4 s each (default: 1)')
     parser.add_argument('--threads', type=int, nargs='+', default=[0, 1],
                         help='OpenCV thread counts to time with, 0 = default (default: 0 1)')
-    parser.add_argument('--kitti', type=Path, default=DEFAULT_KITTI,
-                        help=f'KITTI excerpt directory with image_l/ and poses.txt '
-                             f'(default: {DEFAULT_KITTI}; skipped when missing)')
+    parser.add_argument('--kitti', type=Path, default=None,
+                        help=f'KITTI excerpt directory with image_l/ and poses.txt (default: '
+                             f'{DEFAULT_KITTI}, skipped when missing; a folder given here '
+                             f'must hold one)')
     parser.add_argument('--seed', type=int, default=3, help='rendered world seed (default: 3)')
     parser.add_argument('--per-frame', action='store_true',
                         help='also print the KITTI yaw and heading errors of every frame pair')
@@ -275,12 +276,19 @@ def run(args: argparse.Namespace) -> int:
     if args.pairs < 1 or args.repeat < 1:
         raise InputError(f'--pairs, --repeat: expected at least 1, got {args.pairs}, '
                          f'{args.repeat}')
+    if args.kitti is None:
+        folder = DEFAULT_KITTI if (DEFAULT_KITTI / 'poses.txt').is_file() else None
+    elif (args.kitti / 'poses.txt').is_file():
+        folder = args.kitti
+    else:
+        raise InputError(f"--kitti: '{args.kitti}' is not a KITTI excerpt folder (no "
+                         f"poses.txt)")
     start = time.perf_counter()
     sections: list[str] = []
     out = sections.append
     count = max(args.pairs, 8) + 1
     sets = [rendered_frames(w, h, f, count, args.seed) for w, h, f in RENDER_SIZES]
-    kitti = kitti_frames(args.kitti) if (args.kitti / 'poses.txt').exists() else None
+    kitti = kitti_frames(folder) if folder is not None else None
     out('## Front-end speed: time per frame pair, as a ratio to DIS optical flow alone '
         '(preset fast)\n')
     out(f'Interleaved in one process; per pair the minimum of {args.repeat} runs, median '
@@ -344,7 +352,7 @@ def run(args: argparse.Namespace) -> int:
             out('\nPer frame pair, absolute errors in degrees:\n')
             out(_markdown(header, frame_rows))
     else:
-        out(f'\n(KITTI excerpt not found at {args.kitti}: motion table skipped)')
+        out(f'\n(KITTI excerpt not found at {DEFAULT_KITTI}: motion table skipped)')
     out(f'Wall time: {time.perf_counter() - start:.0f} s.')
     path = Path(args.out) / 'frontend.md'
     print(write_markdown(path, 'planar_vo bench frontend', args.command,
