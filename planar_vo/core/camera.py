@@ -306,12 +306,24 @@ class CameraModel:
     def pixel_to_normalized(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels ``(N, 2)`` -> ideal normalised coordinates, with the Jacobian ``dq/dp``."""
         p = as_array('p', p, (None, 2), min_items=0, finite=False)
-        L_inv = np.linalg.inv(self.K[:2, :2])
-        xd = (p - self.K[:2, 2]) @ L_inv.T
+        xd, L_inv = self._pixel_to_distorted(p)
         if not self.is_distorted:
             return xd, np.broadcast_to(L_inv, (xd.shape[0], 2, 2)).copy()
         q, Ju = self.undistort(xd)
         return q, Ju @ L_inv
+
+    def normalizing_map(self):
+        """`pixel_to_normalized` as a map for `AffineCorrespondences.transformed`; without
+        distortion the same numbers with the one ``(2, 2)`` Jacobian of the linear map instead
+        of an ``(N, 2, 2)`` copy of it."""
+        if self.is_distorted:
+            return self.pixel_to_normalized
+        return lambda p: self._pixel_to_distorted(np.asarray(p, dtype=np.float64))
+
+    def _pixel_to_distorted(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels -> distorted normalised coordinates ``K^-1 p`` and the 2x2 ``L^-1``."""
+        L_inv = np.linalg.inv(self.K[:2, :2])
+        return (p - self.K[:2, 2]) @ L_inv.T, L_inv
 
     def normalized_to_pixel(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ideal normalised ``(N, 2)`` -> pixels, with the Jacobian ``dp/dq``."""

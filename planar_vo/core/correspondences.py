@@ -110,7 +110,7 @@ class AffineCorrespondences:
     def normalized(self, camera1, camera2=None) -> AffineCorrespondences:
         """Ideal normalised coordinates ``K^-1 undistort(p)`` of `CameraModel` s."""
         camera2 = camera1 if camera2 is None else camera2
-        return self.transformed(_normalizer(camera1), _normalizer(camera2))
+        return self.transformed(camera1.normalizing_map(), camera2.normalizing_map())
 
     @staticmethod
     def concatenate(items: list[AffineCorrespondences]) -> AffineCorrespondences:
@@ -121,18 +121,3 @@ class AffineCorrespondences:
                                      np.concatenate([c.p2 for c in items]),
                                      np.concatenate([c.A for c in items]),
                                      np.concatenate([c.weights for c in items]))
-
-
-def _normalizer(camera):
-    """The map pixels -> ideal normalised coordinates of a `CameraModel`, with its Jacobian:
-    `CameraModel.pixel_to_normalized`, or without distortion the same linear map with its one
-    (2, 2) Jacobian (no (N, 2, 2) copy of it; the same numbers)."""
-    if camera.is_distorted:
-        return camera.pixel_to_normalized
-    L_inv = np.linalg.inv(camera.K[:2, :2])
-    centre = camera.K[:2, 2]
-
-    def linear(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return (np.asarray(p, dtype=np.float64) - centre) @ L_inv.T, L_inv
-
-    return linear
