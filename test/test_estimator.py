@@ -10,6 +10,8 @@ import pytest
 
 from planar_vo.core.conventions import so3_exp, so3_log
 from planar_vo.core.robust.general import (
+    PlanarPrior,
+    _cheirality_sign,
     _essential_jacobian,
     ac_design,
     essential,
@@ -72,6 +74,50 @@ def test_essential_jacobian_matches_finite_differences():
         minus = essential(so3_exp(-d[:3]) @ s.R, s.t - B @ d[3:])
         np.testing.assert_allclose((plus - minus).ravel() / (2 * eps), D[:, k], atol=1e-6)
     assert np.allclose(B.T @ B, np.eye(2)) and np.allclose(B.T @ s.t, 0.0)
+
+
+def test_planar_prior_terms_and_jacobian():
+    R_lc = so3_exp(np.radians([1.5, 0.2, -0.7]))
+    mean = np.radians([0.05, -0.02, 0.1])
+    prior = PlanarPrior(R_lc, math.radians(0.1), math.radians(0.4), mean)
+    # Exact terms: a level motion with pitch, roll and an elevation of travel put in by hand.
+    pitch, yaw, roll, elev = np.radians([0.3, 4.0, -0.2, 0.8])
+    R_l = so3_exp(np.array([pitch, 0.0, roll])) @ so3_exp(np.array([0.0, yaw, 0.0]))
+    c_l = np.array([math.cos(elev) * math.sin(0.1), math.sin(elev),
+                    math.cos(elev) * math.cos(0.1)])          # travel, level frame
+    R = R_lc.T @ R_l @ R_lc
+    t = -R @ (R_lc.T @ c_l)                                   # c = -R^T t in camera 1
+    rho = so3_log(R_l)
+    np.testing.assert_allclose(prior.level_terms(R, t), [rho[0], rho[2], elev], atol=1e-14)
+    B = tangent_basis(t)
+    res, J = prior.residuals(R, t, B)
+    np.testing.assert_allclose(res, (np.array([rho[0], rho[2], elev]) - mean)
+                               / np.radians([0.1, 0.1, 0.4]), atol=1e-10)
+    # The Jacobian: exact for the elevation, about R_lc for the small-angle log (its
+    # documented approximation) at this small rotation.
+    eps = 1e-7
+    for k in range(5):
+        d = np.zeros(5)
+        d[k] = eps
+        plus = prior.residuals(so3_exp(d[:3]) @ R, (t + B @ d[3:]) / np.linalg.norm(t + B @ d[3:]),
+                               B)[0]
+        minus = prior.residuals(so3_exp(-d[:3]) @ R,
+                                (t - B @ d[3:]) / np.linalg.norm(t - B @ d[3:]), B)[0]
+        numeric = (plus - minus) / (2 * eps)
+        np.testing.assert_allclose(J[2, k], numeric[2], rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(J[:2, k], numeric[:2], rtol=0.05, atol=0.05 * abs(J).max())
+    # An infinite sigma switches its term off.
+    off = PlanarPrior(R_lc, math.inf, math.radians(0.4), mean).residuals(R, t, B)
+    assert off[0][0] == off[0][1] == 0.0 and not off[1][:2].any()
+
+
+def test_cheirality_sign_picks_the_translation_with_points_in_front():
+    s = street_pair(np.random.default_rng(6), 300, tilt_deg=1.0)
+    n = s.exact.normalized(s.camera)
+    every = np.ones(len(n), bool)
+    assert _cheirality_sign(n.p1, n.p2, s.R, s.t, every) == 1.0
+    assert _cheirality_sign(n.p1, n.p2, s.R, -s.t, every) == -1.0
+    assert _cheirality_sign(n.p1, n.p2, s.R, s.t, np.zeros(len(n), bool)) == 1.0
 
 
 def test_residual_variances_match_monte_carlo():
