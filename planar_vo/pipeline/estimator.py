@@ -70,7 +70,7 @@ from planar_vo.core.robust.general import (
     tangent_basis,
 )
 from planar_vo.core.robust.options import EstimatorConfig
-from planar_vo.core.robust.stats import MAD_TO_SIGMA
+from planar_vo.core.robust.stats import MAD_TO_SIGMA, median
 
 __all__ = ['FrameEstimate', 'MotionEstimator', 'lift_planar']
 
@@ -194,10 +194,10 @@ class MotionEstimator:
         if len(self._motions) < _HISTORY_MIN:
             return PlanarPrior(self.R_lc, *PRIOR_SIGMAS, np.zeros(3))
         terms = self._level_terms()
-        centre = np.median(terms, axis=0)
+        centre = _column_medians(terms)
         spread = np.abs(terms - centre)
-        sigma_rot = max(MAD_TO_SIGMA * float(np.median(spread[:, :2])), _PRIOR_FLOOR[0])
-        sigma_elev = max(MAD_TO_SIGMA * float(np.median(spread[:, 2])), _PRIOR_FLOOR[1])
+        sigma_rot = max(MAD_TO_SIGMA * median(spread[:, :2].ravel()), _PRIOR_FLOOR[0])
+        sigma_elev = max(MAD_TO_SIGMA * median(spread[:, 2]), _PRIOR_FLOOR[1])
         return PlanarPrior(self.R_lc, sigma_rot, sigma_elev, centre)
 
     @property
@@ -207,8 +207,8 @@ class MotionEstimator:
         if len(self._motions) < _HISTORY_MIN:
             return float('nan')
         rotations = self._level_terms()[:, :2]
-        spread = np.abs(rotations - np.median(rotations, axis=0))
-        return MAD_TO_SIGMA * float(np.median(spread))
+        spread = np.abs(rotations - _column_medians(rotations))
+        return MAD_TO_SIGMA * median(spread.ravel())
 
     def _level_terms(self) -> np.ndarray:
         """``(K, 3)`` level pitch and roll rotation and elevation of travel of the history."""
@@ -318,7 +318,7 @@ class MotionEstimator:
             return self._failed(n, 'too_few_inliers', vote)
         first = answers[0][1]
         share = float(w[first.inliers].sum() / max(w.sum(), 1e-300))
-        typical = (float(np.median(self._shares)) if len(self._shares) >= _HISTORY_MIN
+        typical = (median(np.array(self._shares)) if len(self._shares) >= _HISTORY_MIN
                    else 1.0)
         unsettled = first.rounds >= self.config.rounds         # it used all its rounds
         if unsettled or share < min(_RECHECK_SHARE, _RECHECK_RELATIVE * typical):
@@ -472,7 +472,7 @@ class MotionEstimator:
             # (``voting.point_noise``, ``voting.affine_noise``): a drive's easy stretches set a
             # median far below it, and the model errors of a sharp turn (an assumed principal
             # point, lens residuals) then flagged right answers.
-            median_p, median_a = np.median(np.array(self._scales), axis=0)
+            median_p, median_a = _column_medians(np.array(self._scales))
             cap_p = max(_MAX_SCALE_RATIO * median_p, self.voting.point_noise)
             cap_a = max(_MAX_SCALE_RATIO * median_a, self.voting.affine_noise)
         else:
@@ -545,6 +545,12 @@ class MotionEstimator:
         return FrameEstimate(np.full((3, 3), np.nan), np.full(3, np.nan),
                              np.full((5, 5), np.inf), np.full((3, 2), np.nan),
                              np.zeros(n, bool), False, flag, vote, {})
+
+
+def _column_medians(x: np.ndarray) -> np.ndarray:
+    """``np.median(x, axis=0)`` of a (K, m) history, column by column by partial sorting (the
+    same values; np.median's overhead is several times the work at these sizes)."""
+    return np.array([median(x[:, k]) for k in range(x.shape[1])])
 
 
 def _turn(t: np.ndarray, b: np.ndarray, angle: float) -> np.ndarray:

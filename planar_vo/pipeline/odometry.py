@@ -53,7 +53,7 @@ from planar_vo.core.conventions import (
     wrap_angle,
 )
 from planar_vo.core.correspondences import AffineCorrespondences
-from planar_vo.core.robust.stats import MAD_TO_SIGMA
+from planar_vo.core.robust.stats import MAD_TO_SIGMA, median
 from planar_vo.errors import ImageError, PlanarVoError, one_line
 from planar_vo.frontend import ACExtractor, leveling_rotation
 from planar_vo.frontend.images import as_gray
@@ -323,7 +323,7 @@ class VisualOdometry:
                                     f'{len(acs)} correspondences (minimum '
                                     f'{self.config.odometry.min_correspondences})', len(acs))
         keyframe.matched = True
-        parallax = float(np.median(np.linalg.norm(acs.p2 - acs.p1, axis=1)))
+        parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
         if parallax < self.config.keyframe.stationary_parallax:
             return self._stationary(keyframe, stamp, len(acs))
 
@@ -936,8 +936,8 @@ _WOBBLE_CHANGE = 0.2
 def _excess_variance(values: np.ndarray, predicted: np.ndarray, share: float = 1.0) -> float:
     """``share`` times the squared robust spread (MAD) of ``values``, less the median of the
     ``predicted`` variances, at least 0 (`_yaw_excess`, `_heading_excess`)."""
-    spread = MAD_TO_SIGMA * float(np.median(np.abs(values - np.median(values))))
-    return max(share * spread * spread - float(np.median(predicted)), 0.0)
+    spread = MAD_TO_SIGMA * median(np.abs(values - median(values)))
+    return max(share * spread * spread - median(predicted), 0.0)
 
 
 def _with_timings(result: FrameResult, timings: dict[str, float]) -> FrameResult:
