@@ -204,23 +204,30 @@ class RoadNormalCalibrator:
             spread = MAD_TO_SIGMA * median(np.abs(e[front])) + 1e-12 if front.any() else 1.0
             w = w0 * front / (1.0 + (e / (_CAUCHY_SCALE * spread)) ** 2)
             we = w * e
-            H = np.array([[np.sum(w * J[0] * J[0]), np.sum(w * J[0] * J[1])],
-                          [0.0, np.sum(w * J[1] * J[1])]])
-            H[1, 0] = H[0, 1]
-            det = H[0, 0] * H[1, 1] - H[0, 1] ** 2
-            if not det > 1e-12 * max(H[0, 0] * H[1, 1], 1e-300):
+            # The 2x2 normal equations in plain floats (numpy's per-call overhead would cost
+            # more than the arithmetic).
+            h00 = float(np.sum(w * J[0] * J[0]))
+            h01 = float(np.sum(w * J[0] * J[1]))
+            h11 = float(np.sum(w * J[1] * J[1]))
+            H = (h00, h01, h11)
+            det = h00 * h11 - h01 ** 2
+            if not det > 1e-12 * max(h00 * h11, 1e-300):
                 return None
-            Hinv = np.array([[H[1, 1], -H[0, 1]], [-H[0, 1], H[0, 0]]]) / det
-            step = Hinv @ np.array([np.sum(we * J[0]), np.sum(we * J[1])])
-            p, r = p - float(step[0]), r - float(step[1])
-            model = Hinv * float(np.sum(we * e) / max(np.sum(w), 1e-300))
-            if np.all(np.abs(step) <= np.maximum(1e-7, 0.01 * np.sqrt(np.diag(model)))):
+            i00, i01, i11 = h11 / det, -h01 / det, h00 / det
+            g0, g1 = float(np.sum(we * J[0])), float(np.sum(we * J[1]))
+            s0, s1 = i00 * g0 + i01 * g1, i01 * g0 + i11 * g1
+            p, r = p - s0, r - s1
+            factor = float(np.sum(we * e) / max(np.sum(w), 1e-300))
+            if (abs(s0) <= max(1e-7, 0.01 * math.sqrt(max(i00 * factor, 0.0)))
+                    and abs(s1) <= max(1e-7, 0.01 * math.sqrt(max(i11 * factor, 0.0)))):
                 break
         if H is None:
             return None
         # Sandwich covariance, frames as clusters, never below the model-based one (residual
         # variance times H^-1), widened for few frames (Student t with nf - 1 degrees of
         # freedom; a single frame gets the model-based one with the two-frame factor).
+        Hinv = np.array([[i00, i01], [i01, i11]])
+        model = Hinv * factor
         S = np.column_stack([(we * J[0]).sum(1), (we * J[1]).sum(1)])
         cov = Hinv @ (S.T @ S) @ Hinv * nf / (nf - 1) if nf > 1 else np.zeros((2, 2))
         cov = np.maximum(cov, model) * few_cluster_factor(max(nf, 2), 1.0) ** 2
