@@ -63,6 +63,7 @@ from planar_vo.core.robust.general import (
     PlanarPrior,
     ac_design,
     chi_square,
+    chi_squares,
     essential,
     noise_scales,
     refine_general_motion,
@@ -491,14 +492,13 @@ class MotionEstimator:
         if not stats['yaw_std'] <= cfg.max_yaw_std:
             return 'imprecise'
         support = max(float(w[best.inliers].sum()), 1e-300)
-        rises = []
-        for R_p, t_p in ((so3_exp(_PERTURBATION * axis) @ best.R, best.t),
-                         (so3_exp(-_PERTURBATION * axis) @ best.R, best.t),
-                         (best.R, _turn(best.t, best.basis[:, 0], 5 * _PERTURBATION)),
-                         (best.R, _turn(best.t, best.basis[:, 1], 5 * _PERTURBATION))):
-            cost = self._msac(M, acs, R_p, t_p, best.sp, best.sa)[0]
-            rises.append((cost - cost_best) / support)
-        stats['rise'] = min(rises)
+        perturbed = [(so3_exp(_PERTURBATION * axis) @ best.R, best.t),
+                     (so3_exp(-_PERTURBATION * axis) @ best.R, best.t),
+                     (best.R, _turn(best.t, best.basis[:, 0], 5 * _PERTURBATION)),
+                     (best.R, _turn(best.t, best.basis[:, 1], 5 * _PERTURBATION))]
+        chi2 = chi_squares(M, acs.p1, acs.p2, acs.A, perturbed, best.sp, best.sa)
+        costs = [float(w @ c) for c in np.minimum(chi2, GATE)]     # as `_msac`'s
+        stats['rise'] = min((cost - cost_best) / support for cost in costs)
         return 'flat' if stats['rise'] < _FLAT_RISE else None
 
     def _update(self, best, share: float) -> None:
