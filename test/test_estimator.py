@@ -14,6 +14,8 @@ from planar_vo.core.robust.general import (
     _cheirality_sign,
     _essential_jacobian,
     ac_design,
+    chi_square,
+    chi_squares,
     essential,
     refine_general_motion,
     residual_variances,
@@ -118,6 +120,17 @@ def test_cheirality_sign_picks_the_translation_with_points_in_front():
     assert _cheirality_sign(n.p1, n.p2, s.R, s.t, every) == 1.0
     assert _cheirality_sign(n.p1, n.p2, s.R, -s.t, every) == -1.0
     assert _cheirality_sign(n.p1, n.p2, s.R, s.t, np.zeros(len(n), bool)) == 1.0
+
+
+def test_chi_squares_of_several_motions_equal_single_calls():
+    s = street_pair(np.random.default_rng(7), 200, outlier_ratio=0.3)
+    n = s.normalized
+    M = ac_design(n.p1, n.p2, n.A)
+    motions = [(so3_exp(np.radians([0.1, k, -0.2])) @ s.R, s.t) for k in (-1.0, 0.0, 2.0)]
+    batch = chi_squares(M, n.p1, n.p2, n.A, motions, 1e-3, 2e-2)
+    single = np.array([chi_square(M, n.p1, n.p2, n.A, R, t, 1e-3, 2e-2) for R, t in motions])
+    assert batch.shape == (3, len(n)) and np.array_equal(batch, single)
+    assert np.all(batch[1] != batch[0])              # the motions do differ
 
 
 def test_residual_variances_match_monte_carlo():
