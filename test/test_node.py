@@ -1190,6 +1190,55 @@ def test_parameter_file_for_another_node_name_is_reported(prefix, ros_env, tmp_p
         '/camera_info' in output, output
 
 
+@pytest.mark.timeout(60)
+def test_a_p_value_replaced_by_a_later_parameter_file_is_reported(prefix, ros_env, tmp_path):
+    # rcl applies the arguments in order: the file after -p mount.height wins (the shipped file
+    # sets mount.height), the -p after it is kept.
+    params = edited_parameter_file(prefix, tmp_path / 'params.yaml')
+    args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args',
+            '-p', 'mount.height:=1.65', '--params-file', str(params),
+            '-p', 'ros.image_timeout:=0.5']
+    with NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
+        deadline = time.monotonic() + 30
+        while 'no image for' not in node.output():
+            assert time.monotonic() < deadline and node.popen.poll() is None, node.output()
+            time.sleep(0.05)
+        assert node.stop(signal.SIGINT) == 0
+        output = node.output()
+    warning = [ln for ln in output.splitlines() if 'was replaced' in ln]
+    assert len(warning) == 1 and warning[0].startswith('[WARN]'), output
+    assert f'-p mount.height was replaced by the value in {params}, given after it ' \
+           '(mount.height = 1.4): put --params-file before -p' in warning[0]
+
+
+@pytest.mark.parametrize('ros_args, message', [
+    (['--params-file', 'no/such/file.yaml'], "Couldn't parse params file"),
+    (['--log-level', 'bogus'], "Couldn't parse log level"),
+    (['-p'], "Couldn't parse trailing -p flag"),
+])
+def test_bad_ros_arguments_give_one_line_and_exit_1(prefix, ros_env, ros_args, message):
+    import subprocess
+
+    proc = subprocess.run([str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args',
+                           *ros_args], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1 and proc.stdout == '', proc.stdout + proc.stderr
+    # rcl logs its own '[ERROR] [rcl]: Failed to parse global arguments' first.
+    lines = [ln for ln in proc.stderr.strip().splitlines() if '[rcl]' not in ln]
+    assert len(lines) == 1 and lines[0].startswith(f'planar_vo_node: {message}'), proc.stderr
+    assert 'Traceback' not in proc.stderr and '/src/' not in proc.stderr
+
+
+def test_ros_arguments_pair_each_p_name_with_the_files_after_it():
+    from planar_vo.ros.node import ros_arguments
+
+    argv = ['planar_vo_node', '-p', 'x:=1', '--ros-args', '-p', 'mount.height:=1.65',
+            '--params-file', 'a.yaml', '--param', 'planar_vo:ros.publish_tf:=false',
+            '--params-file', 'b.yaml', '--', '--params-file', 'c.yaml']
+    files, names = ros_arguments(argv)
+    assert files == ['a.yaml', 'b.yaml']
+    assert names == {'mount.height': ['a.yaml', 'b.yaml'], 'ros.publish_tf': ['b.yaml']}
+
+
 def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):
     import subprocess
 

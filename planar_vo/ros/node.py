@@ -183,7 +183,7 @@ class PlanarVoNode(Node):
         parameter_files: the ``--params-file`` files of the command line, to warn about a file
             that set nothing for this node (keyed on another node name).
         command_line_parameters: the names given with ``-p`` (they do not count as set by a
-            file).
+            file), each with the ``--params-file`` files given after it (`ros_arguments`).
         **kwargs: `rclpy.node.Node` arguments (``context``, ``parameter_overrides``, ...).
 
     Attributes:
@@ -193,7 +193,8 @@ class PlanarVoNode(Node):
     """
 
     def __init__(self, *, parameter_files: Sequence[str] = (),
-                 command_line_parameters: Sequence[str] = (), **kwargs: Any) -> None:
+                 command_line_parameters: dict[str, list[str]] | Sequence[str] = (),
+                 **kwargs: Any) -> None:
         super().__init__('planar_vo', **kwargs)
         self._defaults = flatten(PlanarVoConfig())
         self._check_unknown_overrides()
@@ -204,7 +205,9 @@ class PlanarVoNode(Node):
             if name in self._defaults})
         self._declare_parameters()
         self._log_parameters()
-        self._check_parameter_files(parameter_files, set(command_line_parameters))
+        given = (command_line_parameters if isinstance(command_line_parameters, dict)
+                 else {name: [] for name in command_line_parameters})
+        self._check_parameter_files(parameter_files, given)
         ros = self.config.ros
 
         self._vo = VisualOdometry(self.config)
@@ -390,18 +393,30 @@ class PlanarVoNode(Node):
                 f'from {self.config.scale.source}; {len(self._defaults)} parameters, '
                 f'{len(changed)} set: {settings} (the others: ros2 param dump, or DEBUG logs)')
 
-    def _check_parameter_files(self, files: Sequence[str], given: set[str]) -> None:
+    def _check_parameter_files(self, files: Sequence[str], given: dict[str, list[str]]
+                               ) -> None:
         """Warn about a parameter file that set nothing for this node: rcl silently skips a
-        file keyed on another node name (``planar_vo:`` for a node renamed ``front_vo``)."""
-        applied = set(self._parameter_overrides) - given
+        file keyed on another node name (``planar_vo:`` for a node renamed ``front_vo``); and
+        about a ``-p`` value that a later ``--params-file`` replaced (rcl applies the arguments
+        in order: ``-p mount.height:=1.65 --params-file planar_vo.yaml`` runs with the file's
+        height). ``given``: the ``-p`` names, each with the files after it (`ros_arguments`)."""
+        applied = set(self._parameter_overrides) - set(given)
+        entries = {path: _parameter_file_entries(path) for path in files}
         for path in files:
-            keys, names = _parameter_file_entries(path)
+            keys, names = entries[path]
             if names and not names & applied:
                 self.get_logger().warning(
                     f'parameter file {path} set nothing for this node '
                     f'{self.get_fully_qualified_name()}: its parameters are keyed on '
                     f'{", ".join(keys)}; key them on /** (any node) or on '
                     f'{self.get_fully_qualified_name()}')
+        for name, later in given.items():
+            replaced = [path for path in later if name in entries[path][1]]
+            if replaced and name in self._parameter_overrides:
+                self.get_logger().warning(
+                    f'-p {name} was replaced by the value in {replaced[-1]}, given after it '
+                    f'({name} = {_format_value(self._parameter_overrides[name].value)}): put '
+                    f'--params-file before -p')
 
     def _on_set_parameters(self, params: list) -> SetParametersResult:
         """Validate a run-time change through the config object; apply the live ones (rclpy has
@@ -965,10 +980,13 @@ def _format_value(value: Any) -> str:
     return str(value)
 
 
-def ros_arguments(argv: Sequence[str]) -> tuple[list[str], set[str]]:
+def ros_arguments(argv: Sequence[str]) -> tuple[list[str], dict[str, list[str]]]:
     """The ``--params-file`` files and the names set with ``-p NAME:=VALUE`` inside the
-    ``--ros-args`` sections of ``argv``."""
-    files, names, ros, items = [], set(), False, iter(argv)
+    ``--ros-args`` sections of ``argv``; each name with the files that come after its ``-p``
+    (rcl applies the arguments in order, so such a file's value wins)."""
+    files: list[str] = []
+    names: dict[str, list[str]] = {}
+    ros, items = False, iter(argv)
     for arg in items:
         if arg == '--ros-args':
             ros = True
@@ -976,9 +994,18 @@ def ros_arguments(argv: Sequence[str]) -> tuple[list[str], set[str]]:
             ros = False
         elif ros and arg == '--params-file':
             files.append(next(items, ''))
+            for later in names.values():
+                later.append(files[-1])
         elif ros and arg in ('-p', '--param'):
-            names.add(next(items, '').partition(':=')[0].rpartition(':')[2])
+            names[next(items, '').partition(':=')[0].rpartition(':')[2]] = []
     return files, names
+
+
+def _rcl_error_line(err: Exception) -> str:
+    """rcl's argument error on one line, without its C source locations."""
+    text = ' '.join(str(err).split())
+    text = text.removeprefix('failed to initialize rcl: ')
+    return text.split(', at /')[0].rstrip('.,') or 'invalid ROS arguments'
 
 
 def _installed_parameter_file() -> str:
@@ -1026,9 +1053,11 @@ def usage() -> str:
     lines += [
         '',
         'example:',
-        '  ros2 run planar_vo planar_vo_node --ros-args -r image:=/camera/image_raw \\',
-        '      -r camera_info:=/camera/camera_info -p mount.height:=1.65 \\',
-        f'      --params-file {_installed_parameter_file()}',
+        '  ros2 run planar_vo planar_vo_node --ros-args \\',
+        f'      --params-file {_installed_parameter_file()} \\',
+        '      -r image:=/camera/image_raw -r camera_info:=/camera/camera_info \\',
+        '      -p mount.height:=1.65',
+        '  (rcl applies the arguments in order: -p after --params-file overrides the file)',
     ]
     return '\n'.join(lines)
 
@@ -1097,7 +1126,12 @@ def main(args: list[str] | None = None) -> int:
         return 0
     stop = _StopRequest()
     limit_blas_threads()        # idle OpenBLAS workers busy-wait: one thread is faster here
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as err:         # rclpy's RCLError: rcl could not parse --ros-args
+        stop.done()
+        print(f'planar_vo_node: {_rcl_error_line(err)}', file=sys.stderr)
+        return 1
     library_log = logging.getLogger('planar_vo')
     node = executor = handler = None
     try:
