@@ -104,6 +104,55 @@ def test_replay_errors_name_the_options_as_typed(tmp_path, capsys, drive_bags, o
     assert err.count('\n') == 1 and not (tmp_path / 'o').exists()
 
 
+def _step_sources(text: str) -> dict[str, int]:
+    line = next(x for x in text.splitlines() if x.startswith('  step lengths'))
+    return {k: int(v) for k, v in (item.rsplit(' ', 1) for item in
+                                   line.split('step lengths', 1)[1].split('(')[0].strip()
+                                   .split(', '))}
+
+
+def test_replay_speed_topic_gives_the_scale(tmp_path, capsys, drive_bags):
+    """--speed-topic sets scale.source: speed (the ground truth's odometry as the speed)."""
+    trajectory, bags = drive_bags
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), '--speed-topic',
+                 '/ground_truth/odom', '--no-progress']) == 0
+    text = capsys.readouterr().out
+    sources = _step_sources(text)
+    assert sources.get('speed', 0) > len(trajectory) / 2 and 'ground' not in sources, text
+    assert f'speed messages     {len(trajectory)}' in text
+
+
+def test_replay_with_speed_scale_needs_a_speed_topic(tmp_path, capsys, drive_bags):
+    _, bags = drive_bags
+    config = tmp_path / 'speed.yaml'
+    config.write_text('scale: {source: speed}\n')
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), '--config',
+                 str(config)]) == 1
+    err = capsys.readouterr().err
+    assert err == ("planar_vo replay: error: scale.source: speed needs --speed-topic TOPIC (the "
+                   "bag's TwistStamped or Odometry speed topic); without it no step would be "
+                   'metric\n') and not (tmp_path / 'o').exists()
+
+
+def test_replay_uses_configured_intrinsics_over_the_bags_camera_info(tmp_path, capsys,
+                                                                     drive_bags):
+    """As the node: camera.fx > 0 means no CameraInfo (the bag's is 500 px)."""
+    _, bags = drive_bags
+    config = tmp_path / 'fx.yaml'
+    config.write_text('camera: {fx: 450}\n')
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), '--config',
+                 str(config), '--no-progress']) == 0
+    text = capsys.readouterr().out
+    assert '(camera info: /camera/camera_info not used: camera.fx is configured (450 px), ' \
+           'speed: none)' in text
+    assert 'camera             focal length 450.0 px (configured)' in text
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o2'),
+                 '--no-progress']) == 0
+    text = capsys.readouterr().out
+    assert '(camera info: /camera/camera_info, speed: none)' in text
+    assert 'focal length 500.0 px (CameraInfo)' in text
+
+
 def test_replay_names_its_input_as_typed(tmp_path, capsys):
     """IN, as in the usage line (was the library's 'bag')."""
     assert main(['replay', str(tmp_path / 'missing'), '--out', str(tmp_path / 'o')]) == 1

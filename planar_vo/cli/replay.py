@@ -34,7 +34,8 @@ def register(subparsers) -> argparse.ArgumentParser:
     parser.add_argument('--camera-info-topic', metavar='TOPIC',
                         help='sensor_msgs/CameraInfo topic (default: the only one, if any)')
     parser.add_argument('--speed-topic', metavar='TOPIC',
-                        help='TwistStamped or Odometry topic giving the speed for metric scale')
+                        help='TwistStamped or Odometry topic giving the speed for metric scale '
+                             '(sets scale.source: speed; required with scale.source: speed)')
     parser.add_argument('--tum', metavar='FILE', help='also write the odometry as a TUM file')
     parser.add_argument('--config', metavar='YAML',
                         help='configuration file (default: built-in defaults, as in '
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.tools.replay import replay_bag
 
-    config = load_config(args.config)
+    config = speed_scale(load_config(args.config), args.speed_topic)
     summary = replay_bag(
         args.bag, args.out, VisualOdometry(config), image_topic=args.image_topic,
         camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
@@ -60,3 +61,31 @@ def run(args: argparse.Namespace) -> int:
         base_frame=config.ros.base_frame, progress=show_progress(args))
     print(summary.format())
     return 0
+
+
+def speed_scale(config, speed_topic: str | None):
+    """The configuration with the scale from ``--speed-topic``: given, it sets ``scale.source:
+    speed`` (the command line over the file: a speed read but unused would leave the steps to
+    the road without a word); ``scale.source: speed`` without it is an error (every step would
+    be a fallback, unit lengths before the first metric one).
+
+    Raises:
+        ConfigError: ``scale.source`` is ``speed`` and no speed topic is given.
+    """
+    import dataclasses
+    import logging
+
+    from planar_vo.errors import ConfigError
+
+    if speed_topic is None:
+        if config.scale.source == 'speed':
+            raise ConfigError('scale.source: speed needs --speed-topic TOPIC (the bag\'s '
+                              'TwistStamped or Odometry speed topic); without it no step '
+                              'would be metric')
+        return config
+    if config.scale.source != 'speed':
+        logging.getLogger('planar_vo').info('scale.source: speed (from --speed-topic; the '
+                                            'configuration said %s)', config.scale.source)
+        config = dataclasses.replace(config, scale=dataclasses.replace(config.scale,
+                                                                       source='speed'))
+    return config

@@ -85,6 +85,8 @@ class ReplaySummary:
         copied: messages copied per topic.
         speed_messages: speed messages fed to the processor.
         camera_info_errors: CameraInfo messages that could not be parsed.
+        camera_info_unused: why the bag's CameraInfo was not used (configured intrinsics or
+            the focal self-calibration, as in the node); empty if it was.
         wall_time: seconds from opening the input to closing the output.
         focal: the focal length in use at the end and where it came from (the processor's
             ``focal_status()``: CameraInfo, configured, or self-calibrated / provisional).
@@ -106,6 +108,7 @@ class ReplaySummary:
     copied: dict[str, int] = field(default_factory=dict)
     speed_messages: int = 0
     camera_info_errors: int = 0
+    camera_info_unused: str = ''
     wall_time: float = 0.0
     focal: str = ''
     scale_sources: dict[str, int] = field(default_factory=dict)
@@ -121,10 +124,13 @@ class ReplaySummary:
         dropped = ', '.join(f'{k} {v}' for k, v in sorted(self.dropped.items())) or 'none'
         copied = ', '.join(f'{k} {v}' for k, v in sorted(self.copied.items())) or 'none'
         sources = ', '.join(f'{k} {v}' for k, v in sorted(self.scale_sources.items())) or 'none'
+        info = self.camera_info_topic or 'none'
+        if self.camera_info_unused:
+            info += f' not used: {self.camera_info_unused}'
         lines = [
             f'replay {self.input} -> {self.output}',
-            f'  image topic        {self.image_topic} (camera info: '
-            f'{self.camera_info_topic or "none"}, speed: {self.speed_topic or "none"})',
+            f'  image topic        {self.image_topic} (camera info: {info}, speed: '
+            f'{self.speed_topic or "none"})',
             f'  frames in          {self.frames_in}',
             f'  odometry out       {self.odometry_out}',
             f'  dropped            {sum(self.dropped.values())} ({dropped})',
@@ -140,6 +146,17 @@ class ReplaySummary:
         if self.tum:
             lines.append(f'  TUM trajectory     {self.tum}')
         return '\n'.join(lines)
+
+
+def _own_intrinsics(config: PlanarVoConfig) -> str:
+    """Why a camera model from CameraInfo would not be used (``''`` if it would): configured
+    intrinsics (``camera.fx > 0``) or the focal self-calibration (``camera.estimate_focal``),
+    as in the node."""
+    if config.camera.fx > 0:
+        return f'camera.fx is configured ({config.camera.fx:g} px)'
+    if config.camera.estimate_focal:
+        return 'camera.estimate_focal is on'
+    return ''
 
 
 def _read_speeds(bag: BagReader, topic: str) -> tuple[list[int], list[float]]:
@@ -232,6 +249,14 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             raise BagError(f"image_topic: '{image_topic}' in '{in_path}' has no messages; "
                            f'messages per topic: {bag.describe_topics(counts=True)}')
         summary.image_topic, summary.camera_info_topic = image_topic, info_topic
+        config = getattr(processor, 'config', None)
+        own = _own_intrinsics(config) if isinstance(config, PlanarVoConfig) else ''
+        if own and info_topic is not None:
+            # As the node, which then does not subscribe to CameraInfo at all: the configured
+            # intrinsics (or the self-calibration) are what the user asked for.
+            summary.camera_info_unused = own
+            log.info('camera info %s not used: %s', info_topic, own)
+            info_topic = None
         if copy_topics is None:
             copy = [t for t in bag.topics_of_type(*COPY_TYPES) if t != odom_topic]
         else:
@@ -248,7 +273,6 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         sources: Counter[str] = Counter()
         poses = _Poses()
         # 16-bit grey images as the processor's configuration reads them (camera.mono16_bits).
-        config = getattr(processor, 'config', None)
         shift = config.camera.mono16_bits - 8 if isinstance(config, PlanarVoConfig) else 8
         decoder = CameraFrameDecoder(bag, image_topic, info_topic, mono16_shift=shift)
         decoder.prime()
