@@ -444,7 +444,7 @@ def test_uncalibrated_camera_runs_on_a_provisional_focal_length():
 def test_focal_status_names_the_source():
     trajectory, images, _ = _drive('straight')
     vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}))
-    assert vo.focal_status() == 'focal length unknown (no CameraInfo yet)'
+    assert vo.focal_status() == 'focal length unknown (no frame with camera intrinsics yet)'
     vo.process(images[0], float(trajectory.stamps[0]), CAMERA)
     assert vo.focal_status() == f'focal length {CAMERA.fx:.1f} px (CameraInfo)'
     configured = VisualOdometry(PlanarVoConfig.from_dict({'camera': {'fx': 480.0}}))

@@ -210,7 +210,7 @@ class VisualOdometry:
         if self._focal is not None and self._camera is None:
             return self._focal.status()
         if self._in_use is None:
-            return 'focal length unknown (no CameraInfo yet)'
+            return 'focal length unknown (no frame with camera intrinsics yet)'
         origin = 'configured' if self.config.camera.fx > 0 and self._camera_from_config \
             else 'CameraInfo'
         return f'focal length {self._in_use.fx:.1f} px ({origin})'
@@ -298,7 +298,7 @@ class VisualOdometry:
         camera = self._resolve_camera(camera, gray.shape)
         if camera is None:
             return self._drop(stamp, DropReason.NO_CAMERA_INFO,
-                              'no camera intrinsics yet (no CameraInfo and camera.fx = 0)')
+                              'no camera intrinsics yet (no valid CameraInfo and camera.fx = 0)')
         if camera.size != (gray.shape[1], gray.shape[0]):
             # A stray frame of another size: drop it, keep tracking (a new camera model with
             # the new size resets the keyframe in _resolve_camera).
