@@ -269,9 +269,9 @@ def _gauss_newton_step(T: np.ndarray, G: np.ndarray, Hinv: np.ndarray, image2: n
     # (tx, a00, a01, ty, a10, a11); T and warped are centred, so the offset's Schur complement
     # (mean steepest-descent image times sum(r)) vanishes.
     q = np.einsum('mks,js->mkj', G * r[:, None, :], mono).reshape(m, 6).astype(np.float64)
-    # d = -H^-1 q per patch, (6, M) in the order of q (one einsum: the same sums in the same
-    # order as a loop over the columns, at a third of its cost).
-    d = -np.einsum('ijm,jm->im', Hinv, q.T.copy())
+    d = Hinv[:, 0] * -q[:, 0]                                       # (6, M), order of q
+    for j in range(1, _NPARAM):
+        d -= Hinv[:, j] * q[:, j]
     step = np.hypot(d[0], d[3]) + radius * np.sqrt(d[1] ** 2 + d[2] ** 2 + d[4] ** 2
                                                    + d[5] ** 2)
     # W <- W o W(d)^-1: A <- A (I + dA)^-1, p2 <- p2 - A_new dt.

@@ -272,8 +272,8 @@ class PlanarPrior:
         th = math.atan2(s, 0.5 * (Rl[0][0] + Rl[1][1] + Rl[2][2] - 1.0))
         k = 0.5 if th < 1e-8 else 0.5 * th / s
         c = [-(m[0] * tx + m[1] * ty + m[2] * tz) for m in M]
-        elevation = math.asin(max(-1.0, min(1.0, c[1] / math.sqrt(
-            c[0] * c[0] + c[1] * c[1] + c[2] * c[2]))))
+        elevation = math.asin(max(-1.0, min(1.0, c[1] / max(math.sqrt(
+            c[0] * c[0] + c[1] * c[1] + c[2] * c[2]), 1e-300))))
         return (wx * k, wz * k, elevation), M, c
 
     def residuals(self, R: np.ndarray, t: np.ndarray, B: np.ndarray
@@ -288,16 +288,17 @@ class PlanarPrior:
         m0, m1, m2 = self._mean_floats
         tx, ty, tz = t.tolist()
         (b00, b01), (b10, b11), (b20, b21) = B.tolist()
-        # dc = -M [[t]x | B], column by column.
+        # d(elevation) = dc_y / sqrt(1 - c_y^2) with dc_y = -M[1] [[t]x | B] column by column
+        # (|c| = 1: its change c . dc = t^T [[t]x | B] vanishes for a unit t and its tangent
+        # basis B).
+        m = M[1]
         X = ((0.0, tz, -ty), (-tz, 0.0, tx), (ty, -tx, 0.0), (b00, b10, b20), (b01, b11, b21))
-        dc = [[-(m[0] * x[0] + m[1] * x[1] + m[2] * x[2]) for x in X] for m in M]
-        c0, c1, c2 = c
-        cdc = [c0 * a + c1 * b + c2 * d for a, b, d in zip(*dc)]
-        norm = max(math.sqrt(max(1.0 - c1 ** 2, 1e-12)), 1e-6)
+        norm = max(math.sqrt(max(1.0 - c[1] ** 2, 1e-12)), 1e-6)
+        k2 = -i2 / norm
         L = self._level_rows
         J = np.array([[L[0][0] * i0, L[0][1] * i0, L[0][2] * i0, 0.0, 0.0],
                       [L[2][0] * i1, L[2][1] * i1, L[2][2] * i1, 0.0, 0.0],
-                      [(a - c1 * b) / norm * i2 for a, b in zip(dc[1], cdc)]])
+                      [(m[0] * x[0] + m[1] * x[1] + m[2] * x[2]) * k2 for x in X]])
         res = np.array([(terms[0] - m0) * i0, (terms[1] - m1) * i1, (terms[2] - m2) * i2])
         return res, J
 
@@ -311,7 +312,7 @@ class PlanarPrior:
 
     @functools.cached_property
     def _mean_floats(self) -> tuple[float, float, float]:
-        return tuple(np.asarray(self.mean, dtype=np.float64).tolist())
+        return tuple(np.broadcast_to(np.asarray(self.mean, dtype=np.float64), (3,)).tolist())
 
     @functools.cached_property
     def _inverse_sigmas(self) -> np.ndarray:

@@ -184,7 +184,7 @@ class RoadNormalCalibrator:
         valid = w0 > 0
         p, r = float(pitch0), float(roll0)
         w = w0.copy()
-        H = None
+        fitted = False
         for _ in range(iterations):
             n = normal_from_tilt(p, r)
             Jn = normal_tilt_jacobian(p, r)
@@ -209,7 +209,7 @@ class RoadNormalCalibrator:
             h00 = float(np.sum(w * J[0] * J[0]))
             h01 = float(np.sum(w * J[0] * J[1]))
             h11 = float(np.sum(w * J[1] * J[1]))
-            H = (h00, h01, h11)
+            fitted = True
             det = h00 * h11 - h01 ** 2
             if not det > 1e-12 * max(h00 * h11, 1e-300):
                 return None
@@ -221,7 +221,7 @@ class RoadNormalCalibrator:
             if (abs(s0) <= max(1e-7, 0.01 * math.sqrt(max(i00 * factor, 0.0)))
                     and abs(s1) <= max(1e-7, 0.01 * math.sqrt(max(i11 * factor, 0.0)))):
                 break
-        if H is None:
+        if not fitted:
             return None
         # Sandwich covariance, frames as clusters, never below the model-based one (residual
         # variance times H^-1), widened for few frames (Student t with nf - 1 degrees of
