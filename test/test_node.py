@@ -807,6 +807,39 @@ def test_without_a_camera_info_publisher_images_do_not_wait(local_node, drive_ba
 
 
 @pytest.mark.timeout(60)
+def test_images_wait_for_a_silent_camera_info_publisher_at_most_half_a_second(
+        monkeypatch, local_node, drive_bag):
+    """A CameraInfo publisher that never publishes: an image waits at most _CAMERA_INFO_WAIT
+    (0.5 s), then it is counted no_camera_info and its status published, by the next image or
+    by the node's timer when no image comes; the CameraInfo then starts tracking at once."""
+    import planar_vo.ros.node as node_module
+    from sensor_msgs.msg import CameraInfo
+
+    now = [100.0]
+    monkeypatch.setattr(node_module, '_monotonic', lambda: now[0])
+    node = local_node(MOUNT_PARAMS)
+    node.create_publisher(CameraInfo, 'camera_info', 1)     # the driver's, silent
+    info, images = _bag_messages(drive_bag, 7)
+    for k in range(3):                  # 0.1 s apart: all three wait
+        node._on_image(images[k])
+        now[0] += 0.1
+    assert not statuses(node) and len(node._pending) == 3
+    now[0] += 0.25                      # F0 waited 0.55 s, F1 0.45 s, F2 0.35 s
+    node._release_overdue()             # (the timer's callback)
+    assert [s['result'] for s in statuses(node)] == ['no_camera_info']
+    now[0] += 0.3
+    node._on_image(images[3])           # F1 and F2 now overdue: released before F3 waits
+    assert [int(s['stamp_ns']) for s in statuses(node)] == \
+        [stamp_to_ns(m.header.stamp) for m in images[:3]]
+    assert len(node._pending) == 1 and node.outcomes['no_camera_info'] == 3
+    node._on_camera_info(info)          # F3 (stamped after the CameraInfo's) starts tracking
+    for msg in images[4:]:
+        node._on_image(msg)
+    assert [s['result'] for s in statuses(node)][3:] == ['first_frame', 'ok', 'ok', 'ok']
+    assert node._wait_timer is None
+
+
+@pytest.mark.timeout(60)
 def test_every_waiting_image_is_counted_when_publishing_fails_at_shutdown(
         monkeypatch, local_node, drive_bag):
     """flush_pending at shutdown: publishing the first waiting image's status raises (a context

@@ -141,8 +141,11 @@ _PERIOD_WINDOW = 20
 _RATE_CHANGE_GAPS, _RATE_CHANGE_SPREAD = 3, 0.2
 _INT64_MAX = 2 ** 63 - 1
 # Images that may wait for the first CameraInfo: the one it was published with may come after
-# the next images on a loaded machine (DDS does not order two topics).
+# the next images on a loaded machine (DDS does not order two topics); none waits longer than
+# _CAMERA_INFO_WAIT seconds (then its status is published, counted no_camera_info).
 _PENDING_IMAGES = 3
+_CAMERA_INFO_WAIT = 0.5
+_monotonic = time.monotonic            # the waiting images' clock (tests replace it)
 # The QoS policies the subscriptions let `qos_overrides.*` change, and the values rclpy knows.
 _QOS_POLICIES = tuple(kind.name.lower() for kind in
                       QoSOverridingOptions.with_default_policies().policy_kinds)
@@ -262,10 +265,15 @@ class PlanarVoNode(Node):
         camera = self.config.camera
         self._expects_camera_info = camera.fx <= 0 and not camera.estimate_focal
         self._camera_info_sub = None
+        self._wait_timer = None
         if self._expects_camera_info:
             self._camera_info_sub = self.create_subscription(
                 CameraInfo, 'camera_info', self._on_camera_info, qos_profile=sensor_qos(),
                 qos_overriding_options=overriding)
+            # Releases images that waited too long when no further image comes to do it.
+            self._wait_timer = self.create_timer(
+                _CAMERA_INFO_WAIT / 2, self._release_overdue,
+                clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._speed_sub = None
         if self.config.scale.source == 'speed':
             speed_type = Odometry if ros.speed_topic_type == 'odometry' else TwistStamped
@@ -468,7 +476,9 @@ class PlanarVoNode(Node):
         like every image that finds no camera model. Nothing waits for a CameraInfo that nobody
         publishes: once ``_PENDING_IMAGES`` images have come (the grace for discovering the
         driver's CameraInfo publisher after its image publisher), an image with no CameraInfo
-        publisher on the graph is counted at once, its status published with it."""
+        publisher on the graph is counted at once, its status published with it. Nor for one
+        that never comes: no image waits longer than ``_CAMERA_INFO_WAIT`` seconds
+        (`_release_overdue`)."""
         self._last_image = time.monotonic()
         self._images_seen += 1
         if self._camera is None and self._expects_camera_info:
@@ -479,9 +489,10 @@ class PlanarVoNode(Node):
                 finally:
                     self._frame(msg, decode)
                 return
+            self._release_overdue()
             if len(self._pending) >= _PENDING_IMAGES:
-                self._frame(*self._pending.pop(0))
-            self._pending.append((msg, decode))
+                self._frame(*self._pending.pop(0)[:2])
+            self._pending.append((msg, decode, _monotonic()))
             return
         self.flush_pending()
         self._frame(msg, decode)
@@ -494,7 +505,7 @@ class PlanarVoNode(Node):
         error = None
         for item in pending:
             try:
-                self._frame(*item)
+                self._frame(*item[:2])
             except Exception as err:  # noqa: BLE001 - re-raised below, after the others
                 error = error or err
         if error is not None:
@@ -504,12 +515,22 @@ class PlanarVoNode(Node):
         """The first CameraInfo (stamp ``info_stamp_ns``) has arrived, before its camera model
         is set: the waiting images older than the newest one stamped before it never get one
         (counted ``no_camera_info`` now); the rest wait for `flush_pending`."""
-        stamps = [stamp_to_ns(msg.header.stamp) for msg, _ in self._pending]
+        stamps = [stamp_to_ns(item[0].header.stamp) for item in self._pending]
         before = [k for k, s in enumerate(stamps) if s < info_stamp_ns]
         stale = set(before[:-1])
         for k in sorted(stale):
-            self._frame(*self._pending[k])
+            self._frame(*self._pending[k][:2])
         self._pending = [item for k, item in enumerate(self._pending) if k not in stale]
+
+    def _release_overdue(self) -> None:
+        """Process (counted ``no_camera_info``) the waiting images that arrived more than
+        ``_CAMERA_INFO_WAIT`` seconds ago: a CameraInfo publisher that never publishes must not
+        hold every status back (`_image`)."""
+        if self._camera is not None or not self._pending:
+            return
+        deadline = _monotonic() - _CAMERA_INFO_WAIT
+        while self._pending and self._pending[0][2] <= deadline:
+            self._frame(*self._pending.pop(0)[:2])
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
@@ -522,6 +543,9 @@ class PlanarVoNode(Node):
             return
         if self._camera is None and self._pending:
             self._release_pending(stamp_to_ns(msg.header.stamp))
+        if self._wait_timer is not None:
+            self.destroy_timer(self._wait_timer)    # nothing waits once there is a camera
+            self._wait_timer = None
         if camera != self._camera and self._camera is not None:
             # Rate-limited: two drivers publishing on one topic change it every message.
             self._counters['camera_changes'] += 1
