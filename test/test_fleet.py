@@ -532,6 +532,18 @@ def test_no_bags_is_an_error(tmp_path, capsys):
                                        '--manifest FILE, got none\n')
 
 
+def test_only_missing_bags_fail_before_ray_starts(tmp_path, capsys):
+    nope = tmp_path / 'nope.mcap'
+    assert main(['fleet', 'run', str(nope), '--out', str(tmp_path / 'o')]) == 1
+    assert capsys.readouterr().err == (f"planar_vo fleet run: error: BAG: '{nope}' does not "
+                                       f'exist\n')
+    assert main(['fleet', 'run', str(tmp_path / 'a'), str(tmp_path / 'b'), '--out',
+                 str(tmp_path / 'o')]) == 1
+    assert capsys.readouterr().err == (f"planar_vo fleet run: error: BAG: none of the 2 bags "
+                                       f"exists ('{tmp_path / 'a'}', ...)\n")
+    assert not (tmp_path / 'o').exists()         # found before Ray and the output
+
+
 # ---------------------------------------------------------------------------------------------
 # Configurations, manifests, jobs (no Ray)
 # ---------------------------------------------------------------------------------------------

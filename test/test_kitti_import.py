@@ -222,6 +222,13 @@ def test_cli_import_kitti(tmp_path, rng, capsys):
     assert err.startswith('planar_vo import-kitti: error: --out: ') and '\n' not in err
     assert err.endswith('already exists; refusing to overwrite it (remove it or choose another '
                         'path)')
+    # A bag is a folder: 'x.mcap' would have become the folder x.mcap holding x.mcap.mcap.
+    assert main(['import-kitti', str(tmp_path / 'seq'), '--out', str(tmp_path / 'x.mcap')]) == 1
+    assert capsys.readouterr().err == (
+        f"planar_vo import-kitti: error: --out: '{tmp_path / 'x.mcap'}' names a storage file; a "
+        f"bag is written as a folder (metadata.yaml and the mcap file): give the folder's name, "
+        f"e.g. '{tmp_path / 'x'}'\n")
+    assert not (tmp_path / 'x.mcap').exists()
 
 
 RANGE = r'outside the range of a ROS time stamp \(0 to 2147483647\.999999999 s: 1970 to 2038\)'

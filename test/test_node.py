@@ -508,6 +508,9 @@ def test_run_time_parameter_changes_are_validated_and_described(prefix, ros_env,
         assert height.description.startswith('camera position in base_link (metres)')
         assert (height.floating_point_range[0].from_value,
                 height.floating_point_range[0].to_value) == (0.0, math.inf)
+        # The range is closed in ROS; the open bound in words.
+        assert height.additional_constraints == 'expected a positive height above the ground (m)'
+        assert described['frontend.max_correspondences'].additional_constraints == ''
         tolerance = described['camera.focal_tolerance'].floating_point_range[0]
         assert (tolerance.from_value, tolerance.to_value) == (0.0, 1.0)
         cap = described['frontend.max_correspondences'].integer_range[0]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 EXAMPLES = """examples:
   planar_vo fleet run drives/*.mcap --out fleet_out               one task per bag, all CPUs
@@ -83,6 +84,11 @@ def run(args: argparse.Namespace) -> int:
     bags = list(args.bags) + (read_manifest(args.manifest) if args.manifest else [])
     if not bags:
         raise InputError('BAG: expected BAG arguments or --manifest FILE, got none')
+    missing = [str(bag) for bag in bags if not Path(bag).expanduser().exists()]
+    if len(missing) == len(bags):
+        # Found before Ray starts; with some bags present the missing ones are failed rows.
+        raise InputError(f"BAG: '{missing[0]}' does not exist" if len(missing) == 1 else
+                         f"BAG: none of the {len(missing)} bags exists ('{missing[0]}', ...)")
     configs = config_grid(load_config(args.config), args.set)
     command = ['planar_vo', 'fleet', 'run', *args.bags, '--out', args.out]
     for flag in ('manifest', 'config', 'address', 'workers'):

@@ -3,7 +3,9 @@
 Writes /camera/image_raw (mono8), /camera/camera_info (K from P0 of calib.txt, no distortion)
 and, when poses.txt exists, /ground_truth/odom in REP-103 frames: base_link is the camera
 projected to the ground (CAMERA_HEIGHT below it; x forward, y left, z up), odom is base_link at
-the first frame. Stamps are times.txt (or --rate-hz) plus --start seconds.
+the pose poses.txt counts from (the first frame of a whole KITTI sequence; a cut-out keeps its
+sequence's frame, as planar_vo eval aligns the trajectories anyway). Stamps are times.txt (or
+--rate-hz) plus --start seconds.
 """
 
 from __future__ import annotations

@@ -344,8 +344,11 @@ class PlanarVoNode(Node):
                 dynamic_typing=True)
             bounds = allowed.get(name)
             if bounds is not None and (bounds.low is not None or bounds.high is not None):
-                # ROS ranges are closed: an open bound is shown closed and the config object
-                # refuses the bound itself with its own message.
+                # ROS ranges are closed: an open bound is shown closed, the constraint in words
+                # (`ros2 param describe`: 'more than 0', 'a positive height in metres'), and
+                # the config object refuses the bound itself with its own message.
+                if bounds.low_open or bounds.high_open:
+                    descriptor.additional_constraints = f'expected {bounds}'
                 if isinstance(default, int):
                     descriptor.integer_range = [IntegerRange(
                         from_value=int(bounds.low if bounds.low is not None else -_INT64_MAX),
