@@ -229,6 +229,12 @@ def test_cli_import_kitti(tmp_path, rng, capsys):
         f"bag is written as a folder (metadata.yaml and the mcap file): give the folder's name, "
         f"e.g. '{tmp_path / 'x'}'\n")
     assert not (tmp_path / 'x.mcap').exists()
+    # A negative start in exponent form is a value (argparse took '-1e12' for an option).
+    assert main(['import-kitti', str(tmp_path / 'seq'), '--out', str(tmp_path / 'neg'),
+                 '--start', '-1e12']) == 1
+    err = capsys.readouterr().err
+    assert err.startswith('planar_vo import-kitti: error: stamps: times.txt plus start gives '
+                          '-1000000000000') and 'outside the range of a ROS time stamp' in err
 
 
 RANGE = r'outside the range of a ROS time stamp \(0 to 2147483647\.999999999 s: 1970 to 2038\)'

@@ -40,10 +40,21 @@ EPILOG = """examples:
 TOP_LEVEL_OPTION = re.compile(r'-v+|--verbose|--version')
 
 
+# A negative number as argparse's matcher should see it: -5, -0.5, -.5, -1e12, -2.5E-3.
+_NEGATIVE_NUMBER = re.compile(r'^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$')
+
+
 class CommandParser(argparse.ArgumentParser):
     """An `argparse.ArgumentParser` whose usage errors are one line on stderr and exit code 1,
     like every other error of the command (argparse's own: the usage block and exit code 2).
-    Subcommand parsers inherit it (`add_subparsers` uses the parent's class)."""
+    Subcommand parsers inherit it (`add_subparsers` uses the parent's class). Negative numbers
+    in exponent form (``--start -1e12``) are values, as ``-5`` and ``-0.5`` are (argparse
+    took ``-1e12`` for an option and said the option expected an argument)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        if hasattr(self, '_negative_number_matcher'):   # argparse's (3.11+; no public switch)
+            self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def error(self, message: str):
         self.exit(1, f'{self.prog}: error: {one_line(message)} '
