@@ -85,13 +85,13 @@ class BagWriter:
         self.path = Path(path)
         if storage not in STORAGES:
             raise BagError(f"storage: expected one of {list(STORAGES)}, got '{storage}'")
+        self._refuse_existing()
         if self.path.suffix in ('.mcap', '.db3'):
             # A ROS 2 bag is a folder (metadata.yaml and the storage file): 'x.mcap' would
             # become the folder x.mcap holding x.mcap.mcap.
             raise BagError(f"out: '{path}' names a storage file; a bag is written as a folder "
                            f"(metadata.yaml and the {storage} file): give the folder's name, "
                            f"e.g. '{self.path.with_suffix('')}'")
-        self._refuse_existing()
         self.storage = storage
         self.counts: dict[str, int] = {}
         self.kept = False
