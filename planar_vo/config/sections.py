@@ -48,10 +48,11 @@ class CameraConfig(Options):
         fx, fy, cx, cy: pinhole intrinsics in pixels; ``fx = 0`` means 'from CameraInfo'.
         distortion_model: ``'none'``, ``'plumb_bob'`` or ``'equidistant'`` (ROS names).
         distortion: coefficients in the ROS order for that model.
-        estimate_focal: self-calibrate the focal length online when ``fx`` is 0 and no
-            CameraInfo arrives: profile likelihoods of the focal length over frame pairs the
-            car turned between (the principal point is assumed at ``(cx, cy)``, or the image
-            centre when those are 0).
+        estimate_focal: self-calibrate the focal length online when ``fx`` is 0, instead of
+            CameraInfo (the node does not subscribe to it, replay leaves a bag's unused):
+            profile likelihoods of the focal length over frame pairs the car turned between
+            (the principal point is assumed at ``(cx, cy)``, or the image centre when those
+            are 0).
         focal_tolerance: the calibration is adopted once its relative standard deviation
             (reported so that the error stays within 3 of them) is below this; until then a
             provisional focal length is used and its uncertainty enters the covariance.
