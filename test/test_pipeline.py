@@ -4,6 +4,7 @@ reason."""
 from __future__ import annotations
 
 import functools
+import math
 import pickle
 
 import numpy as np
@@ -198,7 +199,9 @@ def test_a_step_covariance_is_its_first_order_propagation(rng):
 
 
 def test_covariance_is_derived_and_grows_along_the_drive():
-    _, results, _ = _run('left')
+    # (The levelling's share, which shrinks once the mount tilt is known, is tested below.)
+    _, results, _ = _run('left', PlanarVoConfig.from_dict({'mount': {
+        'height': HEIGHT, 'estimate_tilt': False}}))
     covs = np.array([r.pose_covariance for r in results[1:]])
     assert np.all(np.isfinite(covs))
     xx = covs[:, 0, 0]
@@ -211,6 +214,32 @@ def test_covariance_is_derived_and_grows_along_the_drive():
     zz = covs[:, 2, 2]
     assert np.all(np.diff(zz) >= -0.01 * zz[:-1]) and zz[-1] > 5 * zz[0] > 0.0
     assert covs[-1, 5, 5] > 0.0 and covs[-1, 3, 3] > 0.0 and covs[-1, 4, 4] > 0.0
+
+
+def test_the_levelling_uncertainty_grows_roll_and_pitch_std_with_the_angle_turned(
+        monkeypatch):
+    # A levelling (mount tilt) error of sigma tilts the axis of every turn alike: after turning
+    # by psi the roll and pitch errors are 2 sin(psi / 2) sigma each (the horizontal part of
+    # the sum of the turns' rotated axis errors), the heading's unchanged; the poses are the
+    # same whatever the covariance.
+    sigma = 0.01
+    runs = {}
+    for name, stds in (('none', None), ('tilt', (sigma, sigma))):
+        monkeypatch.setattr(VisualOdometry, '_tilt_stds', lambda self, stds=stds: stds)
+        runs[name] = _run('left')
+    trajectory, results, _ = runs['tilt']
+    assert all(r.ok for r in results[1:])
+    for r, a in zip(results[1:], runs['none'][1][1:]):
+        np.testing.assert_array_equal(r.pose, a.pose)
+    added = results[-1].pose_covariance - runs['none'][1][-1].pose_covariance
+    psi = float(yaw_of(results[-1].pose[:3, :3]))
+    assert np.rad2deg(psi) == pytest.approx(60.0, abs=1.0)
+    expected = (2.0 * math.sin(psi / 2.0) * sigma) ** 2
+    np.testing.assert_allclose(np.diag(added)[3:5], expected, rtol=0.05)
+    assert abs(added[5, 5]) < 1e-3 * expected
+    # Straight ahead, before the turn, the levelling's share is (almost) nothing.
+    first = results[5].pose_covariance - runs['none'][1][5].pose_covariance
+    assert np.abs(first[3:5, 3:5]).max() < 1e-3 * expected
 
 
 def test_a_scale_error_shared_by_the_steps_grows_the_position_std_with_the_distance(

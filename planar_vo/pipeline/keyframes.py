@@ -29,6 +29,10 @@ class Keyframe:
         index: running number of the keyframe in the chain.
         bias: ``(3,)`` the position error (m, world frame) one standard deviation of the
             steps' shared scale errors makes (`VisualOdometry._road_step`).
+        tilt_gain: ``(6, 3)`` how an error of the levelling's vertical (the mount tilt the
+            estimator takes as vertical; a direction error in the camera frame) has moved its
+            orientation (rows 0-2, world frame) and position (rows 3-5)
+            (`VisualOdometry._tilt_covariance`).
         age: frames tracked against it so far.
         matched: a later frame found correspondences with it, or it was itself tracked (a
             keyframe of a running chain); False for a chain's first keyframe until a frame
@@ -42,6 +46,7 @@ class Keyframe:
     covariance: np.ndarray
     index: int
     bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    tilt_gain: np.ndarray = field(default_factory=lambda: np.zeros((6, 3)))
     age: int = 0
     matched: bool = True
     misses: int = 0
@@ -67,10 +72,13 @@ class KeyframeChain:
         return self._frames[-1] if self._frames else None
 
     def add(self, image: np.ndarray, stamp: float, pose: np.ndarray,
-            covariance: np.ndarray, bias: np.ndarray | None = None) -> Keyframe:
+            covariance: np.ndarray, bias: np.ndarray | None = None,
+            tilt_gain: np.ndarray | None = None) -> Keyframe:
         """Make a view the new keyframe."""
         frame = Keyframe(image, stamp, pose.copy(), covariance.copy(), self._count,
-                         np.zeros(3) if bias is None else np.array(bias, dtype=np.float64))
+                         np.zeros(3) if bias is None else np.array(bias, dtype=np.float64),
+                         np.zeros((6, 3)) if tilt_gain is None else
+                         np.array(tilt_gain, dtype=np.float64))
         self._count += 1
         self._frames.append(frame)
         return frame

@@ -49,6 +49,7 @@ from planar_vo.core.conventions import (
     rotation_rpy,
     se3,
     se3_log,
+    skew,
     so3_log,
     wrap_angle,
 )
@@ -169,6 +170,7 @@ class VisualOdometry:
         # shared scale errors makes (`_road_step`): the same share of every step, so it grows
         # with the distance and stays out of the step covariances.
         self._bias = np.zeros(3)
+        self._tilt_gain = np.zeros((6, 3))       # `Keyframe.tilt_gain` of the current pose
         self._lost = 0
         self._restart = ''          # why the next usable frame starts a new keyframe chain
         self._time_reset = False
@@ -343,6 +345,9 @@ class VisualOdometry:
             keyframe.pose, keyframe.covariance, est.R, est.t, est.basis,
             self._motion_covariance(est, stamp - keyframe.stamp), scale, var_scale)
         self._bias = keyframe.bias + bias * (self.camera_pose[:3, 3] - keyframe.pose[:3, 3])
+        if self._tilt is not None:
+            self._tilt_gain = _tilt_gain(keyframe, self.camera_pose, est.R,
+                                         self._estimator.R_lc)
         self._update_twist(keyframe, stamp, step_cov)
         self._twist_cov[:3, :3] += bias * bias * np.outer(self._twist[:3], self._twist[:3])
         new_keyframe = (parallax >= self.config.keyframe.min_parallax
@@ -353,7 +358,8 @@ class VisualOdometry:
                 t = time.perf_counter()
                 self._windowed(keyframe, gray, camera, est)
                 timings['window'] = time.perf_counter() - t
-            self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov, self._bias)
+            self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov, self._bias,
+                                self._tilt_gain)
         else:
             keyframe.age += 1
         self._lost = 0
@@ -778,6 +784,7 @@ class VisualOdometry:
         self.camera_pose = keyframe.pose.copy()
         self._camera_cov = keyframe.covariance.copy()
         self._bias = keyframe.bias.copy()
+        self._tilt_gain = keyframe.tilt_gain.copy()
         keyframe.stamp = stamp
         keyframe.age += 1
         if self._held is not None:
@@ -839,7 +846,7 @@ class VisualOdometry:
                                f'time jumped back to {stamp:.9f}: tracking reset, pose at the '
                                f'origin, new keyframe chain')
         self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov,
-                            self._bias).matched = False
+                            self._bias, self._tilt_gain).matched = False
         self._state = (TrackingState.TRACKING if reason is DropReason.FIRST_FRAME
                        else TrackingState.REINITIALISED)
         self._restart = ''
@@ -891,7 +898,8 @@ class VisualOdometry:
     def _result(self, stamp: float, ok: bool, **fields) -> FrameResult:
         if ok:
             self._state = TrackingState.TRACKING
-        pose, cov_body = to_base(self.camera_pose, self._camera_cov, self._T_base_camera)
+        pose, cov_body = to_base(self.camera_pose, self._camera_cov + self._tilt_covariance(),
+                                 self._T_base_camera)
         cov = ros_pose_covariance(pose, cov_body)
         bias = self._T_base_camera[:3, :3] @ self._bias       # odom frame
         cov[:3, :3] += np.outer(bias, bias)
@@ -905,10 +913,59 @@ class VisualOdometry:
                            tracking=self._state, camera_pose=self.camera_pose.copy(),
                            twist=twist, twist_covariance=twist_cov, **fields)
 
+    def _tilt_stds(self) -> tuple[float, float] | None:
+        """The standard deviations (rad) of the levelling's pitch and roll (`_tilt_covariance`):
+        the mount-tilt estimate's, with the offset of a configured angle still in use (its own
+        standard deviation above ``mount.tilt_tolerance``) added; about a degree before the
+        first estimate; None with ``mount.estimate_tilt`` off (the configured tilt is taken as
+        exact)."""
+        if self._tilt is None:
+            return None
+        estimate = self.tilt_estimate
+        if estimate is None:
+            return _START_NORMAL_STD, _START_NORMAL_STD
+        return (math.hypot(estimate.pitch_std, estimate.pitch - self._level[0]),
+                math.hypot(estimate.roll_std, estimate.roll - self._level[1]))
+
+    def _tilt_covariance(self) -> np.ndarray:
+        """The camera pose's body-frame covariance (``[phi, rho]``) from the levelling's
+        uncertainty: the estimator takes the mount tilt it levels with as the vertical, and its
+        planar prior pulls every relative rotation's axis towards it, so an error of that tilt
+        tilts the axis of every turn alike (KITTI 05, a dev script: the roll error grew by
+        0.38 deg per radian turned, the roll's estimate being uncertain by 0.36 deg). Shared by
+        the steps, it makes orientation errors that grow with the angle turned (``2 sin(psi /
+        2)`` times the tilt error after a turn by ``psi``) and position errors that grow with
+        the distance driven after it (`_tilt_gain`), of the size of the levelling's current
+        uncertainty (`_tilt_stds`: what is known now of the error the levelling has had; the
+        levelling changes rarely and little)."""
+        stds = self._tilt_stds()
+        if stds is None or not self._tilt_gain.any():
+            return np.zeros((6, 6))
+        R_lc = self._estimator.R_lc
+        # Level frame: x the pitch axis, y the vertical, z the roll axis; then the camera frame.
+        S_tilt = R_lc.T @ np.diag([stds[0] ** 2, 0.0, stds[1] ** 2]) @ R_lc
+        R = self.camera_pose[:3, :3]
+        gain = np.vstack([R.T @ self._tilt_gain[:3], R.T @ self._tilt_gain[3:]])  # to body
+        return gain @ S_tilt @ gain.T
+
     def _drop(self, stamp: float, reason: DropReason, message: str, count: int = 0,
               inliers: int = 0) -> FrameResult:
         return self._result(stamp, False, reason=reason, message=message,
                             num_correspondences=count, num_inliers=inliers)
+
+
+def _tilt_gain(keyframe: Keyframe, pose: np.ndarray, R: np.ndarray, R_lc: np.ndarray
+               ) -> np.ndarray:
+    """`Keyframe.tilt_gain` of the pose ``pose`` reached from ``keyframe`` by the relative
+    rotation ``R`` (``X2 = R X1 + t``) with the levelling ``R_lc``: the step turned by ``psi``
+    about the levelled vertical, so an error ``d`` of the levelling's vertical (camera frame)
+    adds the rotation ``psi R_kf d`` (world frame) to the orientation; the keyframe's
+    orientation error ``e`` moves the step ``s`` by ``e x s``."""
+    R_kf = keyframe.pose[:3, :3]
+    psi = float(R_lc[1] @ -so3_log(R))     # the step's turn (the rotation R^T) about R_lc's y
+    G_kf, H_kf = keyframe.tilt_gain[:3], keyframe.tilt_gain[3:]
+    step = pose[:3, 3] - keyframe.pose[:3, 3]
+    return np.vstack([G_kf + psi * R_kf, H_kf - skew(step) @ G_kf])
 
 
 # A new camera model that moves the image by at most this many pixels (`CameraModel.pixel_shift`)
