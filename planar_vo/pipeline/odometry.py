@@ -165,6 +165,11 @@ class VisualOdometry:
         self._last_out: tuple[float, np.ndarray] | None = None   # stamp, camera pose
         self._twist = np.zeros(6)
         self._twist_cov = np.eye(6) * _UNKNOWN
+        # (middle of its interval, twist) of the last twist measured over a keyframe interval.
+        self._last_twist: tuple[float, np.ndarray] | None = None
+        # Median AC displacement (pixels) per metre driven, of the last metric step: what the
+        # stationary test's pixel threshold means as a speed (`_stationary`).
+        self._px_per_metre = math.nan
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
         # The position error (m, camera world frame) one standard deviation of the steps'
         # shared scale errors makes (`_road_step`): the same share of every step, so it grows
@@ -345,6 +350,9 @@ class VisualOdometry:
             keyframe.pose, keyframe.covariance, est.R, est.t, est.basis,
             self._motion_covariance(est, stamp - keyframe.stamp), scale, var_scale)
         self._bias = keyframe.bias + bias * (self.camera_pose[:3, 3] - keyframe.pose[:3, 3])
+        distance = float(np.linalg.norm(self.camera_pose[:3, 3] - keyframe.pose[:3, 3]))
+        if source in _METRIC_SOURCES and distance > 0.0:
+            self._px_per_metre = parallax / distance
         if self._tilt is not None:
             self._tilt_gain = _tilt_gain(keyframe, self.camera_pose, est.R,
                                          self._estimator.R_lc)
@@ -785,12 +793,19 @@ class VisualOdometry:
         self._camera_cov = keyframe.covariance.copy()
         self._bias = keyframe.bias.copy()
         self._tilt_gain = keyframe.tilt_gain.copy()
+        self._last_twist = None         # the keyframe's stamp moves: a new interval begins
         keyframe.stamp = stamp
         keyframe.age += 1
         if self._held is not None:
             self._held = (0.0, self._held[1], stamp, self._held[3])
+        # Standing means a median displacement below keyframe.stationary_parallax: the speed
+        # that would make it, at the last metric step's pixels per metre, bounds the speed
+        # (starting off, the first frames' 0.05-0.16 m/s pass for standing; rendered drive).
+        interval = stamp - self._last_out[0] if self._last_out is not None else math.nan
+        bound = self.config.keyframe.stationary_parallax / self._px_per_metre / interval
+        speed_var = bound ** 2 if math.isfinite(bound) and bound > 1e-3 else 1e-6
         self._twist = np.zeros(6)
-        self._twist_cov = np.diag([1e-6] * 3 + [1e-8] * 3)
+        self._twist_cov = np.diag([speed_var] * 3 + [1e-8] * 3)
         self._last_out = (stamp, self.camera_pose.copy())
         self._lost = 0
         return self._result(stamp, True, keyframe=False, scale_source='stationary',
@@ -882,7 +897,16 @@ class VisualOdometry:
         """The body-frame velocity over the step since the keyframe, with its covariance: the
         constant body twist that moves the keyframe's base onto the current one (``log`` of
         the relative motion over ``dt``), so that a car turning at a steady rate has no lateral
-        velocity (the chord over ``dt`` would give it ``v sin(yaw / 2)``)."""
+        velocity (the chord over ``dt`` would give it ``v sin(yaw / 2)``).
+
+        It is the mean over the keyframe interval ``T``, which lags the velocity at the frame
+        by about ``T/2 dv/dt``: braking, by 0.2 m/s at 4.7 m/s^2 and one frame per keyframe,
+        and after a stop the mean since the last keyframe before it halved over five frames
+        while the car stood (the rendered drives: at 200 and more standard deviations; found by
+        a user test). The change of the mean since the previous frame's, over the time between
+        the two intervals' middles, measures the acceleration, so ``T/2`` times it enters the
+        covariance (rank one, along the change); with a steady velocity only the means' noise
+        does."""
         dt = stamp - keyframe.stamp
         if dt > 0:
             T_bc = self._T_base_camera
@@ -891,6 +915,14 @@ class VisualOdometry:
             self._twist = np.concatenate([xi[3:], xi[:3]]) / dt
             Ad = adjoint(T_bc)
             self._twist_cov = ros_twist_covariance(Ad @ step_cov @ Ad.T, dt)
+            last = self._last_twist
+            middle = stamp - 0.5 * dt
+            if last is not None and middle > last[0]:
+                # The means' change over the time between the intervals' middles is the
+                # acceleration; the mean lags the velocity at the frame by half the interval.
+                lag = 0.5 * dt * (self._twist - last[1]) / (middle - last[0])
+                self._twist_cov = self._twist_cov + np.outer(lag, lag)
+            self._last_twist = (middle, self._twist.copy())
         self._last_out = (stamp, self.camera_pose.copy())
 
     # -- results -------------------------------------------------------------------------------
@@ -966,6 +998,10 @@ def _tilt_gain(keyframe: Keyframe, pose: np.ndarray, R: np.ndarray, R_lc: np.nda
     G_kf, H_kf = keyframe.tilt_gain[:3], keyframe.tilt_gain[3:]
     step = pose[:3, 3] - keyframe.pose[:3, 3]
     return np.vstack([G_kf + psi * R_kf, H_kf - skew(step) @ G_kf])
+
+
+# Step lengths in metres (not unit steps).
+_METRIC_SOURCES = frozenset({'ground', 'speed', 'fixed', 'hold'})
 
 
 # A new camera model that moves the image by at most this many pixels (`CameraModel.pixel_shift`)
