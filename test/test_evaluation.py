@@ -453,6 +453,23 @@ def test_kitti_rotation_drift_of_a_yaw_rate_bias():
     assert kitti_drift(ref, est, planar=True)['r_rel_deg_per_100m'] == pytest.approx(1.0, rel=1e-6)
 
 
+def test_a_drive_shorter_than_100_m_gets_the_protocol_on_10_to_50_m():
+    ref = _straight(61)                                   # 60 m: no 100 m segment
+    est = ref.transformed(np.eye(3), np.zeros(3), scale=1.1)
+    metrics = evaluate(ref, est, align='none').metrics()
+    assert metrics['kitti']['segments'] == 0 and math.isnan(metrics['kitti']['t_rel_pct'])
+    short = metrics['kitti_short']
+    assert short['lengths_m'] == [10.0, 20.0, 30.0, 40.0, 50.0]
+    assert short['segments'] == 6 + 5 + 4 + 3 + 2          # a start every 10 frames (1 m)
+    assert short['t_rel_pct'] == pytest.approx(10.0, abs=1e-9)
+    assert metrics['kitti_short_se2']['t_rel_pct'] == pytest.approx(10.0, abs=1e-9)
+    rows = [ln for ln in evaluate(ref, est, align='none').format_table().splitlines()
+            if ln.startswith('| KITTI protocol on 10-50 m (short drive)')]
+    assert len(rows) == 2 and all('| 10.000 / ' in ln for ln in rows), rows
+    # A long drive has no short figures.
+    assert 'kitti_short' not in evaluate(_straight(301), _straight(301)).metrics()
+
+
 def test_se2_drift_ignores_height_roll_and_pitch():
     ref = _straight(301)
     rng = np.random.default_rng(3)
