@@ -153,6 +153,29 @@ def test_replay_uses_configured_intrinsics_over_the_bags_camera_info(tmp_path, c
     assert 'focal length 500.0 px (CameraInfo)' in text
 
 
+def test_replay_set_overrides_the_configuration(tmp_path, capsys, drive_bags):
+    """--set KEY=VALUE over the file (the camera height without writing a YAML file); one value
+    each; unknown keys and refused values are one line."""
+    _, bags = drive_bags
+    config = tmp_path / 'fx.yaml'
+    config.write_text('camera: {fx: 450}\n')
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), '--config',
+                 str(config), '--set', 'camera.fx=500', '--no-progress']) == 0
+    assert 'focal length 500.0 px (configured)' in capsys.readouterr().out
+    for item, message in (
+            ('mount.height=1.5,1.6', "set: 'mount.height=1.5,1.6': expected one value (a replay "
+                                     'runs one configuration; planar_vo fleet run takes several)'),
+            ('mount.hieght=1.6', "set: unknown configuration key 'mount.hieght'; did you mean "
+                                 'mount.height, mount.pitch, mount.y?'),
+            ('mount.height=-1', 'set: mount.height: expected a positive height above the ground '
+                                '(m), got -1')):
+        assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--set',
+                     item]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f'planar_vo replay: error: --{message}') and err.count('\n') == 1, err
+    assert not (tmp_path / 'x').exists()
+
+
 def test_replay_names_its_input_as_typed(tmp_path, capsys):
     """IN, as in the usage line (was the library's 'bag')."""
     assert main(['replay', str(tmp_path / 'missing'), '--out', str(tmp_path / 'o')]) == 1

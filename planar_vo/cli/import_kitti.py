@@ -16,8 +16,11 @@ STORAGES = ('mcap', 'sqlite3')       # planar_vo.io.writer.STORAGES (rosbags not
 
 EXAMPLES = """examples:
   planar_vo import-kitti dataset/sequences/06 --out kitti06
-  planar_vo import-kitti seq06 --out kitti06.sqlite --storage sqlite3 --camera-height 1.65
-  planar_vo replay kitti06 --out kitti06_vo && planar_vo eval kitti06_vo
+  planar_vo import-kitti seq06 --out kitti06_sqlite --storage sqlite3 --camera-height 1.65
+  planar_vo replay kitti06 --out kitti06_vo --set mount.height=1.65 && planar_vo eval kitti06_vo
+
+The replay needs the camera height too (--set mount.height=...; the default is 1.5 m): the
+ground-plane scale is the height's.
 """
 
 
@@ -54,4 +57,7 @@ def run(args: argparse.Namespace) -> int:
                            camera_height=args.camera_height, rate_hz=args.rate_hz,
                            start=args.start, progress=show_progress(args))
     print(summary.format())
+    # The height given here sets the ground truth's base_link; the replay's scale needs it too.
+    print(f'replay it with: planar_vo replay {args.out} --out {args.out}_vo --set '
+          f'mount.height={args.camera_height:g}')
     return 0

@@ -13,7 +13,7 @@ import argparse
 STORAGES = ('mcap', 'sqlite3')       # planar_vo.io.writer.STORAGES (rosbags not imported here)
 
 EXAMPLES = """examples:
-  planar_vo replay drive.mcap --out drive_vo
+  planar_vo replay drive.mcap --out drive_vo --set mount.height=1.65
   planar_vo replay drive_bag --out drive_vo --image-topic /cam/image_raw/compressed \\
       --speed-topic /vehicle/twist --tum drive_vo.tum --config config/planar_vo.yaml
   planar_vo eval drive_vo --out-dir drive_eval
@@ -40,6 +40,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     parser.add_argument('--config', metavar='YAML',
                         help='configuration file (default: built-in defaults, as in '
                              'config/planar_vo.yaml)')
+    parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                        help='a configuration value by dotted key, over the file '
+                             '(mount.height=1.65); repeatable')
     parser.add_argument('--storage', choices=list(STORAGES), default='mcap',
                         help='output storage format (default: mcap)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
@@ -53,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.tools.replay import replay_bag
 
-    config = speed_scale(load_config(args.config), args.speed_topic)
+    config = speed_scale(with_sets(load_config(args.config), args.set), args.speed_topic)
     summary = replay_bag(
         args.bag, args.out, VisualOdometry(config), image_topic=args.image_topic,
         camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
@@ -89,3 +92,30 @@ def speed_scale(config, speed_topic: str | None):
         config = dataclasses.replace(config, scale=dataclasses.replace(config.scale,
                                                                        source='speed'))
     return config
+
+
+def with_sets(config, sets):
+    """The configuration with ``--set KEY=VALUE`` items applied (one value each: a replay runs
+    one configuration; ``planar_vo fleet run`` takes several).
+
+    Raises:
+        ConfigError: a malformed item, an unknown key, several values, or a value the
+            configuration refuses.
+    """
+    from planar_vo.config import PlanarVoConfig, flatten, parse_set
+    from planar_vo.errors import ConfigError
+
+    if not sets:
+        return config
+    values = flatten(config)
+    changes = {}
+    for item in sets:
+        key, found = parse_set(item, values)
+        if len(found) != 1:
+            raise ConfigError(f"set: '{item}': expected one value (a replay runs one "
+                              f'configuration; planar_vo fleet run takes several)')
+        changes[key] = found[0]
+    try:
+        return PlanarVoConfig.from_flat({**values, **changes})
+    except ConfigError as err:
+        raise ConfigError(f'set: {err}') from None

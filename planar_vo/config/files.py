@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import difflib
 from pathlib import Path
+from typing import Any
 
 from planar_vo.config.keys import describe
 from planar_vo.config.sections import PlanarVoConfig
 from planar_vo.core.options import nest_dotted
-from planar_vo.errors import ConfigError
+from planar_vo.errors import ConfigError, one_line
 
-__all__ = ['load_config', 'to_ros_yaml']
+__all__ = ['load_config', 'parse_set', 'to_ros_yaml']
 
 
 def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
@@ -89,3 +91,27 @@ def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = '/**')
             text = yaml.safe_dump(values[key], default_flow_style=True).strip()
             out.append(f'      {key}: {text.removesuffix("...").strip()}')
     return '\n'.join(out) + '\n'
+
+
+def parse_set(item: str, keys) -> tuple[str, list[Any]]:
+    """One ``--set KEY=V1[,V2...]`` item: its dotted key (one of ``keys``) and its distinct
+    values, read as YAML flow items (``360``, ``true``, ``flow``, ``[0.1, 0.2]``).
+
+    Raises:
+        ConfigError: malformed item, unknown key (with the closest known ones), or values that
+            are not YAML.
+    """
+    import yaml
+
+    key, sep, text = (part.strip() for part in item.partition('='))
+    if not sep or not key or not text:
+        raise ConfigError(f"set: expected KEY=VALUE[,VALUE...], got '{item}'")
+    if key not in keys:
+        near = difflib.get_close_matches(key, list(keys), n=3)
+        hint = f'; did you mean {", ".join(near)}?' if near else ''
+        raise ConfigError(f"set: unknown configuration key '{key}'{hint}")
+    try:
+        values = yaml.safe_load(f'[{text}]')
+    except yaml.YAMLError as err:
+        raise ConfigError(f"set: cannot read the values of '{item}' ({one_line(err)})") from None
+    return key, [v for i, v in enumerate(values) if v not in values[:i]]

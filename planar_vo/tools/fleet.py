@@ -42,7 +42,6 @@ the summary of the complete results.
 from __future__ import annotations
 
 import contextlib
-import difflib
 import hashlib
 import itertools
 import json
@@ -59,7 +58,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from planar_vo.config import PlanarVoConfig, flatten
+from planar_vo.config import PlanarVoConfig, flatten, parse_set
 from planar_vo.errors import ConfigError, DependencyError, InputError, PlanarVoError, one_line
 from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
 
@@ -135,27 +134,13 @@ def config_grid(base: PlanarVoConfig, sets: Sequence[str] = ()) -> list[FleetCon
         ConfigError: malformed item, unknown key (with the closest known ones), a key given
             twice, or a combination that does not validate (named by its values).
     """
-    import yaml
-
     base_values = flatten(base)
     axes: list[tuple[str, list[Any]]] = []
     for item in sets:
-        key, sep, text = (part.strip() for part in item.partition('='))
-        if not sep or not key or not text:
-            raise ConfigError(f"set: expected KEY=VALUE[,VALUE...], got '{item}'")
-        if key not in base_values:
-            near = difflib.get_close_matches(key, list(base_values), n=3)
-            hint = f'; did you mean {", ".join(near)}?' if near else ''
-            raise ConfigError(f"set: unknown configuration key '{key}'{hint}")
+        key, values = parse_set(item, base_values)
         if any(key == k for k, _ in axes):
             raise ConfigError(f"set: '{key}' given twice; list its values once: {key}=V1,V2")
-        try:
-            values = yaml.safe_load(f'[{text}]')
-        except yaml.YAMLError as err:
-            detail = one_line(err)
-            raise ConfigError(f"set: cannot read the values of '{item}' ({detail})") from None
-        unique = [v for i, v in enumerate(values) if v not in values[:i]]
-        axes.append((key, unique))
+        axes.append((key, values))
     if not axes:
         return [FleetConfig('default', base_values)]
     grid = []
