@@ -349,6 +349,17 @@ def test_cli_eval_tum_files_writes_metrics_and_plots(tmp_path, rng, capsys):
     for name in ('trajectory.png', 'ate.png', 'yaw_heading.png'):
         img = cv2.imread(str(out / name))
         assert img is not None and img.shape[0] > 300 and img.std() > 5, name
+    # An earlier evaluation is replaced only with --force.
+    again = ['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'gt.tum'), '--out-dir',
+             str(out), '--align', 'none']
+    before = (out / 'metrics.json').read_text()
+    assert main(again) == 1
+    assert capsys.readouterr().err == (
+        f"planar_vo eval: error: --out-dir: '{out}' holds an earlier evaluation (metrics.json); "
+        f'refusing to overwrite it (give --force, or choose another folder)\n')
+    assert (out / 'metrics.json').read_text() == before
+    assert main([*again, '--force']) == 0
+    assert json.loads((out / 'metrics.json').read_text())['alignment']['method'] == 'none'
 
 
 def test_cli_eval_bag_with_both_topics(tmp_path, rng, capsys):

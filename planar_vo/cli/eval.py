@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 from planar_vo.tools.evaluation.align import ALIGNMENTS
 
@@ -43,7 +44,10 @@ def register(subparsers) -> argparse.ArgumentParser:
     parser.add_argument('--segments', type=float, nargs='+', default=[5.0, 10.0, 20.0],
                         metavar='M', help='RPE segment lengths in metres (default: 5 10 20)')
     parser.add_argument('--out-dir', metavar='DIR',
-                        help='write metrics.json and trajectory/ate/yaw_heading PNGs here')
+                        help='write metrics.json and trajectory/ate/yaw_heading PNGs here (a '
+                             'folder holding an earlier evaluation only with --force)')
+    parser.add_argument('--force', action='store_true',
+                        help='replace an earlier evaluation in --out-dir')
     parser.set_defaults(run=run)
     return parser
 
@@ -71,6 +75,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f'--segments: expected positive lengths in metres, got {args.segments}')
     if args.out_dir is not None and not args.out_dir.strip():
         raise InputError('--out-dir: an empty path; expected the folder for the report')
+    if args.out_dir and not args.force and (Path(args.out_dir) / 'metrics.json').exists():
+        # Checked before the work, like every output of the command line.
+        raise InputError(f"--out-dir: '{args.out_dir}' holds an earlier evaluation "
+                         f'(metrics.json); refusing to overwrite it (give --force, or choose '
+                         f'another folder)')
     est = _load(args.est, args.est_topic, 'EST', '--est-topic')
     gt_path = args.gt
     if gt_path is None:
