@@ -121,6 +121,7 @@ def test_every_peer_is_compared_with_planar_vo_frame_by_frame(report):
                 abs=1e-12)
         assert paired['se_deg'] is None                    # NaN is null in the JSON
     assert 'frame by frame, planar_vo minus that row' in text
+    assert 'too few for a standard error from 10 batches' in text and '+- nan' not in text
     assert '_yaw_abs_deg' not in json.dumps(results)           # nor in the stress runs
 
 

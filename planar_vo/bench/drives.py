@@ -701,6 +701,10 @@ def _paired_note(peers: list[dict]) -> str:
         return ''
     p = min(rows, key=lambda r: _get(r, 'yaw_change_error_deg', 'mean'))[
         'yaw_paired_vs_planar_vo']
+    if not math.isfinite(p['se_deg']):
+        return (f'; frame by frame, planar_vo minus that row {p["mean_diff_deg"]:+.2e} deg (mean '
+                f'of the {p["frames"]} per-frame |e| differences; too few for a standard error '
+                f'from {_BATCHES} batches)')
     return (f'; frame by frame, planar_vo minus that row {p["mean_diff_deg"]:+.2e} +- '
             f'{p["se_deg"]:.2e} deg (mean of the {p["frames"]} per-frame |e| differences +- its '
             f'standard error from {_BATCHES} contiguous batches)')
