@@ -579,7 +579,9 @@ def test_manifest_and_jobs(tmp_path):
     with pytest.raises(InputError, match=r"manifest: '.*empty.txt' lists no bags"):
         read_manifest(tmp_path / 'empty.txt')
     configs = config_grid(PlanarVoConfig(), ['voting.bins=360,720'])
-    jobs = plan_jobs([tmp_path / 'x.mcap', tmp_path / 'y', tmp_path / 'x.mcap'], configs)
+    jobs = plan_jobs([tmp_path / 'x.mcap', tmp_path / 'y', tmp_path / 'sub' / '..' / 'x.mcap'],
+                     configs)                     # the same bag twice, once through 'sub/..'
+    assert jobs[0].bag == str(tmp_path / 'x.mcap')
     assert [(Path(j.bag).name, j.config.name) for j in jobs] == [
         ('x.mcap', 'voting.bins=360'), ('x.mcap', 'voting.bins=720'),
         ('y', 'voting.bins=360'), ('y', 'voting.bins=720')]

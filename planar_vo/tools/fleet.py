@@ -219,7 +219,7 @@ class FleetJob:
 
 def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig]) -> list[FleetJob]:
     """Every bag (duplicates removed, order kept) under every configuration, bag-major."""
-    paths = dict.fromkeys(str(Path(bag).expanduser().absolute()) for bag in bags)
+    paths = dict.fromkeys(os.path.normpath(Path(bag).expanduser().absolute()) for bag in bags)
     jobs = []
     for bag in paths:
         stem = Path(bag).name.removesuffix('.mcap').removesuffix('.db3')
