@@ -455,6 +455,19 @@ def test_kitti_drift_is_zero_for_the_truth_and_ten_percent_for_a_scale_of_1_1():
     assert math.isnan(kitti_drift(ref.subset(slice(0, 50)), ref.subset(slice(0, 50)))['t_rel_pct'])
 
 
+def test_frame_pairs_across_dropped_frames_are_not_per_frame_errors():
+    # The estimate lost frames 10-39 of a drive turning 1 deg per frame: the pair (9, 40) spans
+    # 31 frames and is left out of the per-frame yaw and heading errors (it counted as one).
+    ref = _straight(61, yaw_rate=math.radians(1.0))
+    keep = np.r_[0:10, 40:61]
+    est = ref.subset(keep)
+    ev = evaluate(ref, est, align='none')
+    yaw = ev.yaw_change_error_deg
+    assert yaw.shape == (30,) and np.isnan(yaw[9]) and np.isnan(ev.heading_error_deg[9])
+    assert np.all(np.abs(np.delete(yaw, 9)) < 1e-9)
+    assert ev.metrics()['yaw_change_error_deg']['count'] == 29
+
+
 def test_kitti_rotation_drift_of_a_yaw_rate_bias():
     ref = _straight(301)
     bias = np.deg2rad(0.01)                               # per metre: 1 deg per 100 m

@@ -181,11 +181,13 @@ def _segment_summary(t_err: np.ndarray, r_err: np.ndarray) -> dict[str, float]:
             'rotation_deg_per_m': float(np.degrees(np.mean(r_err)))}
 
 
-def yaw_heading_errors(ref: Trajectory, est: Trajectory, min_step: float = 1e-3
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def yaw_heading_errors(ref: Trajectory, est: Trajectory, min_step: float = 1e-3,
+                       max_gap: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
     """Per consecutive frame pair: yaw-change error and heading error, degrees, ``(N-1,)``.
 
-    See the module docstring; frames are z-up (REP-103 ``odom``/``base_link``).
+    See the module docstring; frames are z-up (REP-103 ``odom``/``base_link``). A pair whose
+    stamps lie more than ``max_gap`` times the median interval apart spans dropped frames: it
+    is not a frame-to-frame change and is NaN in both (left out of their statistics).
     """
     def yaw_change_and_heading(traj: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         R, p = traj.rotations, traj.positions
@@ -197,7 +199,12 @@ def yaw_heading_errors(ref: Trajectory, est: Trajectory, min_step: float = 1e-3
     yaw_e, head_e, step_e = yaw_change_and_heading(est)
     heading = _wrap_deg(head_e - head_r)
     heading[(step_r < min_step) | (step_e < min_step)] = np.nan
-    return _wrap_deg(yaw_e - yaw_r), heading
+    yaw = _wrap_deg(yaw_e - yaw_r)
+    dt = np.diff(ref.stamps_ns).astype(np.float64)
+    if dt.size:
+        gap = dt > max_gap * float(np.median(dt))
+        yaw[gap] = heading[gap] = np.nan
+    return yaw, heading
 
 
 @dataclass(frozen=True)
