@@ -544,6 +544,17 @@ def test_only_missing_bags_fail_before_ray_starts(tmp_path, capsys):
     assert not (tmp_path / 'o').exists()         # found before Ray and the output
 
 
+def test_a_speed_scale_is_refused_without_a_speed_input(tmp_path, capsys):
+    (tmp_path / 'bag').mkdir()
+    assert main(['fleet', 'run', str(tmp_path / 'bag'), '--out', str(tmp_path / 'o'), '--set',
+                 'scale.source=ground,speed']) == 1
+    assert capsys.readouterr().err == (
+        "planar_vo fleet run: error: scale.source: speed needs a speed topic, which fleet run "
+        "does not feed (configuration 'scale.source=speed'); use planar_vo replay --speed-topic "
+        'per bag, or another scale.source\n')
+    assert not (tmp_path / 'o').exists()
+
+
 # ---------------------------------------------------------------------------------------------
 # Configurations, manifests, jobs (no Ray)
 # ---------------------------------------------------------------------------------------------

@@ -821,6 +821,8 @@ def test_images_wait_for_a_silent_camera_info_publisher_at_most_half_a_second(
     now = [100.0]
     monkeypatch.setattr(node_module, '_monotonic', lambda: now[0])
     node = local_node(MOUNT_PARAMS)
+    timer = node._wait_timer                                # releases them without images
+    assert timer is not None and timer.timer_period_ns == 100_000_000
     node.create_publisher(CameraInfo, 'camera_info', 1)     # the driver's, silent
     info, images = _bag_messages(drive_bag, 7)
     for k in range(3):                  # 0.1 s apart: all three wait
@@ -839,7 +841,7 @@ def test_images_wait_for_a_silent_camera_info_publisher_at_most_half_a_second(
     for msg in images[4:]:
         node._on_image(msg)
     assert [s['result'] for s in statuses(node)][3:] == ['first_frame', 'ok', 'ok', 'ok']
-    assert node._wait_timer is None
+    assert node._wait_timer is None and timer not in list(node.timers)      # destroyed
 
 
 @pytest.mark.timeout(60)
@@ -1232,8 +1234,8 @@ def test_a_p_value_replaced_by_a_later_parameter_file_is_reported(prefix, ros_en
     # sets mount.height), the -p after it is kept.
     params = edited_parameter_file(prefix, tmp_path / 'params.yaml')
     args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args',
-            '-p', 'mount.height:=1.65', '--params-file', str(params),
-            '-p', 'ros.image_timeout:=0.5']
+            '-p', 'mount.height:=1.65', '-p', 'front_vo:mount.pitch:=0.1',   # another node's
+            '--params-file', str(params), '-p', 'ros.image_timeout:=0.5']
     with NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
         deadline = time.monotonic() + 30
         while 'no image for' not in node.output():
@@ -1272,7 +1274,8 @@ def test_ros_arguments_pair_each_p_name_with_the_files_after_it():
             '--params-file', 'b.yaml', '--', '--params-file', 'c.yaml']
     files, names = ros_arguments(argv)
     assert files == ['a.yaml', 'b.yaml']
-    assert names == {'mount.height': ['a.yaml', 'b.yaml'], 'ros.publish_tf': ['b.yaml']}
+    assert names == {'mount.height': ['a.yaml', 'b.yaml'],
+                     'planar_vo:ros.publish_tf': ['b.yaml']}
 
 
 def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):

@@ -218,28 +218,72 @@ def test_covariance_is_derived_and_grows_along_the_drive():
 
 def test_the_levelling_uncertainty_grows_roll_and_pitch_std_with_the_angle_turned(
         monkeypatch):
-    # A levelling (mount tilt) error of sigma tilts the axis of every turn alike: after turning
-    # by psi the roll and pitch errors are 2 sin(psi / 2) sigma each (the horizontal part of
-    # the sum of the turns' rotated axis errors), the heading's unchanged; the poses are the
+    # A levelling (mount tilt) error tilts the axis of every turn alike: a pitch error sigma
+    # moves the vertical forwards (base x), a roll error sideways (base y), and turning by psi
+    # rotates that into an orientation error of sigma (sin psi, 1 - cos psi) for the forward
+    # displacement and sigma (-(1 - cos psi), sin psi) for the sideways one (odom x, y): the
+    # sum of the turns' rotated axis errors. The heading's is unchanged; the poses are the
     # same whatever the covariance.
     sigma = 0.01
     runs = {}
-    for name, stds in (('none', None), ('tilt', (sigma, sigma))):
+    for name, stds in (('none', None), ('pitch', (sigma, 0.0)), ('roll', (0.0, sigma))):
         monkeypatch.setattr(VisualOdometry, '_tilt_stds', lambda self, stds=stds: stds)
-        runs[name] = _run('left')
-    trajectory, results, _ = runs['tilt']
-    assert all(r.ok for r in results[1:])
-    for r, a in zip(results[1:], runs['none'][1][1:]):
+        runs[name] = _run('left')[1]
+    assert all(r.ok for r in runs['none'][1:])
+    for r, a in zip(runs['pitch'][1:], runs['none'][1:]):
         np.testing.assert_array_equal(r.pose, a.pose)
-    added = results[-1].pose_covariance - runs['none'][1][-1].pose_covariance
-    psi = float(yaw_of(results[-1].pose[:3, :3]))
+    psi = float(yaw_of(runs['none'][-1].pose[:3, :3]))
     assert np.rad2deg(psi) == pytest.approx(60.0, abs=1.0)
-    expected = (2.0 * math.sin(psi / 2.0) * sigma) ** 2
-    np.testing.assert_allclose(np.diag(added)[3:5], expected, rtol=0.05)
-    assert abs(added[5, 5]) < 1e-3 * expected
-    # Straight ahead, before the turn, the levelling's share is (almost) nothing.
-    first = results[5].pose_covariance - runs['none'][1][5].pose_covariance
-    assert np.abs(first[3:5, 3:5]).max() < 1e-3 * expected
+    s, c = math.sin(psi), 1.0 - math.cos(psi)
+    for name, expected in (('pitch', (s * s, c * c)), ('roll', (c * c, s * s))):
+        added = runs[name][-1].pose_covariance - runs['none'][-1].pose_covariance
+        np.testing.assert_allclose(np.diag(added)[3:5], sigma ** 2 * np.array(expected),
+                                   rtol=0.05, err_msg=name)
+        assert abs(added[5, 5]) < 1e-3 * sigma ** 2, name
+        # Straight ahead, before the turn, the levelling's share is (almost) nothing.
+        first = runs[name][5].pose_covariance - runs['none'][5].pose_covariance
+        assert np.abs(first[3:5, 3:5]).max() < 1e-3 * sigma ** 2, name
+
+
+def test_the_tilt_gain_is_the_first_order_effect_of_a_tilted_turn_axis():
+    # Keyframe by keyframe, a camera turns (left, straight on, right) about the levelled
+    # vertical and drives forward; turning instead about a vertical displaced by eps * d moves
+    # the final orientation by eps G d and the position by eps H d (G, H: the tilt gain).
+    from planar_vo.core.conventions import so3_exp, so3_log
+    from planar_vo.pipeline.keyframes import Keyframe
+    from planar_vo.pipeline.odometry import _tilt_gain
+
+    R_lc = so3_exp(np.array([0.02, 0.0, -0.01]))          # camera -> level camera
+    vertical = R_lc[1]
+    forward = np.array([0.1, 0.0, 1.0])                     # camera frame, per step
+    turns = [0.1] * 5 + [0.0] * 5 + [-0.15] * 4
+
+    def drive(axis: np.ndarray) -> np.ndarray:
+        pose = np.eye(4)
+        for psi in turns:
+            new = pose.copy()
+            new[:3, :3] = pose[:3, :3] @ so3_exp(psi * axis)
+            new[:3, 3] = pose[:3, 3] + pose[:3, :3] @ forward
+            pose = new
+        return pose
+
+    keyframe, pose = Keyframe(None, 0.0, np.eye(4), np.zeros((6, 6)), 0), np.eye(4)
+    for psi in turns:
+        R = so3_exp(psi * vertical).T                       # X2 = R X1 + t
+        pose = keyframe.pose.copy()
+        pose[:3, :3] = keyframe.pose[:3, :3] @ R.T
+        pose[:3, 3] = keyframe.pose[:3, 3] + keyframe.pose[:3, :3] @ forward
+        gain = _tilt_gain(keyframe, pose, R, R_lc)
+        keyframe = Keyframe(None, 0.0, pose, np.zeros((6, 6)), 0, tilt_gain=gain)
+    np.testing.assert_allclose(drive(vertical), pose, atol=1e-12)
+    eps = 1e-7
+    for d in (R_lc.T @ np.array([1.0, 0.0, 0.0]), R_lc.T @ np.array([0.0, 0.0, 1.0])):
+        tilted = drive(vertical + eps * d)
+        orientation = so3_log(tilted[:3, :3] @ pose[:3, :3].T) / eps
+        position = (tilted[:3, 3] - pose[:3, 3]) / eps
+        np.testing.assert_allclose(gain[:3] @ d, orientation, rtol=1e-4, atol=1e-6)
+        np.testing.assert_allclose(gain[3:] @ d, position, rtol=1e-4, atol=1e-5)
+        assert np.linalg.norm(position) > 1.0                 # the position part matters
 
 
 def test_the_twist_covariance_covers_braking_stopping_and_starting_off():

@@ -53,7 +53,7 @@ class CommandParser(argparse.ArgumentParser):
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        if hasattr(self, '_negative_number_matcher'):   # argparse's (3.11+; no public switch)
+        if hasattr(self, '_negative_number_matcher'):   # argparse's own; no public switch
             self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def error(self, message: str):

@@ -90,6 +90,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"BAG: '{missing[0]}' does not exist" if len(missing) == 1 else
                          f"BAG: none of the {len(missing)} bags exists ('{missing[0]}', ...)")
     configs = config_grid(load_config(args.config), args.set)
+    speed = [c.name for c in configs if c.values['scale.source'] == 'speed']
+    if speed:
+        # A fleet run feeds no speed topic: every step would be a fallback (as replay refuses
+        # scale.source: speed without --speed-topic).
+        raise InputError(f'scale.source: speed needs a speed topic, which fleet run does not '
+                         f"feed (configuration '{speed[0]}'); use planar_vo replay "
+                         f'--speed-topic per bag, or another scale.source')
     command = ['planar_vo', 'fleet', 'run', *args.bags, '--out', args.out]
     for flag in ('manifest', 'config', 'address', 'workers'):
         if getattr(args, flag) is not None:

@@ -86,7 +86,7 @@ class BagWriter:
         if storage not in STORAGES:
             raise BagError(f"storage: expected one of {list(STORAGES)}, got '{storage}'")
         self._refuse_existing()
-        if self.path.suffix in ('.mcap', '.db3'):
+        if self.path.suffix.lower() in ('.mcap', '.db3'):
             # A ROS 2 bag is a folder (metadata.yaml and the storage file): 'x.mcap' would
             # become the folder x.mcap holding x.mcap.mcap.
             raise BagError(f"out: '{path}' names a storage file; a bag is written as a folder "

@@ -149,6 +149,10 @@ class VisualOdometry:
         # for `_heading_excess`.
         self._headings: deque[tuple[float, float]] = deque(maxlen=self.config.estimator.history)
         self._norm: AffineCorrespondences | None = None   # the last pair's normalised ACs
+        # Median AC displacement (pixels) per metre driven, of the last metric step: what the
+        # stationary test's pixel threshold means as a speed (`_stationary`); kept across
+        # resets, like the calibrations (the scene's depths do not reset).
+        self._px_per_metre = math.nan
         self.reset()
 
     # -- state ---------------------------------------------------------------------------------
@@ -167,9 +171,6 @@ class VisualOdometry:
         self._twist_cov = np.eye(6) * _UNKNOWN
         # (middle of its interval, twist) of the last twist measured over a keyframe interval.
         self._last_twist: tuple[float, np.ndarray] | None = None
-        # Median AC displacement (pixels) per metre driven, of the last metric step: what the
-        # stationary test's pixel threshold means as a speed (`_stationary`).
-        self._px_per_metre = math.nan
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
         # The position error (m, camera world frame) one standard deviation of the steps'
         # shared scale errors makes (`_road_step`): the same share of every step, so it grows
@@ -801,9 +802,13 @@ class VisualOdometry:
         # Standing means a median displacement below keyframe.stationary_parallax: the speed
         # that would make it, at the last metric step's pixels per metre, bounds the speed
         # (starting off, the first frames' 0.05-0.16 m/s pass for standing; rendered drive).
+        # Before any metric step the threshold means no known speed: the speed of unknown
+        # motion (odometry.lost_speed_std, as across a gap in tracking).
         interval = stamp - self._last_out[0] if self._last_out is not None else math.nan
         bound = self.config.keyframe.stationary_parallax / self._px_per_metre / interval
-        speed_var = bound ** 2 if math.isfinite(bound) and bound > 1e-3 else 1e-6
+        if not math.isfinite(bound):
+            bound = self.config.odometry.lost_speed_std
+        speed_var = max(bound, 1e-3) ** 2
         self._twist = np.zeros(6)
         self._twist_cov = np.diag([speed_var] * 3 + [1e-8] * 3)
         self._last_out = (stamp, self.camera_pose.copy())
@@ -974,8 +979,9 @@ class VisualOdometry:
         if stds is None or not self._tilt_gain.any():
             return np.zeros((6, 6))
         R_lc = self._estimator.R_lc
-        # Level frame: x the pitch axis, y the vertical, z the roll axis; then the camera frame.
-        S_tilt = R_lc.T @ np.diag([stds[0] ** 2, 0.0, stds[1] ** 2]) @ R_lc
+        # The vertical's displacement, level frame (x the pitch axis, y the vertical, z the roll
+        # axis): a pitch error moves it along z, a roll error along x; then the camera frame.
+        S_tilt = R_lc.T @ np.diag([stds[1] ** 2, 0.0, stds[0] ** 2]) @ R_lc
         R = self.camera_pose[:3, :3]
         gain = np.vstack([R.T @ self._tilt_gain[:3], R.T @ self._tilt_gain[3:]])  # to body
         return gain @ S_tilt @ gain.T
@@ -991,13 +997,23 @@ def _tilt_gain(keyframe: Keyframe, pose: np.ndarray, R: np.ndarray, R_lc: np.nda
     """`Keyframe.tilt_gain` of the pose ``pose`` reached from ``keyframe`` by the relative
     rotation ``R`` (``X2 = R X1 + t``) with the levelling ``R_lc``: the step turned by ``psi``
     about the levelled vertical, so an error ``d`` of the levelling's vertical (camera frame)
-    adds the rotation ``psi R_kf d`` (world frame) to the orientation; the keyframe's
+    adds the rotation ``psi R_kf J_l d`` (world frame) to the orientation; the keyframe's
     orientation error ``e`` moves the step ``s`` by ``e x s``."""
     R_kf = keyframe.pose[:3, :3]
-    psi = float(R_lc[1] @ -so3_log(R))     # the step's turn (the rotation R^T) about R_lc's y
+    omega = -so3_log(R)                    # the step's rotation (R^T), camera frame
+    psi = float(R_lc[1] @ omega)           # its turn about the levelled vertical
+    # exp(omega + psi d) = exp(J_l(omega) psi d) exp(omega) to first order (J_l: SO(3)'s left
+    # Jacobian), so the world-frame error is R_kf J_l psi d.
+    theta = float(np.linalg.norm(omega))
+    K = skew(omega)
+    if theta < 1e-8:
+        J = np.eye(3) + 0.5 * K
+    else:
+        J = (np.eye(3) + (1.0 - math.cos(theta)) / theta ** 2 * K
+             + (theta - math.sin(theta)) / theta ** 3 * (K @ K))
     G_kf, H_kf = keyframe.tilt_gain[:3], keyframe.tilt_gain[3:]
     step = pose[:3, 3] - keyframe.pose[:3, 3]
-    return np.vstack([G_kf + psi * R_kf, H_kf - skew(step) @ G_kf])
+    return np.vstack([G_kf + psi * (R_kf @ J), H_kf - skew(step) @ G_kf])
 
 
 # Step lengths in metres (not unit steps).

@@ -335,6 +335,8 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
     if kitti[0]['segments'] == 0:           # no 100 m segment fits: the short drive's lengths
         short = (kitti_drift(ref_m, est_m, lengths=KITTI_SHORT_LENGTHS),
                  kitti_drift(ref_m, est_m, planar=True, lengths=KITTI_SHORT_LENGTHS))
+        if short[0]['segments'] == 0:       # not even 10 m: nothing to report
+            short = ({}, {})
     return Evaluation(ref_m, est_m, aligned, alignment, ate_errors(ref_m, aligned), rpe_t, rpe_r,
                       yaw, heading, rpe_by_distance(ref_m, aligned, segment_lengths),
                       {'estimate_unmatched': len(est) - len(ie),
