@@ -893,6 +893,12 @@ class VisualOdometry:
             yaw = yaw_rate_decay(float(self._twist[5]), dt, cfg.turn_rate_time_constant)
             step_base = se3(rotation_rpy(0.0, 0.0, yaw), self._twist[:3] * dt)
             self.camera_pose = last_pose @ (invert(T_bc) @ step_base @ T_bc)
+            # The levelling's orientation error carried along tilts the extrapolated step too
+            # (`_tilt_gain`; the step's own turn is assumed, not estimated about the levelled
+            # vertical).
+            G, H = self._tilt_gain[:3], self._tilt_gain[3:]
+            step = self.camera_pose[:3, 3] - last_pose[:3, 3]
+            self._tilt_gain = np.vstack([G, H - skew(step) @ G])
         grow = np.diag([(cfg.lost_turn_rate_std * dt) ** 2] * 3
                        + [(cfg.lost_speed_std * dt) ** 2] * 3)
         Ad = adjoint(invert(T_bc))
