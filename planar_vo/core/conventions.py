@@ -52,6 +52,7 @@ __all__ = [
     'se3_log',
     'skew',
     'so3_exp',
+    'so3_left_jacobian',
     'so3_log',
     'tilt_from_normal',
     'translation_direction',
@@ -203,17 +204,21 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     return w * (0.5 if th < 1e-8 else 0.5 * th / s)
 
 
-def se3_exp(xi: np.ndarray) -> np.ndarray:
-    """``exp(xi^)`` (4, 4) of a twist ``xi = [phi, rho]`` (rotation vector, then translation)."""
-    phi, rho = xi[:3], xi[3:]
+def so3_left_jacobian(phi: np.ndarray) -> np.ndarray:
+    """SO(3)'s left Jacobian (3, 3) at the rotation vector ``phi``: ``exp(phi + d) =
+    exp(J d) exp(phi)`` to first order in ``d``; also the ``V`` of `se3_exp`."""
     th = math.sqrt(float(phi @ phi))
     K = skew(phi)
     if th < 1e-9:
-        V = np.eye(3) + 0.5 * K
-    else:
-        V = (np.eye(3) + (1.0 - math.cos(th)) / th ** 2 * K
-             + (th - math.sin(th)) / th ** 3 * K @ K)
-    return se3(so3_exp(phi), V @ rho)
+        return np.eye(3) + 0.5 * K
+    return (np.eye(3) + (1.0 - math.cos(th)) / th ** 2 * K
+            + (th - math.sin(th)) / th ** 3 * K @ K)
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """``exp(xi^)`` (4, 4) of a twist ``xi = [phi, rho]`` (rotation vector, then translation)."""
+    phi, rho = xi[:3], xi[3:]
+    return se3(so3_exp(phi), so3_left_jacobian(phi) @ rho)
 
 
 def se3_log(T: np.ndarray) -> np.ndarray:

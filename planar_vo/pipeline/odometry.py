@@ -50,6 +50,7 @@ from planar_vo.core.conventions import (
     se3,
     se3_log,
     skew,
+    so3_left_jacobian,
     so3_log,
     wrap_angle,
 )
@@ -1008,18 +1009,11 @@ def _tilt_gain(keyframe: Keyframe, pose: np.ndarray, R: np.ndarray, R_lc: np.nda
     R_kf = keyframe.pose[:3, :3]
     omega = -so3_log(R)                    # the step's rotation (R^T), camera frame
     psi = float(R_lc[1] @ omega)           # its turn about the levelled vertical
-    # exp(omega + psi d) = exp(J_l(omega) psi d) exp(omega) to first order (J_l: SO(3)'s left
-    # Jacobian), so the world-frame error is R_kf J_l psi d.
-    theta = float(np.linalg.norm(omega))
-    K = skew(omega)
-    if theta < 1e-8:
-        J = np.eye(3) + 0.5 * K
-    else:
-        J = (np.eye(3) + (1.0 - math.cos(theta)) / theta ** 2 * K
-             + (theta - math.sin(theta)) / theta ** 3 * (K @ K))
+    # exp(omega + psi d) = exp(J_l(omega) psi d) exp(omega) to first order, so the world-frame
+    # error is R_kf J_l psi d.
     G_kf, H_kf = keyframe.tilt_gain[:3], keyframe.tilt_gain[3:]
     step = pose[:3, 3] - keyframe.pose[:3, 3]
-    return np.vstack([G_kf + psi * (R_kf @ J), H_kf - skew(step) @ G_kf])
+    return np.vstack([G_kf + psi * (R_kf @ so3_left_jacobian(omega)), H_kf - skew(step) @ G_kf])
 
 
 # Step lengths in metres (not unit steps).
