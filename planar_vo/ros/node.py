@@ -432,8 +432,15 @@ class PlanarVoNode(Node):
                     f'{self.get_fully_qualified_name()}: its parameters are keyed on '
                     f'{", ".join(keys)}; key them on /** (any node) or on '
                     f'{self.get_fully_qualified_name()}')
+        me = (self.get_name(), self.get_fully_qualified_name().lstrip('/'))
+
+        def applies(keys: list[str]) -> bool:     # a file keyed on /** or on this node
+            return any(k.strip('/') in ('**', *me) or k.rsplit('/', 1)[-1] == me[0]
+                       for k in keys)
+
         for name, later in given.items():
-            replaced = [path for path in later if name in entries[path][1]]
+            replaced = [path for path in later
+                        if name in entries[path][1] and applies(entries[path][0])]
             if replaced and name in self._parameter_overrides:
                 self.get_logger().warning(
                     f'-p {name} was replaced by the value in {replaced[-1]}, given after it '
