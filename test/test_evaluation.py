@@ -487,9 +487,10 @@ def test_a_drive_shorter_than_100_m_gets_the_protocol_on_10_to_50_m():
     assert short['segments'] == 6 + 5 + 4 + 3 + 2          # a start every 10 frames (1 m)
     assert short['t_rel_pct'] == pytest.approx(10.0, abs=1e-9)
     assert metrics['kitti_short_se2']['t_rel_pct'] == pytest.approx(10.0, abs=1e-9)
-    rows = [ln for ln in evaluate(ref, est, align='none').format_table().splitlines()
-            if ln.startswith('| KITTI protocol on 10-50 m (short drive)')]
+    table = evaluate(ref, est, align='none').format_table().splitlines()
+    rows = [ln for ln in table if ln.startswith('| KITTI protocol on 10-50 m (short drive)')]
     assert len(rows) == 2 and all('| 10.000 / ' in ln for ln in rows), rows
+    assert not [ln for ln in table if 'nan / nan' in ln]      # no empty 100-800 m rows
     # A long drive has no short figures.
     assert 'kitti_short' not in evaluate(_straight(301), _straight(301)).metrics()
 

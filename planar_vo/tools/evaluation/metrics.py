@@ -278,8 +278,8 @@ class Evaluation:
                            ('kitti_se2', 'KITTI protocol, SE(2)'),
                            ('kitti_short', 'KITTI protocol on 10-50 m (short drive), 3D'),
                            ('kitti_short_se2', 'KITTI protocol on 10-50 m (short drive), SE(2)')):
-            if key not in m:
-                continue
+            if key not in m or (key in ('kitti', 'kitti_se2') and 'kitti_short' in m):
+                continue                    # (a short drive: its 10-50 m rows instead)
             k = m[key]
             used = ', '.join(f'{v:g}' for v in k['lengths_m']) or 'none'
             rows.append((f'{label}: t_rel (%) / r_rel (deg/100 m)',
