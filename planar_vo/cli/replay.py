@@ -75,9 +75,9 @@ def speed_scale(config, speed_topic: str | None):
     Raises:
         ConfigError: ``scale.source`` is ``speed`` and no speed topic is given.
     """
-    import dataclasses
     import logging
 
+    from planar_vo.config import PlanarVoConfig, flatten
     from planar_vo.errors import ConfigError
 
     if speed_topic is None:
@@ -89,8 +89,7 @@ def speed_scale(config, speed_topic: str | None):
     if config.scale.source != 'speed':
         logging.getLogger('planar_vo').info('scale.source: speed (from --speed-topic; the '
                                             'configuration said %s)', config.scale.source)
-        config = dataclasses.replace(config, scale=dataclasses.replace(config.scale,
-                                                                       source='speed'))
+        config = PlanarVoConfig.from_flat({**flatten(config), 'scale.source': 'speed'})
     return config
 
 

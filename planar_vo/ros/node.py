@@ -412,14 +412,17 @@ class PlanarVoNode(Node):
         about a ``-p`` value that a later ``--params-file`` replaced (rcl applies the arguments
         in order: ``-p mount.height:=1.65 --params-file planar_vo.yaml`` runs with the file's
         height). ``given``: the ``-p`` names, each with the files after it (`ros_arguments`)."""
+        me = (self.get_name(), self.get_fully_qualified_name().lstrip('/'))
+
+        def ours(node: str) -> bool:
+            """A -p prefix or a file's node key that names this node (empty, /** or its
+            name)."""
+            node = node.strip('/')
+            return node in ('', '**', *me) or node.rsplit('/', 1)[-1] == me[0]
+
         # The -p names for this node (a NODE: prefix naming another node sets nothing here).
-        own = {}
-        for key, later in given.items():
-            node, _, name = key.rpartition(':')
-            if node.lstrip('/') in ('', self.get_name(),
-                                    self.get_fully_qualified_name().lstrip('/')):
-                own[name] = later
-        given = own
+        given = {key.rpartition(':')[2]: later for key, later in given.items()
+                 if ours(key.rpartition(':')[0])}
         applied = set(self._parameter_overrides) - set(given)
         entries = {path: _parameter_file_entries(path) for path in files}
         for path in files:
@@ -432,15 +435,9 @@ class PlanarVoNode(Node):
                     f'{self.get_fully_qualified_name()}: its parameters are keyed on '
                     f'{", ".join(keys)}; key them on /** (any node) or on '
                     f'{self.get_fully_qualified_name()}')
-        me = (self.get_name(), self.get_fully_qualified_name().lstrip('/'))
-
-        def applies(keys: list[str]) -> bool:     # a file keyed on /** or on this node
-            return any(k.strip('/') in ('**', *me) or k.rsplit('/', 1)[-1] == me[0]
-                       for k in keys)
-
         for name, later in given.items():
             replaced = [path for path in later
-                        if name in entries[path][1] and applies(entries[path][0])]
+                        if name in entries[path][1] and any(map(ours, entries[path][0]))]
             if replaced and name in self._parameter_overrides:
                 self.get_logger().warning(
                     f'-p {name} was replaced by the value in {replaced[-1]}, given after it '
