@@ -64,6 +64,7 @@ from planar_vo.pipeline.calibration import (
     OnlineFocalCalibrator,
     RoadNormalCalibrator,
     TurnPairSelector,
+    focal_pitch,
     pair_road_normal,
 )
 from planar_vo.pipeline.clock import FrameClock, Stamp, StampCheck
@@ -423,6 +424,9 @@ class VisualOdometry:
                         config=self.config.voting)
                     self._turns = TurnPairSelector(width)
                 f = self._focal.provisional
+                if self._in_use is not None and self._in_use.size == (width, height) \
+                        and self._in_use.fx != f:
+                    self._refocus(self._in_use.fx / f)
                 if self._in_use is None or self._in_use.size != (width, height) \
                         or self._in_use.fx != f:
                     self._in_use = CameraModel(
@@ -431,6 +435,27 @@ class VisualOdometry:
                 return self._in_use
         self._in_use = self._camera
         return self._camera
+
+    def _refocus(self, ratio: float) -> None:
+        """The focal length in use changed (self-calibration; ``ratio = f_old / f_new``): carry
+        what was measured in the image through the old one to the new one (see
+        `MountTiltEstimator.refocus`): the mount tilt's pairs and the levelling from them, the
+        road normal's ACs and fit. A configured mount tilt is an angle, not an image
+        measurement: it stays."""
+        cfg = self.config.mount
+        if self._tilt is not None:
+            self._tilt.refocus(ratio)
+            if self.tilt_estimate is not None:
+                self.tilt_estimate = self._tilt.latest
+            pitch, roll = self._level
+            if pitch != cfg.pitch:
+                self._level = (focal_pitch(pitch, ratio), roll)
+                self._estimator.R_lc = leveling_rotation(*self._level)
+        if self._road is not None:
+            self._road.refocus(ratio)
+        if self._road_fit is not None:
+            pitch, roll, std = self._road_fit
+            self._road_fit = (focal_pitch(pitch, ratio), roll, std)
 
     def _estimate(self, acs: AffineCorrespondences, camera: CameraModel) -> FrameEstimate:
         """The camera's relative pose since the keyframe (`MotionEstimator`)."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from planar_vo.pipeline.calibration.focal import OnlineFocalCalibrator, TurnPairSelector
 from planar_vo.pipeline.calibration.road import RoadNormalCalibrator, pair_road_normal
-from planar_vo.pipeline.calibration.tilt import MountTiltEstimator, TiltEstimate
+from planar_vo.pipeline.calibration.tilt import MountTiltEstimator, TiltEstimate, focal_pitch
 
 __all__ = [
     'MountTiltEstimator',
@@ -14,5 +14,6 @@ __all__ = [
     'RoadNormalCalibrator',
     'TiltEstimate',
     'TurnPairSelector',
+    'focal_pitch',
     'pair_road_normal',
 ]

@@ -37,7 +37,7 @@ from planar_vo.core.checks import as_array, as_rotation, same_length
 from planar_vo.core.conventions import normal_from_tilt, normal_tilt_jacobian
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, few_cluster_factor, median
 from planar_vo.errors import ConfigError, InputError
-from planar_vo.pipeline.calibration.tilt import TiltEstimate
+from planar_vo.pipeline.calibration.tilt import TiltEstimate, refocused
 from planar_vo.pipeline.scale import step_factors
 
 __all__ = ['RoadNormalCalibrator', 'pair_road_normal']
@@ -149,6 +149,21 @@ class RoadNormalCalibrator:
         self._stored = min(self._stored + 1, self.max_frames)
         self._since_fit += 1
         return True
+
+    def refocus(self, ratio: float) -> None:
+        """Carry the stored road ACs to a new focal length (``ratio = f_old / f_new``; the
+        focal self-calibration changes the one in use): their normalised points scale by
+        ``ratio`` and their step factors stay, so every stored frame's residuals at the
+        normal ``M^-T n`` equal those at ``n`` before (``M = diag(ratio, ratio, 1)``; `latest`
+        carried along by `refocused`, refitted at the next `update`)."""
+        if not (math.isfinite(ratio) and ratio > 0):
+            raise InputError(f'ratio: expected a positive focal-length ratio, got {ratio}')
+        if ratio == 1.0 or self._stored == 0:
+            return
+        self._q[:self._stored] *= ratio
+        if self.latest is not None:
+            self.latest = refocused(self.latest, ratio)
+        self._since_fit = self.refit_every
 
     def update(self, pitch0: float = 0.0, roll0: float = 0.0) -> TiltEstimate | None:
         """Refit when due (see the class docstring), else keep `latest`; returns `latest`.
