@@ -134,6 +134,19 @@ def test_replay_with_speed_scale_needs_a_speed_topic(tmp_path, capsys, drive_bag
                    'metric\n') and not (tmp_path / 'o').exists()
 
 
+def test_replay_speed_topic_against_an_explicit_source_is_an_error(tmp_path, capsys,
+                                                                  drive_bags):
+    """--speed-topic with --set scale.source=ground: two contradicting command-line wishes;
+    one line, exit 1, nothing written (the file's source is only a default it overrides)."""
+    _, bags = drive_bags
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), '--speed-topic',
+                 '/ground_truth/odom', '--set', 'scale.source=ground']) == 1
+    err = capsys.readouterr().err
+    assert err == ('planar_vo replay: error: --speed-topic sets scale.source: speed, but --set '
+                   'gives scale.source=ground; drop one of the two (scale.fallback may name a '
+                   'source for the steps without a speed)\n') and not (tmp_path / 'o').exists()
+
+
 def test_replay_uses_configured_intrinsics_over_the_bags_camera_info(tmp_path, capsys,
                                                                      drive_bags):
     """As the node: camera.fx > 0 means no CameraInfo (the bag's is 500 px)."""

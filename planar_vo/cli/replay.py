@@ -56,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.tools.replay import replay_bag
 
-    config = speed_scale(with_sets(load_config(args.config), args.set), args.speed_topic)
+    config = speed_scale(with_sets(load_config(args.config), args.set), args.speed_topic,
+                         args.set)
     summary = replay_bag(
         args.bag, args.out, VisualOdometry(config), image_topic=args.image_topic,
         camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
@@ -66,14 +67,17 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def speed_scale(config, speed_topic: str | None):
+def speed_scale(config, speed_topic: str | None, sets=()):
     """The configuration with the scale from ``--speed-topic``: given, it sets ``scale.source:
     speed`` (the command line over the file: a speed read but unused would leave the steps to
     the road without a word); ``scale.source: speed`` without it is an error (every step would
-    be a fallback, unit lengths before the first metric one).
+    be a fallback, unit lengths before the first metric one), and so is a ``--set
+    scale.source=...`` other than speed beside it (two command-line wishes that contradict
+    each other; the file's source is only a default the topic overrides).
 
     Raises:
-        ConfigError: ``scale.source`` is ``speed`` and no speed topic is given.
+        ConfigError: ``scale.source`` is ``speed`` and no speed topic is given, or ``sets``
+            set it to another source while a speed topic is given.
     """
     import logging
 
@@ -87,6 +91,11 @@ def speed_scale(config, speed_topic: str | None):
                               'would be metric')
         return config
     if config.scale.source != 'speed':
+        if any(item.partition('=')[0].strip() == 'scale.source' for item in sets):
+            raise ConfigError(f'--speed-topic sets scale.source: speed, but --set gives '
+                              f'scale.source={config.scale.source}; drop one of the two '
+                              f'(scale.fallback may name a source for the steps without a '
+                              f'speed)')
         logging.getLogger('planar_vo').info('scale.source: speed (from --speed-topic; the '
                                             'configuration said %s)', config.scale.source)
         config = PlanarVoConfig.from_flat({**flatten(config), 'scale.source': 'speed'})
