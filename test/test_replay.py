@@ -135,7 +135,7 @@ def test_replay_with_speed_scale_needs_a_speed_topic(tmp_path, capsys, drive_bag
 
 
 def test_replay_speed_topic_against_an_explicit_source_is_an_error(tmp_path, capsys,
-                                                                  drive_bags):
+                                                                   drive_bags):
     """--speed-topic with --set scale.source=ground: two contradicting command-line wishes;
     one line, exit 1, nothing written (the file's source is only a default it overrides)."""
     _, bags = drive_bags
