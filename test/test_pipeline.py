@@ -13,7 +13,9 @@ import pytest
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import invert, mount_transform, yaw_of
+from planar_vo.frontend import leveling_rotation
 from planar_vo.pipeline import DropReason, Stamp, TrackingState, VisualOdometry
+from planar_vo.pipeline.calibration import focal_pitch
 from planar_vo.sim import StreetWorld, reverse, stop_and_go, straight, turn
 from planar_vo.sim.drive import body_twists, render_drive
 
@@ -528,6 +530,32 @@ def test_uncalibrated_camera_runs_on_a_provisional_focal_length():
     # The provisional focal length keeps the turn's sign and rough size.
     yaw = float(np.rad2deg(yaw_of(results[-1].pose[:3, :3])))
     assert 40.0 < yaw < 80.0
+
+
+def test_a_new_focal_length_carries_the_tilt_and_road_normal_measured_through_the_old_one(
+        monkeypatch):
+    # Uncalibrated, a pitched and rolled mount: every change of the provisional focal length
+    # carries the levelling, the mount tilt and the road normal (measured in the image through
+    # the old focal length) to the new one; the changes compose to nominal / final.
+    pitch, roll = np.deg2rad(4.0), np.deg2rad(1.5)
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    trajectory, images, _ = _drive('left', pitch, roll)
+    vo = VisualOdometry(config)
+    ratios = []
+    refocus = vo._refocus
+    monkeypatch.setattr(vo, '_refocus', lambda ratio: (ratios.append(ratio), refocus(ratio)))
+    for t, image in zip(trajectory.stamps, images):
+        vo.process(image, float(t))
+    in_use = vo.camera.fx
+    assert ratios and abs(math.prod(ratios) - 640.0 / in_use) < 1e-9
+    level, tilt, road = vo._level, vo.tilt_estimate, vo.road_normal
+    assert level[0] == tilt.pitch                    # levelled with the estimate's pitch
+    refocus(1.25)
+    assert vo._level == (focal_pitch(level[0], 1.25), level[1])
+    np.testing.assert_array_equal(vo._estimator.R_lc, leveling_rotation(*vo._level))
+    assert vo.tilt_estimate.pitch == focal_pitch(tilt.pitch, 1.25)
+    assert vo.road_normal == (focal_pitch(road[0], 1.25), road[1], road[2])
 
 
 def test_focal_status_names_the_source():

@@ -154,8 +154,8 @@ class RoadNormalCalibrator:
         """Carry the stored road ACs to a new focal length (``ratio = f_old / f_new``; the
         focal self-calibration changes the one in use): their normalised points scale by
         ``ratio`` and their step factors stay, so every stored frame's residuals at the
-        normal ``M^-T n`` equal those at ``n`` before (``M = diag(ratio, ratio, 1)``; `latest`
-        carried along by `refocused`, refitted at the next `update`)."""
+        normal ``M^-T n`` equal those at ``n`` before (``M = diag(ratio, ratio, 1)``): the fit
+        moves exactly as `refocused` carries `latest`, so nothing is refitted."""
         if not (math.isfinite(ratio) and ratio > 0):
             raise InputError(f'ratio: expected a positive focal-length ratio, got {ratio}')
         if ratio == 1.0 or self._stored == 0:
@@ -163,7 +163,6 @@ class RoadNormalCalibrator:
         self._q[:self._stored] *= ratio
         if self.latest is not None:
             self.latest = refocused(self.latest, ratio)
-        self._since_fit = self.refit_every
 
     def update(self, pitch0: float = 0.0, roll0: float = 0.0) -> TiltEstimate | None:
         """Refit when due (see the class docstring), else keep `latest`; returns `latest`.

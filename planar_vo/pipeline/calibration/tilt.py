@@ -243,7 +243,9 @@ class MountTiltEstimator:
         provisional focal length 1.7 times too long (KITTI 05 before its first turn, pitch
         0.56 instead of 0.98 deg) stay in the fit: it ended 0.19 deg (2.9 sigma) short after
         the calibration. `latest` is carried along (`refocused`) and refitted at the next
-        `update`."""
+        `update`: carrying the estimate is not refitting the carried pairs, which no longer
+        contradict each other (one fit more per change of the focal length, every few frames
+        while it calibrates in a turn)."""
         if not (math.isfinite(ratio) and ratio > 0):
             raise InputError(f'ratio: expected a positive focal-length ratio, got {ratio}')
         m = self._count
