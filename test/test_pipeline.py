@@ -288,6 +288,54 @@ def test_the_tilt_gain_is_the_first_order_effect_of_a_tilted_turn_axis():
         assert np.linalg.norm(position) > 1.0                 # the position part matters
 
 
+@pytest.mark.parametrize('case', ['known', 'gain'])
+def test_the_focal_error_model_is_the_first_order_effect_of_the_focal_length(case):
+    # Keyframe by keyframe, a camera turns (about axes with x, y and z parts) and moves (with
+    # offsets across its optical axis, road-scaled or not); measured through focal lengths
+    # f_i, a step turns by f / f_i of its angle about x and y, its direction's offset scales by
+    # f / f_i and a road-scaled length by f_i / f. 'known': measured through f_i = f (1 +
+    # eps k_i), the pose error is `_focal_error`'s known part at f; 'gain': measured through F
+    # with the truth F (1 + eps), it is eps times its gain at F.
+    from planar_vo.core.conventions import so3_exp, so3_log
+    from planar_vo.pipeline.keyframes import Keyframe
+    from planar_vo.pipeline.odometry import _focal_error, _focal_sums
+
+    rng = np.random.default_rng(7)
+    steps = [(rng.normal(0.0, [0.02, 0.1, 0.02]), rng.normal([0.0, 0.0, 1.0], [0.15, 0.05, 0.0]),
+              rng.uniform(0.5, 1.5), k % 3 != 0) for k in range(12)]
+    eps, F = 1e-7, 700.0
+    focals = [F * (1.0 + eps * k) for k in rng.uniform(-3.0, 3.0, len(steps))] \
+        if case == 'known' else [F] * len(steps)
+    truth = F if case == 'known' else F * (1.0 + eps)
+
+    def chain(measured: bool) -> tuple[np.ndarray, Keyframe]:
+        keyframe = Keyframe(None, 0.0, np.eye(4), np.zeros((6, 6)), 0)
+        for (omega, direction, length, ground), f in zip(steps, focals):
+            c = truth / f if measured else 1.0
+            omega = omega * np.array([c, c, 1.0])
+            direction = direction * np.array([c, c, 1.0])
+            direction /= np.linalg.norm(direction)
+            if measured and ground:
+                length = length * f / truth
+            pose = keyframe.pose.copy()
+            pose[:3, :3] = keyframe.pose[:3, :3] @ so3_exp(omega)
+            pose[:3, 3] = keyframe.pose[:3, 3] + keyframe.pose[:3, :3] @ (length * direction)
+            sums = _focal_sums(keyframe, pose, so3_exp(omega).T, f, ground)
+            keyframe = Keyframe(None, 0.0, pose, np.zeros((6, 6)), 0, focal_sums=sums)
+        return keyframe.pose, keyframe
+
+    measured, keyframe = chain(True)
+    true_pose, _ = chain(False)
+    error = np.concatenate([so3_log(measured[:3, :3] @ true_pose[:3, :3].T),
+                            measured[:3, 3] - true_pose[:3, 3]]) / eps
+    known, gain = _focal_error(keyframe.focal_sums, F)
+    predicted = known / eps if case == 'known' else gain
+    np.testing.assert_allclose(predicted, error, rtol=1e-4, atol=1e-4 * np.abs(error).max())
+    assert np.abs(error[3:]).max() > 1.0 and np.abs(error[:3]).max() > 0.01   # both matter
+    if case == 'gain':
+        assert np.abs(known).max() < 1e-12          # every step through the focal length F
+
+
 def test_the_twist_covariance_covers_braking_stopping_and_starting_off():
     # The twist is the mean over the keyframe interval: it lags the velocity while braking and
     # accelerating, and after the stop; standing is decided by a pixel threshold that a car

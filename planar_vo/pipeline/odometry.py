@@ -179,6 +179,7 @@ class VisualOdometry:
         # with the distance and stays out of the step covariances.
         self._bias = np.zeros(3)
         self._tilt_gain = np.zeros((6, 3))       # `Keyframe.tilt_gain` of the current pose
+        self._focal_sums = np.zeros((8, 3))      # `Keyframe.focal_sums` of the current pose
         self._lost = 0
         self._restart = ''          # why the next usable frame starts a new keyframe chain
         self._time_reset = False
@@ -359,6 +360,12 @@ class VisualOdometry:
         if self._tilt is not None:
             self._tilt_gain = _tilt_gain(keyframe, self.camera_pose, est.R,
                                          self._estimator.R_lc)
+        if self._focal is not None and self._camera is None:
+            ground = source == 'ground'
+            self._focal_sums = _focal_sums(keyframe, self.camera_pose, est.R, camera.fx, ground)
+            # The twist is one step's: the focal length's error is that step's alone there.
+            step_cov = step_cov + _focal_step_covariance(
+                est.R, est.t, scale, ground, min(self._focal.relative_std, 1.0))
         self._update_twist(keyframe, stamp, step_cov)
         self._twist_cov[:3, :3] += bias * bias * np.outer(self._twist[:3], self._twist[:3])
         new_keyframe = (parallax >= self.config.keyframe.min_parallax
@@ -370,7 +377,7 @@ class VisualOdometry:
                 self._windowed(keyframe, gray, camera, est)
                 timings['window'] = time.perf_counter() - t
             self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov, self._bias,
-                                self._tilt_gain)
+                                self._tilt_gain, self._focal_sums)
         else:
             keyframe.age += 1
         self._lost = 0
@@ -536,18 +543,13 @@ class VisualOdometry:
         self.camera_pose[:3, :3] = window.solve()[j]
 
     def _motion_covariance(self, est: FrameEstimate, dt: float) -> np.ndarray:
-        """The estimator's 5x5 covariance, widened by the focal length's uncertainty while it
-        is self-calibrated (a relative focal error ``e`` scales every rotation angle by about
-        ``1 + e``) and by the yaw and heading errors the estimator's own covariance misses
-        (`_yaw_excess`, `_heading_excess`, measured before this step; the step's yaw rate,
-        heading and predicted variances then join their histories). Before they can be
-        measured (`_EXCESS_MIN_STEPS`), the yaw and the heading are widened by the nominal AC
-        accuracy (`_heading_nominal`)."""
+        """The estimator's 5x5 covariance, widened by the yaw and heading errors the
+        estimator's own covariance misses (`_yaw_excess`, `_heading_excess`, measured before
+        this step; the step's yaw rate, heading and predicted variances then join their
+        histories). Before they can be measured (`_EXCESS_MIN_STEPS`), the yaw and the heading
+        are widened by the nominal AC accuracy (`_heading_nominal`). A self-calibrated focal
+        length's error is shared by the steps: `_focal_covariance`, not here."""
         cov = est.cov.copy()
-        if self._focal is not None and self._camera is None:
-            rel = min(self._focal.relative_std, 1.0)
-            angle = float(np.linalg.norm(so3_log(est.R)))
-            cov[:3, :3] += np.eye(3) * (angle * rel) ** 2
         R_lc = self._estimator.R_lc
         yaw = float(so3_log(R_lc @ est.R @ R_lc.T)[1])
         if dt > 0:
@@ -807,9 +809,6 @@ class VisualOdometry:
             return None
         d = rs.d_rotation
         var = rs.std ** 2 + float(d @ est.cov[:3, :3] @ d)
-        if self._focal is not None and self._camera is None:
-            # Road depths scale with the focal length: so does the step.
-            var += (rs.scale * min(self._focal.relative_std, 1.0)) ** 2
         return rs.scale, var, shared * math.hypot(*rs.d_normal) / rs.scale
 
     def _stationary(self, keyframe: Keyframe, stamp: float, count: int) -> FrameResult:
@@ -820,6 +819,7 @@ class VisualOdometry:
         self._camera_cov = keyframe.covariance.copy()
         self._bias = keyframe.bias.copy()
         self._tilt_gain = keyframe.tilt_gain.copy()
+        self._focal_sums = keyframe.focal_sums.copy()
         self._last_twist = None         # the keyframe's stamp moves: a new interval begins
         keyframe.stamp = stamp
         keyframe.age += 1
@@ -892,7 +892,7 @@ class VisualOdometry:
                                f'time jumped back to {stamp:.9f}: tracking reset, pose at the '
                                f'origin, new keyframe chain')
         self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov,
-                            self._bias, self._tilt_gain).matched = False
+                            self._bias, self._tilt_gain, self._focal_sums).matched = False
         self._state = (TrackingState.TRACKING if reason is DropReason.FIRST_FRAME
                        else TrackingState.REINITIALISED)
         self._restart = ''
@@ -925,6 +925,10 @@ class VisualOdometry:
             G, H = self._tilt_gain[:3], self._tilt_gain[3:]
             step = self.camera_pose[:3, 3] - last_pose[:3, 3]
             self._tilt_gain = np.vstack([G, H - skew(step) @ G])
+            # So does the focal length's (`_focal_sums`: the rotation sums' lever arms).
+            F = self._focal_sums
+            F[2] += np.cross(F[0], step)
+            F[3] += np.cross(F[1], step)
         grow = np.diag([(cfg.lost_turn_rate_std * dt) ** 2] * 3
                        + [(cfg.lost_speed_std * dt) ** 2] * 3)
         Ad = adjoint(invert(T_bc))
@@ -967,8 +971,8 @@ class VisualOdometry:
     def _result(self, stamp: float, ok: bool, **fields) -> FrameResult:
         if ok:
             self._state = TrackingState.TRACKING
-        pose, cov_body = to_base(self.camera_pose, self._camera_cov + self._tilt_covariance(),
-                                 self._T_base_camera)
+        pose, cov_body = to_base(self.camera_pose, self._camera_cov + self._tilt_covariance()
+                                 + self._focal_covariance(), self._T_base_camera)
         cov = ros_pose_covariance(pose, cov_body)
         bias = self._T_base_camera[:3, :3] @ self._bias       # odom frame
         cov[:3, :3] += np.outer(bias, bias)
@@ -1018,6 +1022,29 @@ class VisualOdometry:
         gain = np.vstack([R.T @ self._tilt_gain[:3], R.T @ self._tilt_gain[3:]])  # to body
         return gain @ S_tilt @ gain.T
 
+    def _focal_covariance(self) -> np.ndarray:
+        """The camera pose's body-frame covariance (``[phi, rho]``) from a self-calibrated
+        focal length (`_focal_sums`): every step was measured through the focal length then in
+        use, ``f_i``, and the image fixes a rotation's pixel shift ``f tan(angle)`` and, for
+        the ground scale, the road's depths times ``1 / f``: through the true ``f`` the step
+        turns by ``f_i / f`` times its angle and goes ``f / f_i`` times as far. With the
+        current estimate ``f = F (1 + e)`` (``e`` of standard deviation `relative_std`), the
+        pose error is a known part (the steps measured through another focal length than
+        ``F``, e.g. the wide prior's before the first turn) plus ``e`` times a gain, both
+        shared by all steps (one focal length): rank-one terms, not step noise (KITTI 05
+        self-calibrated, a dev script: the yaw error after the straight start was 5 standard
+        deviations of a per-step term)."""
+        if self._focal is None or self._camera is not None or not self._focal_sums.any():
+            return np.zeros((6, 6))
+        f = self._in_use.fx if self._in_use is not None else self._focal.provisional
+        known, gain = _focal_error(self._focal_sums, f)
+        gain = gain * min(self._focal.relative_std, 1.0)
+        R = self.camera_pose[:3, :3]
+        body = np.zeros((2, 6))
+        for row, v in zip(body, (known, gain)):
+            row[:3], row[3:] = R.T @ v[:3], R.T @ v[3:]
+        return body.T @ body
+
     def _drop(self, stamp: float, reason: DropReason, message: str, count: int = 0,
               inliers: int = 0) -> FrameResult:
         return self._result(stamp, False, reason=reason, message=message,
@@ -1041,6 +1068,77 @@ def _tilt_gain(keyframe: Keyframe, pose: np.ndarray, R: np.ndarray, R_lc: np.nda
     return np.vstack([G_kf + psi * (R_kf @ so3_left_jacobian(omega)), H_kf - skew(step) @ G_kf])
 
 
+def _focal_sums(keyframe: Keyframe, pose: np.ndarray, R: np.ndarray, f: float,
+                ground: bool) -> np.ndarray:
+    """`Keyframe.focal_sums` ``(8, 3)`` of the pose ``pose`` reached from ``keyframe`` by the
+    relative rotation ``R`` measured through the focal length ``f`` (pixels), its length from
+    the road (``ground``) or not. World-frame sums over the steps of: the rotation ``phi``
+    about the camera's x and y axes (what the image measures through ``f``) and ``f phi``;
+    their lever arms (each sum so far crossed with the next step's displacement ``s``); ``s``
+    and ``s / f`` over the road-scaled steps; the displacement across the optical axis (the
+    epipole's offset, also measured through ``f``) and ``f`` times it. `_focal_error` turns
+    them into the pose error at any true focal length."""
+    S = keyframe.focal_sums.copy()
+    C = keyframe.pose[:3, :3]
+    omega = -so3_log(R)                                   # the step's rotation, camera frame
+    # exp(omega + d) = exp(J_l(omega) d) exp(omega): its error d, world frame.
+    phi = C @ so3_left_jacobian(omega) @ (omega * _IMAGE_PLANE_AXES)
+    step = pose[:3, 3] - keyframe.pose[:3, 3]
+    across = C @ _across(C.T @ step)
+    S[2] += np.cross(S[0], step)
+    S[3] += np.cross(S[1], step)
+    S[0] += phi
+    S[1] += f * phi
+    if ground:
+        S[4] += step
+        S[5] += step / f
+    S[6] += across
+    S[7] += f * across
+    return S
+
+
+def _across(step: np.ndarray) -> np.ndarray:
+    """How a displacement ``step`` (camera frame) measured through ``f_i`` moves per unit of
+    ``f_i / f - 1``: its offset across the optical axis scales, its length does not (the
+    direction is a unit vector; the length comes from the scale), so the change is that offset
+    less its share along the step."""
+    length = float(np.linalg.norm(step))
+    if not length > 0.0:
+        return np.zeros(3)
+    offset = step * _IMAGE_PLANE_AXES
+    return offset - step * float(step @ offset) / (length * length)
+
+
+def _focal_error(sums: np.ndarray, f: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pose error ``[rotation; position]`` (world frame, 6) that steps measured through
+    the focal lengths ``f_i`` (`_focal_sums`) have when the true one is ``f (1 + e)``, to first
+    order: ``known + e gain``, returned as ``(known, gain)``. Through the true focal length a
+    step turns by ``f_i / f`` of its angle about the camera's x and y axes, moves across the
+    optical axis by ``f_i / f`` of its offset and, scaled by the road, goes ``f / f_i`` as
+    far; each rotation error turns every later step."""
+    Q, P, LQ, LP, D1, Df, H, Hf = sums
+    known = np.concatenate([Q - P / f, LQ - LP / f + D1 - f * Df + H - Hf / f])
+    gain = np.concatenate([P / f, LP / f - f * Df + Hf / f])
+    return known, gain
+
+
+def _focal_step_covariance(R: np.ndarray, t: np.ndarray, s: float, ground: bool,
+                           rel: float) -> np.ndarray:
+    """The step's own covariance (``[phi, rho]``, as `compose`'s) from a relative focal error
+    ``e`` of standard deviation ``rel``: it scales the rotation about the camera's x and y
+    axes by ``1 - e`` (``w = -e omega``; not about the optical axis), the direction's offset
+    across the optical axis by ``1 - e`` (`_across`) and a road-scaled step ``s`` by
+    ``1 + e`` (``ds = e s``)."""
+    omega = so3_log(R) * _IMAGE_PLANE_AXES
+    unit = t / np.linalg.norm(t)
+    rho = s * np.cross(unit, omega) - s * _across(unit) - (s * unit if ground else 0.0)
+    v = np.concatenate([omega, rho]) * rel
+    return np.outer(v, v)
+
+
+# The rotation axes (camera x, y: pitch and yaw) whose angle the image measures as a pixel
+# shift ``f tan(angle)``, i.e. through the focal length (`_focal_sums`).
+_IMAGE_PLANE_AXES = np.array([1.0, 1.0, 0.0])
 # Step lengths in metres (not unit steps).
 _METRIC_SOURCES = frozenset({'ground', 'speed', 'fixed', 'hold'})
 
