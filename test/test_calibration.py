@@ -259,18 +259,21 @@ def test_tilt_wobble_is_settable_online_and_refits_are_bounded():
 
 
 def _seen_through(R, t, k):
-    """The relative pose ``(R, t)`` as an estimator working through a focal length ``1 / k``
-    times the true one finds it: displacement direction and rotation axis mapped by
-    ``diag(k, k, 1)``, the rotation's pixel shift ``f tan(angle)`` kept."""
+    """The relative pose ``(R, t)`` as the odometry finds it through a focal length ``1 / k``
+    times the true one: the displacement direction (the epipole) mapped by ``M = diag(k, k,
+    1)``, the rotation axis (pulled to the levelling, a normal) by ``M^-T``, the angle with its
+    image-plane part's pixel shift kept: ``tan(angle') = |M a| tan(angle)``."""
     c = -R.T @ t
     w = cv2.Rodrigues(R)[0].ravel()
     angle = float(np.linalg.norm(w))
-    M = np.array([k, k, 1.0])
     R_seen = np.eye(3)
     if angle > 0.0:
-        axis = M * w / np.linalg.norm(M * w)
-        R_seen = _rotation(axis * math.atan2(k * math.sin(angle), math.cos(angle)))
-    return R_seen, -R_seen @ (M * c)
+        axis = w / angle
+        seen = axis * np.array([1.0, 1.0, k])
+        seen /= np.linalg.norm(seen)
+        scale = float(np.linalg.norm(axis * np.array([k, k, 1.0])))
+        R_seen = _rotation(seen * math.atan2(scale * math.sin(angle), math.cos(angle)))
+    return R_seen, -R_seen @ (np.array([k, k, 1.0]) * c)
 
 
 def test_focal_pitch_keeps_the_horizon_pixel_and_round_trips():
@@ -300,6 +303,14 @@ def test_tilt_refocus_carries_pairs_seen_through_another_focal_length():
     assert abs(tilt.pitch - PITCH) < 1e-9 and abs(tilt.roll - roll) < 1e-9
     est.refocus(1.0)
     assert est.update() is tilt                                             # nothing to redo
+    # A turn about the optical axis moves pixels alike through any focal length; about the
+    # camera's y axis by f tan(angle).
+    turns = MountTiltEstimator()
+    turns.add_motion(_rotation([0.0, 0.0, np.deg2rad(4.0)]), np.array([0.0, 0.0, -1.0]))
+    turns.add_motion(_rotation([0.0, np.deg2rad(4.0), 0.0]), np.array([0.0, 0.0, -1.0]))
+    turns.refocus(1.7)
+    np.testing.assert_allclose(turns._angles[:2], [np.deg2rad(4.0),
+                                                   math.atan(1.7 * math.tan(np.deg2rad(4.0)))])
     with pytest.raises(InputError, match=r'ratio: expected a positive focal-length ratio'):
         est.refocus(0.0)
 
@@ -409,10 +420,19 @@ def test_focal_calibration_adopts_an_accurate_focal_from_exact_turning_pairs(rng
     assert abs(f / FOCAL - 1.0) < 0.01 and std < 0.02 * f
     assert cal.adopted == f and cal.adopted_at == 31 and cal.provisional == f
     assert cal.relative_std == pytest.approx(std / f)
-    assert cal.status() == f'focal length {f:.1f} +- {std:.1f} px (self-calibrated at frame 31)'
+    # Adopted with the first pair of the fourth block; its second pair moved the value.
+    assert cal.updated_at == 34
+    assert cal.status() == (f'focal length {f:.1f} +- {std:.1f} px (self-calibrated at frame 31, '
+                            f'updated at frame 34)')
     # Adopted when the work that finishes the profiles runs: its frame is named.
     late = _calibrate(np.random.default_rng(20240607), 0.0, drain_at=99)
     assert late.adopted == pytest.approx(f) and late.adopted_at == 99
+    # A later block moves it again: the status says since when.
+    assert cal.offer(41, *_pair(rng, 6.0))
+    cal.work(1000, 42)
+    assert cal.adopted != f and cal.adopted_at == 31 and cal.updated_at == 42
+    assert cal.status() == (f'focal length {cal.adopted:.1f} +- {cal.adopted_std:.1f} px '
+                            f'(self-calibrated at frame 31, updated at frame 42)')
 
 
 def test_focal_calibration_uncertainty_is_honest_on_noisy_pairs():
@@ -453,7 +473,8 @@ def test_provisional_focal_uses_the_calibration_from_two_blocks_on():
 def test_focal_calibration_stays_provisional_without_turns(rng):
     cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX)
     assert cal.provisional == 600.0 and cal.relative_std == pytest.approx(math.exp(0.45) - 1)
-    assert cal.status() == 'focal length 600.0 +- 341.0 px (provisional, 0 of 4 blocks)'
+    assert cal.status() == ('focal length 600.0 +- 341.0 px (provisional, no turn to calibrate '
+                            'from yet: the nominal 53-degree field of view, 0 of 4 blocks)')
     for b in range(5):
         syn = shared_motion_acs(rng, 300, 0.5, alpha=0.0, beta=-np.pi / 2)
         pp = np.asarray(PAPER_PRINCIPAL_POINT)

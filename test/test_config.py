@@ -127,6 +127,14 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
      r'camera.focal_max_blocks: expected at least focal_min_blocks'),
     ({'camera': {'focal_steps': 0.0}},
      r'camera.focal_steps: expected work steps per frame in \(0, 100\]'),
+    # contradictions a user test found silently resolved
+    ({'camera': {'estimate_focal': True, 'fx': 707.1}},
+     r'camera.estimate_focal: expected false with fx configured \(707.1 px: the focal length '
+     r'is known; fx = 0 self-calibrates it\), got True'),
+    ({'camera': {'fy': 700.0}}, r'camera.fy: expected 0 while fx is 0 \(fy is used with fx '
+                                r'only'),
+    ({'camera': {'cx': -10.0}}, r'camera.cx: expected cx, cy >= 0 \(0 = the image centre\), '
+                                r'got -10.0'),
 ])
 def test_invalid_values_are_reported_with_their_key(data, match):
     with pytest.raises(ConfigError, match=match):

@@ -715,6 +715,39 @@ def test_tracking_states_lost_and_reinitialised_are_logged_once_each(local_node,
     assert float(statuses(node)[-1]['focal_px']) == 500.0
 
 
+@pytest.mark.timeout(60)
+def test_an_uncalibrated_camera_reports_and_logs_its_focal_length(local_node, drive_bag):
+    """camera.estimate_focal without CameraInfo: every status names the focal length the
+    next frame uses, its standard deviation and source in fields of their own; the log says it
+    at the first frame and again only when its source changes or it moved by 2 %; the
+    shutdown summary ends with it."""
+    from sensor_msgs.msg import Image
+
+    node = local_node({**MOUNT_PARAMS, 'camera.estimate_focal': True})
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    with open_bag(drive_bag) as reader:
+        for m in reader.messages([IMAGE_TOPIC]):
+            node._on_image(to_rclpy(reader.deserialize(m), Image))
+    first, last = statuses(node)[0], statuses(node)[-1]
+    assert first['focal_source'] == 'provisional' and float(first['focal_px']) == 640.0
+    assert first['focal'] == ('focal length 640.0 +- 363.7 px (provisional, no turn to '
+                              'calibrate from yet: the nominal 53-degree field of view, 0 of 4 '
+                              'blocks)')
+    assert float(first['focal_std_px']) == pytest.approx(640.0 * (math.exp(0.45) - 1.0))
+    px, std, source = node._vo.focal_length()
+    assert last['focal'] == node._vo.focal_status()
+    assert float(last['focal_px']) == pytest.approx(px, rel=1e-5)
+    assert last['focal_source'] == source
+    assert float(last['focal_std_px']) == pytest.approx(std, rel=1e-5)
+    logged = [ln for level, ln in lines if ln.startswith('focal length')]
+    assert logged[0] == first['focal'] and node.summary().endswith(node._vo.focal_status())
+    values = [float(ln.split()[2]) for ln in logged]
+    assert len(values) >= 2 and values[-1] != 640.0       # the turn moved it, and it said so
+    assert all(abs(b / a - 1.0) >= 0.02 for a, b in zip(values, values[1:])), logged
+
+
 def _bag_messages(bag: Path, count: int):
     """The CameraInfo and the first ``count`` Image messages of ``bag`` as rclpy messages."""
     from sensor_msgs.msg import CameraInfo, Image

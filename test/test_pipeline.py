@@ -583,27 +583,45 @@ def test_uncalibrated_camera_runs_on_a_provisional_focal_length():
 def test_a_new_focal_length_carries_the_tilt_and_road_normal_measured_through_the_old_one(
         monkeypatch):
     # Uncalibrated, a pitched and rolled mount: every change of the provisional focal length
-    # carries the levelling, the mount tilt and the road normal (measured in the image through
-    # the old focal length) to the new one; the changes compose to nominal / final.
+    # carries the levelling, the mount tilt, the road normal and the estimator's history
+    # (measured in the image through the old focal length) to the new one, with the ratio of
+    # the old to the new focal length.
     pitch, roll = np.deg2rad(4.0), np.deg2rad(1.5)
     config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
                                        'camera': {'estimate_focal': True}})
     trajectory, images, _ = _drive('left', pitch, roll)
     vo = VisualOdometry(config)
-    ratios = []
+    calls = []
     refocus = vo._refocus
-    monkeypatch.setattr(vo, '_refocus', lambda ratio: (ratios.append(ratio), refocus(ratio)))
+
+    def spy(ratio):
+        calls.append((ratio, vo._in_use.fx, vo.focal_calibrator.provisional))
+        refocus(ratio)
+
+    monkeypatch.setattr(vo, '_refocus', spy)
     for t, image in zip(trajectory.stamps, images):
         vo.process(image, float(t))
-    in_use = vo.camera.fx
-    assert ratios and abs(math.prod(ratios) - 640.0 / in_use) < 1e-9
-    level, tilt, road = vo._level, vo.tilt_estimate, vo.road_normal
-    assert level[0] == tilt.pitch                    # levelled with the estimate's pitch
+    assert calls and vo.camera.fx != 640.0
+    for ratio, old, new in calls:
+        assert ratio == pytest.approx(old / new, rel=1e-12) and ratio != 1.0
+    level, tilt, road = vo._level, vo.tilt_estimate, vo._road.latest
+    assert vo._level_estimated and level[0] == tilt.pitch
+    motion = vo._estimator._motions[-1].copy()
     refocus(1.25)
     assert vo._level == (focal_pitch(level[0], 1.25), level[1])
     np.testing.assert_array_equal(vo._estimator.R_lc, leveling_rotation(*vo._level))
     assert vo.tilt_estimate.pitch == focal_pitch(tilt.pitch, 1.25)
-    assert vo.road_normal == (focal_pitch(road[0], 1.25), road[1], road[2])
+    assert vo._road.latest.pitch == focal_pitch(road.pitch, 1.25)
+    assert vo.road_normal[:2] == (vo._road.latest.pitch, road.roll)
+    c = motion[3:] * [1.25, 1.25, 1.0]
+    np.testing.assert_allclose(vo._estimator._motions[-1],
+                               np.concatenate([motion[:3] * [1.25, 1.25, 1.0],
+                                               c / np.linalg.norm(c)]), rtol=1e-12)
+    # A configured mount pitch is an angle, not an image measurement: it stays.
+    fixed = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT, 'pitch': 0.05},
+                                                    'camera': {'estimate_focal': True}}))
+    fixed._refocus(1.25)
+    assert fixed._level == (0.05, 0.0) and not fixed._level_estimated
 
 
 def test_focal_status_names_the_source():

@@ -147,6 +147,33 @@ def test_replay_speed_topic_against_an_explicit_source_is_an_error(tmp_path, cap
                    'source for the steps without a speed)\n') and not (tmp_path / 'o').exists()
 
 
+def test_replay_camera_info_topic_beside_own_intrinsics_is_an_error(
+        tmp_path, capsys, drive_bags):
+    """An explicit --camera-info-topic that the configuration would leave unused (the focal
+    self-calibration, or camera.fx): one line, exit 1, nothing written."""
+    _, bags = drive_bags
+    for setting, why in (('camera.estimate_focal=true', 'camera.estimate_focal is on'),
+                         ('camera.fx=480', 'camera.fx is configured (480 px)')):
+        assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), '--set',
+                     setting, '--camera-info-topic', '/camera/camera_info']) == 1
+        assert capsys.readouterr().err == (
+            f"planar_vo replay: error: --camera-info-topic: '/camera/camera_info' would not be "
+            f"used: {why} (the bag's CameraInfo is then ignored, as in the node); drop one of "
+            f"the two\n")
+        assert not (tmp_path / 'o').exists()
+
+
+def test_replay_without_odometry_says_why_in_its_summary(tmp_path, capsys, drive_bags):
+    """A principal point outside the image: no camera model, every frame counted, and the
+    summary's odometry line says why (a user test found only the counts)."""
+    _, bags = drive_bags
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), '--set',
+                 'camera.fx=480', '--set', 'camera.cx=5000', '--no-progress']) == 0
+    text = capsys.readouterr().out
+    assert ('  odometry out       0 (no_camera_info: camera.cx, camera.cy (5000, 0) lie outside '
+            'the 640x480 image: no camera model)') in text, text
+
+
 def test_replay_uses_configured_intrinsics_over_the_bags_camera_info(tmp_path, capsys,
                                                                      drive_bags):
     """As the node: camera.fx > 0 means no CameraInfo (the bag's is 500 px)."""
@@ -214,7 +241,11 @@ def test_replay_says_once_why_frames_are_dropped(tmp_path, caplog, drive_bags):
 
     with caplog.at_level('WARNING', logger='planar_vo.tools.replay'):
         summary = replay_bag(bags['mcap'], tmp_path / 'o', OtherCamera(config), progress=False)
-    assert summary.format().count('size_changed') == 1
+    text = summary.format()
+    n = summary.frames_in
+    assert n > 1 and f'  dropped            {n} (size_changed {n})' in text      # all counted
+    assert ('odometry out       0 (size_changed: image is 640x480 but the camera model is '
+            '1226x370)') in text
     lines = [r.getMessage() for r in caplog.records if 'dropped' in r.getMessage()]
     assert len(lines) == 1
     assert 'size_changed: image is 640x480 but the camera model is 1226x370' in lines[0]

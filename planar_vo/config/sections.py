@@ -45,7 +45,9 @@ class CameraConfig(Options):
     """Intrinsics used when no ``CameraInfo`` arrives (all zero: wait for ``CameraInfo``).
 
     Attributes:
-        fx, fy, cx, cy: pinhole intrinsics in pixels; ``fx = 0`` means 'from CameraInfo'.
+        fx, fy, cx, cy: pinhole intrinsics in pixels; ``fx = 0`` means 'from CameraInfo' (or
+            ``estimate_focal``), ``fy = 0`` 'the same as fx'; ``cx, cy = 0`` the image centre;
+            a principal point outside the image is refused at the first image.
         distortion_model: ``'none'``, ``'plumb_bob'`` or ``'equidistant'`` (ROS names).
         distortion: coefficients in the ROS order for that model.
         estimate_focal: self-calibrate the focal length online when ``fx`` is 0, instead of
@@ -80,8 +82,8 @@ class CameraConfig(Options):
 
     fx: float = bounded(0.0, 0.0, expected='fx, fy >= 0 (0 = from CameraInfo)')
     fy: float = bounded(0.0, 0.0, expected='fx, fy >= 0 (0 = from CameraInfo)')
-    cx: float = bounded(0.0, expected='finite intrinsics')
-    cy: float = bounded(0.0, expected='finite intrinsics')
+    cx: float = bounded(0.0, 0.0, expected='cx, cy >= 0 (0 = the image centre)')
+    cy: float = bounded(0.0, 0.0, expected='cx, cy >= 0 (0 = the image centre)')
     distortion_model: typing.Literal['none', 'plumb_bob', 'equidistant'] = 'none'
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
@@ -103,6 +105,12 @@ class CameraConfig(Options):
                       + (' (or 4: k3 = 0)' if self.distortion_model == 'plumb_bob' else ''))
         self._require(self.focal_max_blocks >= self.focal_min_blocks, 'focal_max_blocks',
                       'at least focal_min_blocks')
+        self._require(self.fy == 0 or self.fx > 0, 'fy', '0 while fx is 0 (fy is used with fx '
+                      'only; fx = 0 means the focal length comes from CameraInfo or '
+                      'estimate_focal)')
+        self._require(not (self.estimate_focal and self.fx > 0), 'estimate_focal',
+                      f'false with fx configured ({self.fx:g} px: the focal length is known; '
+                      f'fx = 0 self-calibrates it)')
 
 
 @dataclasses.dataclass(frozen=True)

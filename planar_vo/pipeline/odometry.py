@@ -130,6 +130,7 @@ class VisualOdometry:
                       if mount.estimate_tilt else None)
         self.tilt_estimate = None
         self._level = (mount.pitch, mount.roll)
+        self._level_estimated = False     # the levelling's pitch is the tilt estimate's
         self._estimator.R_lc = leveling_rotation(mount.pitch, mount.roll)
         self._road = (RoadNormalCalibrator(scale.ground_normal_acs, scale.ground_normal_frames,
                                            scale.ground_normal_refit)
@@ -226,6 +227,22 @@ class VisualOdometry:
             else 'CameraInfo'
         return f'focal length {self._in_use.fx:.1f} px ({origin})'
 
+    def focal_length(self) -> tuple[float, float, str]:
+        """``(pixels, standard deviation, source)`` of the focal length `focal_status`
+        describes (the one the next frame uses): source ``'unknown'`` (NaN, inf),
+        ``'camera_info'``, ``'configured'`` (standard deviation 0: given), ``'provisional'`` or
+        ``'self-calibrated'``."""
+        if self._focal is not None and self._camera is None:
+            cal = self._focal
+            f = cal.provisional
+            return (f, f * cal.relative_std,
+                    'self-calibrated' if cal.adopted is not None else 'provisional')
+        if self._in_use is None:
+            return float('nan'), float('inf'), 'unknown'
+        origin = 'configured' if self.config.camera.fx > 0 and self._camera_from_config \
+            else 'camera_info'
+        return self._in_use.fx, 0.0, origin
+
     def add_speed(self, stamp: float, speed: float) -> None:
         """A speed sample (m/s) for ``scale.source = 'speed'`` (e.g. from wheel odometry)."""
         self._speed.add(float(stamp), float(speed))
@@ -308,8 +325,14 @@ class VisualOdometry:
             return self._drop(stamp, DropReason.BAD_IMAGE, str(err))
         camera = self._resolve_camera(camera, gray.shape)
         if camera is None:
+            c = self.config.camera
+            if c.fx > 0 or c.estimate_focal:
+                return self._drop(stamp, DropReason.NO_CAMERA_INFO,
+                                  f'camera.cx, camera.cy ({c.cx:g}, {c.cy:g}) lie outside the '
+                                  f'{gray.shape[1]}x{gray.shape[0]} image: no camera model')
             return self._drop(stamp, DropReason.NO_CAMERA_INFO,
-                              'no camera intrinsics yet (no valid CameraInfo and camera.fx = 0)')
+                              'no camera intrinsics yet (no valid CameraInfo and camera.fx = 0; '
+                              'or set camera.estimate_focal: true to self-calibrate)')
         if camera.size != (gray.shape[1], gray.shape[0]):
             # A stray frame of another size: drop it, keep tracking (a new camera model with
             # the new size resets the keyframe in _resolve_camera).
@@ -412,6 +435,8 @@ class VisualOdometry:
             c = self.config.camera
             height, width = shape
             cx, cy = (c.cx or (width - 1) / 2.0), (c.cy or (height - 1) / 2.0)
+            if (c.fx > 0 or c.estimate_focal) and not (cx <= width - 1 and cy <= height - 1):
+                return None                 # a principal point outside the image
             if c.fx > 0:
                 self._camera = CameraModel(
                     width, height, np.array([[c.fx, 0.0, cx], [0.0, c.fy or c.fx, cy],
@@ -431,9 +456,12 @@ class VisualOdometry:
                         config=self.config.voting)
                     self._turns = TurnPairSelector(width)
                 f = self._focal.provisional
-                if self._in_use is not None and self._in_use.size == (width, height) \
-                        and self._in_use.fx != f:
-                    self._refocus(self._in_use.fx / f)
+                if self._in_use is not None:
+                    # Angles measured through the old focal length keep their pixels: over the
+                    # image width when the image size changed (a new calibration).
+                    ratio = (self._in_use.fx / self._in_use.width) / (f / width)
+                    if ratio != 1.0:
+                        self._refocus(ratio)
                 if self._in_use is None or self._in_use.size != (width, height) \
                         or self._in_use.fx != f:
                     self._in_use = CameraModel(
@@ -444,25 +472,25 @@ class VisualOdometry:
         return self._camera
 
     def _refocus(self, ratio: float) -> None:
-        """The focal length in use changed (self-calibration; ``ratio = f_old / f_new``): carry
-        what was measured in the image through the old one to the new one (see
-        `MountTiltEstimator.refocus`): the mount tilt's pairs and the levelling from them, the
-        road normal's ACs and fit. A configured mount tilt is an angle, not an image
-        measurement: it stays."""
-        cfg = self.config.mount
+        """The focal length in use changed (self-calibration; ``ratio = f_old / f_new``, of the
+        focal lengths over the image widths when the image size changed too): carry what was
+        measured in the image through the old one to the new one: the mount tilt's pairs and
+        the levelling from them (`MountTiltEstimator.refocus`), the road normal
+        (`RoadNormalCalibrator.refocus`), the estimator's history (`MotionEstimator.refocus`).
+        A configured mount pitch is an angle, not an image measurement: it stays."""
         if self._tilt is not None:
             self._tilt.refocus(ratio)
             if self.tilt_estimate is not None:
                 self.tilt_estimate = self._tilt.latest
-            pitch, roll = self._level
-            if pitch != cfg.pitch:
-                self._level = (focal_pitch(pitch, ratio), roll)
+            if self._level_estimated:
+                self._level = (focal_pitch(self._level[0], ratio), self._level[1])
                 self._estimator.R_lc = leveling_rotation(*self._level)
         if self._road is not None:
             self._road.refocus(ratio)
-        if self._road_fit is not None:
-            pitch, roll, std = self._road_fit
-            self._road_fit = (focal_pitch(pitch, ratio), roll, std)
+            fit = self._road.latest
+            if fit is not None and self._road_fit is not None:
+                self._road_fit = (fit.pitch, fit.roll, math.hypot(fit.pitch_std, fit.roll_std))
+        self._estimator.refocus(ratio)
 
     def _estimate(self, acs: AffineCorrespondences, camera: CameraModel) -> FrameEstimate:
         """The camera's relative pose since the keyframe (`MotionEstimator`)."""
@@ -497,7 +525,8 @@ class VisualOdometry:
         if estimate is None or estimate is self.tilt_estimate:
             return
         self.tilt_estimate = estimate
-        pitch = estimate.pitch if estimate.pitch_std <= cfg.tilt_tolerance else cfg.pitch
+        self._level_estimated = estimate.pitch_std <= cfg.tilt_tolerance
+        pitch = estimate.pitch if self._level_estimated else cfg.pitch
         roll = estimate.roll if estimate.roll_std <= cfg.tilt_tolerance else cfg.roll
         if (pitch, roll) == self._level:
             return

@@ -147,6 +147,9 @@ _INT64_MAX = 2 ** 63 - 1
 _PENDING_IMAGES = 3
 _CAMERA_INFO_WAIT = 0.5
 _monotonic = time.monotonic            # the waiting images' clock (tests replace it)
+# The focal length is logged again when it moved by this share since the last line (the
+# self-calibration's progress: a handful of lines in a turn, none while it holds still).
+_FOCAL_LOG_CHANGE = 0.02
 # The QoS policies the subscriptions let `qos_overrides.*` change, and the values rclpy knows.
 _QOS_POLICIES = tuple(kind.name.lower() for kind in
                       QoSOverridingOptions.with_default_policies().policy_kinds)
@@ -232,7 +235,7 @@ class PlanarVoNode(Node):
         self._path_published = -math.inf
         self._path_header = None         # the header of a path not published yet
         self._last_result: FrameResult | None = None
-        self._focal_state = ''
+        self._focal_logged: tuple[float, str] | None = None     # px, source last logged
         self._last_frame_id = ''
         self._period: Counter[str] = Counter()           # outcomes since the last diagnostics
         self._period_scale: Counter[str] = Counter()     # scale sources of its odometry
@@ -631,13 +634,17 @@ class PlanarVoNode(Node):
         self._publish_status(msg.header, result, node_time, path_time, focal)
 
     def _note_focal(self) -> str:
-        """Log the focal length's source when it changes: a self-calibration says at the first
-        frame that it runs on a provisional focal length, and when it adopts one. Returns the
-        focal status line (for the status message)."""
+        """Log the focal length when its source changes (a self-calibration says at the first
+        frame that it runs on a provisional focal length, and when it adopts one) or when it
+        moved by `_FOCAL_LOG_CHANGE` since the last line (the calibration's progress in a
+        turn, a few lines). Returns the focal status line (for the status message)."""
         status = self._vo.focal_status()
-        state = status[status.find('('):].split(',')[0].split(' at ')[0]
-        if state != self._focal_state:
-            self._focal_state = state
+        px, _, source = self._vo.focal_length()
+        last = self._focal_logged
+        moved = math.isfinite(px) and last is not None and math.isfinite(last[0]) and \
+            abs(px / last[0] - 1.0) >= _FOCAL_LOG_CHANGE
+        if last is None or source != last[1] or moved:
+            self._focal_logged = (px, source)
             self.get_logger().info(status)
         return status
 
@@ -799,9 +806,14 @@ class PlanarVoNode(Node):
         self._warn(result.reason.value, f'frame {_format_stamp(stamp_ns)} dropped, '
                                         f'{result.reason.value}: {result.message}')
 
-    def _focal(self) -> float:
-        camera = self._vo.camera or self._camera
-        return camera.fx if camera is not None else float('nan')
+    def _focal_values(self) -> dict[str, Any]:
+        """``focal_px``, ``focal_std_px``, ``focal_source`` (`VisualOdometry.focal_length`: the
+        focal length the status line describes) and ``focal`` (that line)."""
+        px, std, source = self._vo.focal_length()
+        if source == 'unknown' and self._camera is not None:
+            px, std, source = self._camera.fx, 0.0, 'camera_info'
+        return {'focal_px': px, 'focal_std_px': std, 'focal_source': source,
+                'focal': self._vo.focal_status()}
 
     def _counts(self) -> dict[str, Any]:
         """The running totals, shared by ``status`` and ``/diagnostics``."""
@@ -838,7 +850,7 @@ class PlanarVoNode(Node):
             'keyframe': result.keyframe,
             # Every frame names its scale source: 'none' when it produced no step.
             'scale_source': result.scale_source if result.ok else 'none',
-            'focal_px': self._focal(),
+            **self._focal_values(),
             'focal': focal,
             'correspondences': result.num_correspondences,
             'inliers': result.num_inliers,
@@ -918,8 +930,7 @@ class PlanarVoNode(Node):
             'listening_on': ' '.join(self.listened_topics()),
             'scale_source': (last.scale_source if last.ok else 'none') if last else 'none',
             'road_top_ups': self._vo.road_top_ups,
-            'focal_px': self._focal(),
-            'focal': self._vo.focal_status(),
+            **self._focal_values(),
             'path_poses': len(self._path) + (self._path_tip is not None),
             **{f'period.{k}': v for k, v in sorted(self._period.items())},
             **self._counts(),
@@ -973,7 +984,8 @@ class PlanarVoNode(Node):
                 f'{self._counters["gaps"]} gaps; '
                 f'{self._counters["camera_info_errors"]} camera_info errors; '
                 f'{self._counters["speed_messages"]} speed messages; '
-                f'{self._counters["resets"]} resets; mean {mean} per frame')
+                f'{self._counters["resets"]} resets; mean {mean} per frame; '
+                f'{self._vo.focal_status()}')
 
 
 def _parameter_file_entries(path: str) -> tuple[list[str], set[str]]:

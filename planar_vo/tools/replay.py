@@ -33,7 +33,7 @@ import numpy as np
 
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
-from planar_vo.errors import BagError, InputError, OutputError
+from planar_vo.errors import BagError, ConfigError, InputError, OutputError
 from planar_vo.io.images import CameraFrame, CameraFrameDecoder, resolve_camera_topics
 from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
@@ -94,6 +94,8 @@ class ReplaySummary:
             ``speed``, ``hold``, ``unit``, ``stationary``, ...).
         road_top_ups: frames whose ground scale asked the front-end for more road ACs (the
             processor's ``road_top_ups``; None if it has none).
+        why_none: without any odometry, the most frequent drop reason and its first message
+            (empty otherwise).
     """
 
     input: str
@@ -113,6 +115,7 @@ class ReplaySummary:
     focal: str = ''
     scale_sources: dict[str, int] = field(default_factory=dict)
     road_top_ups: int | None = None
+    why_none: str = ''
 
     @property
     def throughput(self) -> float:
@@ -132,7 +135,8 @@ class ReplaySummary:
             f'  image topic        {self.image_topic} (camera info: {info}, speed: '
             f'{self.speed_topic or "none"})',
             f'  frames in          {self.frames_in}',
-            f'  odometry out       {self.odometry_out}',
+            f'  odometry out       {self.odometry_out}'
+            + (f' ({self.why_none})' if self.why_none else ''),
             f'  dropped            {sum(self.dropped.values())} ({dropped})',
             f'  copied             {copied}',
             f'  speed messages     {self.speed_messages}',
@@ -175,10 +179,13 @@ def _read_speeds(bag: BagReader, topic: str) -> tuple[list[int], list[float]]:
 _EXPECTED_DROPS = frozenset({'first_frame'})
 
 
-def _count_drop(dropped: Counter[str], reason: str, frame: CameraFrame, message: str) -> None:
-    """Count a frame without odometry under `reason`. The first of each kind says why, the
-    summary counts them all: a bag of 10,000 undecodable images logs one line, not 10,000."""
+def _count_drop(dropped: Counter[str], reason: str, frame: CameraFrame, message: str,
+                first: dict[str, str]) -> None:
+    """Count a frame without odometry under `reason`. The first of each kind says why (and
+    its message is kept in ``first``), the summary counts them all: a bag of 10,000
+    undecodable images logs one line, not 10,000."""
     dropped[reason] += 1
+    first.setdefault(reason, message)
     if dropped[reason] == 1 and reason not in _EXPECTED_DROPS:
         log.warning('frame %d (%d ns) dropped, %s: %s (further %s frames are counted in the '
                     'summary)', frame.index, frame.stamp_ns, reason, message, reason)
@@ -239,6 +246,12 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             # Found now, not after the whole replay.
             raise OutputError(f"tum: cannot write '{tum_path}' (its folder '{folder}' does not "
                               f'exist or is not writable)')
+    config = getattr(processor, 'config', None)
+    own = _own_intrinsics(config) if isinstance(config, PlanarVoConfig) else ''
+    if own and camera_info_topic is not None:
+        raise ConfigError(f"camera_info_topic: '{camera_info_topic}' would not be used: {own} "
+                          f'(the bag\'s CameraInfo is then ignored, as in the node); drop one '
+                          f'of the two')
     summary = ReplaySummary(str(in_path), str(out_path), None if tum_path is None else
                             str(tum_path))
     writer = OdometryBagWriter(out_path, storage=storage, topic=odom_topic,
@@ -249,8 +262,6 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             raise BagError(f"image_topic: '{image_topic}' in '{in_path}' has no messages; "
                            f'messages per topic: {bag.describe_topics(counts=True)}')
         summary.image_topic, summary.camera_info_topic = image_topic, info_topic
-        config = getattr(processor, 'config', None)
-        own = _own_intrinsics(config) if isinstance(config, PlanarVoConfig) else ''
         if own and info_topic is not None:
             # As the node, which then does not subscribe to CameraInfo at all: the configured
             # intrinsics (or the self-calibration) are what the user asked for.
@@ -270,6 +281,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             stamps_ns, speeds = _read_speeds(bag, speed_topic)
         next_speed = 0
         dropped: Counter[str] = Counter()
+        first: dict[str, str] = {}
         sources: Counter[str] = Counter()
         poses = _Poses()
         # 16-bit grey images as the processor's configuration reads them (camera.mono16_bits).
@@ -293,7 +305,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                     summary.frames_in += 1
                     bar.update(1)
                     if frame.image is None:
-                        _count_drop(dropped, BAD_IMAGE, frame, frame.error)
+                        _count_drop(dropped, BAD_IMAGE, frame, frame.error, first)
                         continue
                     end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
                     for k in range(next_speed, end):
@@ -311,7 +323,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                             poses.add(frame.stamp_ns, result.pose)
                         sources[str(getattr(result, 'scale_source', 'unknown'))] += 1
                     else:
-                        _count_drop(dropped, reason, frame, result.message)
+                        _count_drop(dropped, reason, frame, result.message, first)
                     log.debug('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
                               reason or 'odometry')
         except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
@@ -328,6 +340,11 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             raise
     summary.odometry_out = writer.count
     summary.dropped = dict(dropped)
+    if not summary.odometry_out:
+        worst = max((r for r in dropped if r not in _EXPECTED_DROPS), key=dropped.__getitem__,
+                    default=None)
+        if worst is not None:
+            summary.why_none = f'{worst}: {first[worst]}'
     summary.copied = {t: writer.counts.get(t, 0) for t in copy}
     summary.camera_info_errors = decoder.camera_errors
     status = getattr(processor, 'focal_status', None)

@@ -249,6 +249,7 @@ class OnlineFocalCalibrator:
         self.adopted: float | None = None
         self.adopted_std: float | None = None
         self.adopted_at: int | None = None
+        self.updated_at: int | None = None  # the last frame that changed the adopted value
 
     # -- input and work ------------------------------------------------------------------------
 
@@ -424,23 +425,32 @@ class OnlineFocalCalibrator:
         ok = (math.isfinite(f) and info.get('blocks', 0) >= self.min_blocks
               and not info.get('edge', True) and s / f <= self.tolerance)
         if ok:
-            self.adopted, self.adopted_std = f, s
             if self.adopted_at is None:
                 self.adopted_at = int(frame)
-                log.info('focal length self-calibrated at frame %d: %.1f +- %.1f px (%d pairs,'
-                         ' %d blocks)', frame, f, s, self.pairs, info['blocks'])
+                log.debug('focal length self-calibrated at frame %d: %.1f +- %.1f px (%d pairs,'
+                          ' %d blocks)', frame, f, s, self.pairs, info['blocks'])
+            elif (f, s) != (self.adopted, self.adopted_std):
+                self.updated_at = int(frame)
+            self.adopted, self.adopted_std = f, s
         return ok
 
     def status(self) -> str:
         """One line for logs and the status topic, e.g. ``focal length 712.3 +- 4.1 px
-        (self-calibrated at frame 143)`` or ``focal length 1241.0 +- 702.3 px (provisional,
-        2 of 4 blocks)`` / ``(provisional, calibration 651.2 +- 9.9 %, adopted at 2 %)``."""
+        (self-calibrated at frame 143)`` (``..., updated at frame 180)`` once a later block
+        moved it) or ``focal length 1241.0 +- 702.3 px (provisional, 2 of 4 blocks)`` /
+        ``(provisional, calibration 651.2 +- 9.9 %, adopted at 2 %)`` / ``(provisional: no
+        turn to calibrate from yet: the nominal 53-degree field of view, 0 of 4 blocks)``."""
         if self.adopted is not None:
+            updated = '' if self.updated_at is None else f', updated at frame {self.updated_at}'
             return (f'focal length {self.adopted:.1f} +- {self.adopted_std:.1f} px '
-                    f'(self-calibrated at frame {self.adopted_at})')
+                    f'(self-calibrated at frame {self.adopted_at}{updated})')
         f = self.provisional
         blocks = len(self._blocks)
-        if blocks < self.min_blocks:
+        if not blocks:
+            fov = math.degrees(2.0 * math.atan(0.5 * self.width / self.nominal))
+            why = (f'no turn to calibrate from yet: the nominal {fov:.0f}-degree field of '
+                   f'view, 0 of {self.min_blocks} blocks')
+        elif blocks < self.min_blocks:
             why = f'{blocks} of {self.min_blocks} blocks'
         else:
             estimate, std, info = self.estimate()
