@@ -163,10 +163,12 @@ class OnlineFocalCalibrator:
     uncalibrated and says so (`status`).
 
     Measured on KITTI 05 (one 90-deg turn, principal point at the image centre; `planar_vo bench
-    drives`): 652.6 +- 68.4 px (truth 707.1: -0.80 sigma), not adopted; with the principal
-    point given 702.3 +- 44.9 px (-0.11 sigma). On the frame's own ACs (before the pairs were
-    de-rotated) it was 617.2 +- 78.3 px; an earlier version's per-AC calibrator gave 603.7 +-
-    4.4 px there, adopted (-23 sigma).
+    drives`): 671.5 +- 74.8 px (truth 707.1: -0.48 sigma), not adopted; with the principal
+    point given 728.4 +- 49.1 px (+0.44 sigma). Before the odometry carried the mount tilt
+    across changes of the focal length (`VisualOdometry._refocus`) it was 652.6 +- 68.4 and
+    702.3 +- 44.9 px; on the frame's own ACs (before the pairs were de-rotated) 617.2 +- 78.3
+    px; an earlier version's per-AC calibrator gave 603.7 +- 4.4 px there, adopted (-23
+    sigma).
 
     Where the bias on the frame's own ACs came from (dev scripts on the 19 KITTI 05 pairs,
     before the de-rotation): about half is the
