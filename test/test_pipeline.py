@@ -320,7 +320,8 @@ def test_the_focal_error_model_is_the_first_order_effect_of_the_focal_length(cas
             pose = keyframe.pose.copy()
             pose[:3, :3] = keyframe.pose[:3, :3] @ so3_exp(omega)
             pose[:3, 3] = keyframe.pose[:3, 3] + keyframe.pose[:3, :3] @ (length * direction)
-            sums = _focal_sums(keyframe, pose, so3_exp(omega).T, f, ground)
+            sums = _focal_sums(keyframe.focal_sums, keyframe.pose[:3, :3], omega,
+                               pose[:3, 3] - keyframe.pose[:3, 3], f, ground)
             keyframe = Keyframe(None, 0.0, pose, np.zeros((6, 6)), 0, focal_sums=sums)
         return keyframe.pose, keyframe
 
@@ -334,6 +335,40 @@ def test_the_focal_error_model_is_the_first_order_effect_of_the_focal_length(cas
     assert np.abs(error[3:]).max() > 1.0 and np.abs(error[:3]).max() > 0.01   # both matter
     if case == 'gain':
         assert np.abs(known).max() < 1e-12          # every step through the focal length F
+
+
+def test_the_focal_step_covariance_is_the_first_order_effect_on_one_step():
+    # One step measured through f, the truth f (1 + eps): the true step is the measured one
+    # perturbed by xi (T_true = T exp(xi), as `compose`'s step covariance), and the focal
+    # term of the step covariance is outer(xi, xi) / eps^2; likewise a principal point eps f
+    # pixels off and its term. A user-facing twist rests on it (a review found the sign of
+    # the across-axis term flipped).
+    from planar_vo.core.conventions import se3_log, so3_exp
+    from planar_vo.pipeline.motion import relative_pose
+    from planar_vo.pipeline.odometry import _focal_step_covariance
+
+    eps, s = 1e-7, 1.3
+    omega = np.array([0.01, 0.08, -0.02])          # camera 1 -> 2 turn, camera frame
+    direction = np.array([0.2, -0.05, 1.0])        # camera 2's centre in camera 1
+    direction /= np.linalg.norm(direction)
+
+    def step(omega, direction, length):
+        R = so3_exp(omega).T                       # X2 = R X1 + t
+        return R, -R @ direction, relative_pose(R, -R @ direction, length)
+
+    R, t, T = step(omega, direction, s)
+    for ground in (True, False):
+        c = 1.0 + eps                              # through f (1 + eps): f / f_i
+        d = direction * [c, c, 1.0]
+        _, _, T_true = step(omega * [c, c, 1.0], d / np.linalg.norm(d), s * c if ground else s)
+        xi = se3_log(invert(T) @ T_true) / eps
+        np.testing.assert_allclose(_focal_step_covariance(R, t, s, ground, 1.0, 0.0),
+                                   np.outer(xi, xi), rtol=1e-5, atol=1e-10)
+    d = direction + [eps, 0.0, 0.0]                # the principal point eps f pixels off
+    _, _, T_true = step(omega, d / np.linalg.norm(d), s)
+    xi = se3_log(invert(T) @ T_true) / eps
+    np.testing.assert_allclose(_focal_step_covariance(R, t, s, True, 0.0, 1.0),
+                               np.outer(xi, xi), rtol=1e-5, atol=1e-10)
 
 
 def test_the_twist_covariance_covers_braking_stopping_and_starting_off():
@@ -622,6 +657,31 @@ def test_a_new_focal_length_carries_the_tilt_and_road_normal_measured_through_th
                                                     'camera': {'estimate_focal': True}}))
     fixed._refocus(1.25)
     assert fixed._level == (0.05, 0.0) and not fixed._level_estimated
+
+
+@pytest.mark.parametrize('name', ['left', 'stop_and_go'])
+def test_a_self_calibrating_odometry_reports_an_honest_covariance(name):
+    # No intrinsics: the odometry runs on the wide prior (640 px, truth 500) until the turn,
+    # then on the calibration; the focal length's error is shared by every step and the
+    # covariance says so: every pose's position (2D Mahalanobis) and yaw within 3.5 of it.
+    # As independent step noise it was 94-366 (a review).
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    trajectory, images, _ = _drive(name)
+    vo = VisualOdometry(config)
+    results = [vo.process(image, float(t)) for t, image in zip(trajectory.stamps, images)]
+    origin = invert(trajectory.poses[0])
+    position, yaw = [], []
+    for k, r in enumerate(results):
+        if not r.ok:
+            continue
+        truth = origin @ trajectory.poses[k]
+        d = r.pose[:2, 3] - truth[:2, 3]
+        position.append(math.sqrt(d @ np.linalg.solve(r.pose_covariance[:2, :2], d)))
+        e = math.remainder(yaw_of(r.pose[:3, :3]) - yaw_of(truth[:3, :3]), 2 * math.pi)
+        yaw.append(abs(e) / math.sqrt(r.pose_covariance[5, 5]))
+    assert len(position) >= 0.9 * len(results)
+    assert max(position) < 3.5 and max(yaw) < 3.5, (max(position), max(yaw))
 
 
 def test_focal_status_names_the_source():

@@ -226,11 +226,13 @@ def se3_log(T: np.ndarray) -> np.ndarray:
     phi = so3_log(T[:3, :3])
     th = math.sqrt(float(phi @ phi))
     K = skew(phi)
-    if th < 1e-9:
-        V_inv = np.eye(3) - 0.5 * K
+    if th < 1e-2:
+        # The closed form's 1 - cos(th) cancels (it divided by zero at th near 1e-8): its
+        # series, exact to rounding below 1e-2.
+        b = 1.0 / 12.0 + th * th / 720.0 + th ** 4 / 30240.0
     else:
-        V_inv = (np.eye(3) - 0.5 * K + (1.0 - th * math.sin(th) / (2.0 * (1.0 - math.cos(th))))
-                 / th ** 2 * K @ K)
+        b = (1.0 - th * math.sin(th) / (2.0 * (1.0 - math.cos(th)))) / th ** 2
+    V_inv = np.eye(3) - 0.5 * K + b * K @ K
     return np.concatenate([phi, V_inv @ T[:3, 3]])
 
 

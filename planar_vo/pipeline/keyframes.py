@@ -33,7 +33,7 @@ class Keyframe:
             estimator takes as vertical; a direction error in the camera frame) has moved its
             orientation (rows 0-2, world frame) and position (rows 3-5)
             (`VisualOdometry._tilt_covariance`).
-        focal_sums: ``(8, 3)`` sums along the chain (world frame) that give the pose error a
+        focal_sums: ``(9, 3)`` sums along the chain (world frame) that give the pose error a
             self-calibrated focal length made (`VisualOdometry._focal_covariance`).
         age: frames tracked against it so far.
         matched: a later frame found correspondences with it, or it was itself tracked (a
@@ -49,7 +49,7 @@ class Keyframe:
     index: int
     bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     tilt_gain: np.ndarray = field(default_factory=lambda: np.zeros((6, 3)))
-    focal_sums: np.ndarray = field(default_factory=lambda: np.zeros((8, 3)))
+    focal_sums: np.ndarray = field(default_factory=lambda: np.zeros((9, 3)))
     age: int = 0
     matched: bool = True
     misses: int = 0
@@ -83,7 +83,7 @@ class KeyframeChain:
                          np.zeros(3) if bias is None else np.array(bias, dtype=np.float64),
                          np.zeros((6, 3)) if tilt_gain is None else
                          np.array(tilt_gain, dtype=np.float64),
-                         np.zeros((8, 3)) if focal_sums is None else
+                         np.zeros((9, 3)) if focal_sums is None else
                          np.array(focal_sums, dtype=np.float64))
         self._count += 1
         self._frames.append(frame)

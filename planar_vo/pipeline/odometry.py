@@ -180,7 +180,7 @@ class VisualOdometry:
         # with the distance and stays out of the step covariances.
         self._bias = np.zeros(3)
         self._tilt_gain = np.zeros((6, 3))       # `Keyframe.tilt_gain` of the current pose
-        self._focal_sums = np.zeros((8, 3))      # `Keyframe.focal_sums` of the current pose
+        self._focal_sums = np.zeros((9, 3))      # `Keyframe.focal_sums` of the current pose
         self._lost = 0
         self._restart = ''          # why the next usable frame starts a new keyframe chain
         self._time_reset = False
@@ -383,12 +383,18 @@ class VisualOdometry:
         if self._tilt is not None:
             self._tilt_gain = _tilt_gain(keyframe, self.camera_pose, est.R,
                                          self._estimator.R_lc)
-        if self._focal is not None and self._camera is None:
-            ground = source == 'ground'
-            self._focal_sums = _focal_sums(keyframe, self.camera_pose, est.R, camera.fx, ground)
-            # The twist is one step's: the focal length's error is that step's alone there.
-            step_cov = step_cov + _focal_step_covariance(
-                est.R, est.t, scale, ground, min(self._focal.relative_std, 1.0))
+        if self._focal is not None:
+            # Road-scaled lengths scale with the focal length, so do speeds held from them.
+            ground = source == 'ground' or (source == 'hold'
+                                            and self.config.scale.source == 'ground')
+            self._focal_sums = _focal_sums(
+                keyframe.focal_sums, keyframe.pose[:3, :3], -so3_log(est.R),
+                self.camera_pose[:3, 3] - keyframe.pose[:3, 3], camera.fx, ground)
+            if self._camera is None:
+                # The twist is one step's: the focal length's error is that step's alone there.
+                step_cov = step_cov + _focal_step_covariance(
+                    est.R, est.t, scale, ground, min(self._focal.relative_std, 1.0),
+                    self._focal.pp_std / camera.fx)
         self._update_twist(keyframe, stamp, step_cov)
         self._twist_cov[:3, :3] += bias * bias * np.outer(self._twist[:3], self._twist[:3])
         new_keyframe = (parallax >= self.config.keyframe.min_parallax
@@ -448,6 +454,16 @@ class VisualOdometry:
                 # 53-degree field of view combined with the pairs so far) until adopted.
                 if self._focal is None or (self._focal.width, self._focal.height) != \
                         (width, height):
+                    if self._focal is not None:
+                        # Another image size: a new calibration, and the keyframe's pixels do
+                        # not mean what they did (a new chain, as for a new camera model); the
+                        # focal sums' pixels become the new image's.
+                        k = width / self._focal.width
+                        self._focal_sums[[1, 3, 7]] *= k
+                        self._focal_sums[[5, 8]] /= k
+                        if self._keyframes.current is not None:
+                            self._keyframes.clear()
+                            self._restart = 'a camera model change'
                     self._focal = OnlineFocalCalibrator(
                         width, height, pp_std=1.0 if c.cx and c.cy else None,
                         tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
@@ -955,10 +971,13 @@ class VisualOdometry:
             G, H = self._tilt_gain[:3], self._tilt_gain[3:]
             step = self.camera_pose[:3, 3] - last_pose[:3, 3]
             self._tilt_gain = np.vstack([G, H - skew(step) @ G])
-            # So does the focal length's (`_focal_sums`: the rotation sums' lever arms).
-            F = self._focal_sums
-            F[2] += np.cross(F[0], step)
-            F[3] += np.cross(F[1], step)
+            # So does the focal length's, and the step itself was measured through it (its turn
+            # and speed are the last ones'; `_focal_sums`).
+            if self._focal is not None and self._in_use is not None:
+                C = last_pose[:3, :3]
+                self._focal_sums = _focal_sums(
+                    self._focal_sums, C, so3_log(C.T @ self.camera_pose[:3, :3]), step,
+                    self._in_use.fx, self.config.scale.source == 'ground')
         grow = np.diag([(cfg.lost_turn_rate_std * dt) ** 2] * 3
                        + [(cfg.lost_speed_std * dt) ** 2] * 3)
         Ad = adjoint(invert(T_bc))
@@ -1063,15 +1082,25 @@ class VisualOdometry:
         ``F``, e.g. the wide prior's before the first turn) plus ``e`` times a gain, both
         shared by all steps (one focal length): rank-one terms, not step noise (KITTI 05
         self-calibrated, a dev script: the yaw error after the straight start was 5 standard
-        deviations of a per-step term)."""
-        if self._focal is None or self._camera is not None or not self._focal_sums.any():
+        deviations of a per-step term). The known part is a bias (what the calibration now
+        says the earlier steps got wrong), folded into the covariance as its second moment:
+        correcting the pose instead would make it jump (REP-105).
+
+        The assumed principal point is uncertain too (`OnlineFocalCalibrator.pp_std`: 1 % of
+        the width at the image centre): every step's direction is off sideways by the same
+        ``d cx / f`` (a third rank-one term). Once a camera model arrives (CameraInfo), the
+        steps before it keep their known part at its focal length; the uncertainties end."""
+        if self._focal is None or self._in_use is None or not self._focal_sums.any():
             return np.zeros((6, 6))
-        f = self._in_use.fx if self._in_use is not None else self._focal.provisional
-        known, gain = _focal_error(self._focal_sums, f)
-        gain = gain * min(self._focal.relative_std, 1.0)
+        known, gain = _focal_error(self._focal_sums, self._in_use.fx)
+        vectors = [known]
+        if self._camera is None:
+            vectors.append(gain * min(self._focal.relative_std, 1.0))
+            vectors.append(np.concatenate([np.zeros(3), self._focal_sums[8]])
+                           * self._focal.pp_std)
         R = self.camera_pose[:3, :3]
-        body = np.zeros((2, 6))
-        for row, v in zip(body, (known, gain)):
+        body = np.zeros((len(vectors), 6))
+        for row, v in zip(body, vectors):
             row[:3], row[3:] = R.T @ v[:3], R.T @ v[3:]
         return body.T @ body
 
@@ -1098,23 +1127,24 @@ def _tilt_gain(keyframe: Keyframe, pose: np.ndarray, R: np.ndarray, R_lc: np.nda
     return np.vstack([G_kf + psi * (R_kf @ so3_left_jacobian(omega)), H_kf - skew(step) @ G_kf])
 
 
-def _focal_sums(keyframe: Keyframe, pose: np.ndarray, R: np.ndarray, f: float,
+def _focal_sums(sums: np.ndarray, C: np.ndarray, omega: np.ndarray, step: np.ndarray, f: float,
                 ground: bool) -> np.ndarray:
-    """`Keyframe.focal_sums` ``(8, 3)`` of the pose ``pose`` reached from ``keyframe`` by the
-    relative rotation ``R`` measured through the focal length ``f`` (pixels), its length from
-    the road (``ground``) or not. World-frame sums over the steps of: the rotation ``phi``
-    about the camera's x and y axes (what the image measures through ``f``) and ``f phi``;
-    their lever arms (each sum so far crossed with the next step's displacement ``s``); ``s``
-    and ``s / f`` over the road-scaled steps; the displacement across the optical axis (the
-    epipole's offset, also measured through ``f``) and ``f`` times it. `_focal_error` turns
-    them into the pose error at any true focal length."""
-    S = keyframe.focal_sums.copy()
-    C = keyframe.pose[:3, :3]
-    omega = -so3_log(R)                                   # the step's rotation, camera frame
+    """`Keyframe.focal_sums` ``(9, 3)`` after one more step from a pose with orientation ``C``
+    (camera to world) and sums ``sums``: its rotation ``omega`` (camera frame, ``C_new = C
+    exp(omega)``) and displacement ``step`` (world frame) measured through the focal length
+    ``f`` (pixels), its length from the road (``ground``) or not. Rows, world frame, summed over
+    the steps: 0-1 the rotation ``phi`` about the camera's x and y axes (what the image
+    measures through ``f``) and ``f phi``; 2-3 their lever arms (each sum so far crossed with
+    the next step's displacement ``s``); 4-5 ``s`` and ``s / f`` over the road-scaled steps;
+    6-7 the displacement's offset across the optical axis (the epipole's, also measured through
+    ``f``, `_across`) and ``f`` times it; 8 its sideways move per pixel of the principal point
+    (`_sideways` over ``f``). `_focal_error` turns rows 0-7 into the pose error at any true
+    focal length."""
+    S = sums.copy()
     # exp(omega + d) = exp(J_l(omega) d) exp(omega): its error d, world frame.
     phi = C @ so3_left_jacobian(omega) @ (omega * _IMAGE_PLANE_AXES)
-    step = pose[:3, 3] - keyframe.pose[:3, 3]
-    across = C @ _across(C.T @ step)
+    local = C.T @ step
+    across = C @ _across(local)
     S[2] += np.cross(S[0], step)
     S[3] += np.cross(S[1], step)
     S[0] += phi
@@ -1124,6 +1154,7 @@ def _focal_sums(keyframe: Keyframe, pose: np.ndarray, R: np.ndarray, f: float,
         S[5] += step / f
     S[6] += across
     S[7] += f * across
+    S[8] += C @ _sideways(local) / f
     return S
 
 
@@ -1139,31 +1170,49 @@ def _across(step: np.ndarray) -> np.ndarray:
     return offset - step * float(step @ offset) / (length * length)
 
 
+def _sideways(step: np.ndarray) -> np.ndarray:
+    """How a displacement ``step`` (camera frame) moves per unit of its direction's x offset
+    (a principal point ``d`` pixels off moves it by ``d / f``): ``|s|`` times the camera's x
+    axis less its share along the step."""
+    length = float(np.linalg.norm(step))
+    if not length > 0.0:
+        return np.zeros(3)
+    x = np.array([1.0, 0.0, 0.0])
+    return length * x - step * float(step[0]) / length
+
+
 def _focal_error(sums: np.ndarray, f: float) -> tuple[np.ndarray, np.ndarray]:
     """The pose error ``[rotation; position]`` (world frame, 6) that steps measured through
-    the focal lengths ``f_i`` (`_focal_sums`) have when the true one is ``f (1 + e)``, to first
-    order: ``known + e gain``, returned as ``(known, gain)``. Through the true focal length a
-    step turns by ``f_i / f`` of its angle about the camera's x and y axes, moves across the
-    optical axis by ``f_i / f`` of its offset and, scaled by the road, goes ``f / f_i`` as
-    far; each rotation error turns every later step."""
-    Q, P, LQ, LP, D1, Df, H, Hf = sums
-    known = np.concatenate([Q - P / f, LQ - LP / f + D1 - f * Df + H - Hf / f])
-    gain = np.concatenate([P / f, LP / f - f * Df + Hf / f])
+    the focal lengths ``f_i`` (`_focal_sums`) have when the true one is ``f (1 + e)``:
+    ``known + e gain``, returned as ``(known, gain)`` (the known part exact in the ratios
+    ``f_i / f`` as far as the image fixes pixel shifts, the gain to first order in ``e``).
+    Through the true focal length a step turns by ``f_i / f`` of its angle about the camera's
+    x and y axes, moves across the optical axis by ``f_i / f`` of its offset and, scaled by
+    the road, goes ``f / f_i`` as far; each rotation error turns every later step."""
+    turn, turn_f, lever, lever_f, road, road_per_f, across, across_f = sums[:8]
+    known = np.concatenate([turn - turn_f / f,
+                            lever - lever_f / f + road - f * road_per_f + across - across_f / f])
+    gain = np.concatenate([turn_f / f, lever_f / f - f * road_per_f + across_f / f])
     return known, gain
 
 
 def _focal_step_covariance(R: np.ndarray, t: np.ndarray, s: float, ground: bool,
-                           rel: float) -> np.ndarray:
-    """The step's own covariance (``[phi, rho]``, as `compose`'s) from a relative focal error
-    ``e`` of standard deviation ``rel``: it scales the rotation about the camera's x and y
-    axes by ``1 - e`` (``w = -e omega``; not about the optical axis), the direction's offset
-    across the optical axis by ``1 - e`` (`_across`) and a road-scaled step ``s`` by
-    ``1 + e`` (``ds = e s``)."""
-    omega = so3_log(R) * _IMAGE_PLANE_AXES
-    unit = t / np.linalg.norm(t)
-    rho = s * np.cross(unit, omega) - s * _across(unit) - (s * unit if ground else 0.0)
-    v = np.concatenate([omega, rho]) * rel
-    return np.outer(v, v)
+                           rel: float, pp_rel: float) -> np.ndarray:
+    """The step's own covariance (``[phi, rho]``, as `compose`'s: ``T_true = T exp(xi)``) from
+    a relative focal error ``e`` of standard deviation ``rel``, with the model of
+    `_focal_sums`: through the true focal length the step turns by ``1 + e`` of its rotation
+    about the camera's x and y axes (not about the optical axis), its displacement's offset
+    across the optical axis (camera 1) is ``1 + e`` of the measured one (`_across`) and a
+    road-scaled length ``s`` is ``1 + e`` of it; and from the principal point's error
+    (``pp_rel``: its standard deviation over ``f``), the displacement's sideways move
+    (`_sideways`). Checked against finite differences of the step (test_pipeline.py)."""
+    omega = -so3_log(R)                                  # camera 2 = camera 1 exp(omega)
+    d = -R.T @ (t / np.linalg.norm(t))                   # its direction, camera-1 frame
+    phi = so3_left_jacobian(-omega) @ (omega * _IMAGE_PLANE_AXES)    # right Jacobian
+    rho = s * R @ (_across(d) + (d if ground else 0.0))
+    v = np.concatenate([phi, rho]) * rel
+    u = np.concatenate([np.zeros(3), s * R @ _sideways(d)]) * pp_rel
+    return np.outer(v, v) + np.outer(u, u)
 
 
 # The rotation axes (camera x, y: pitch and yaw) whose angle the image measures as a pixel
