@@ -684,6 +684,26 @@ def test_a_self_calibrating_odometry_reports_an_honest_covariance(name):
     assert max(position) < 3.5 and max(yaw) < 3.5, (max(position), max(yaw))
 
 
+def test_a_self_calibrating_odometry_goes_on_after_an_image_of_another_size():
+    # A frame of another size recalibrates (a new image, a new focal length) and restarts the
+    # keyframe chain, as a new camera model does; the next frames of the first size track
+    # again (before, every later frame was a pipeline error: the keyframe of the other size).
+    import cv2
+
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    trajectory, images, _ = _drive('left')
+    vo = VisualOdometry(config)
+    results = []
+    for k, (t, image) in enumerate(zip(trajectory.stamps, images)):
+        if k == 15:
+            image = cv2.resize(image, (320, 240), interpolation=cv2.INTER_AREA)
+        results.append(vo.process(image, float(t)))
+    assert results[14].ok and results[15].reason is DropReason.REINITIALISED
+    assert results[16].reason is DropReason.REINITIALISED and all(r.ok for r in results[17:])
+    assert np.isfinite(results[-1].pose_covariance).all()
+
+
 def test_focal_status_names_the_source():
     trajectory, images, _ = _drive('straight')
     vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}))
