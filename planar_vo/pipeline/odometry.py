@@ -704,11 +704,10 @@ class VisualOdometry:
         focal length, and the ACs mapped back exactly (`ACExtractor.extract_warped`). Measured
         on KITTI 05 (the true principal point given; before `_refocus`): the frame's own ACs,
         found with the rotation in the flow, put the focal length 7.6 % short, the de-rotated
-        ones 0.7 %; on
-        the same turning pairs their affines disagree with the ground truth's motion by up to
-        0.011 on one side of the image (x > 200 px from the centre), against 0.002 (README
-        Findings). This costs a front-end run per turning pair (every other keyframe in a
-        turn)."""
+        ones 0.7 %; on the same turning pairs their affines disagree with the ground truth's
+        motion by up to 0.011 on one side of the image (x > 200 px from the centre), against
+        0.002 (README Findings). This costs a front-end run per turning pair (every other
+        keyframe in a turn)."""
         current = self._keyframes.current
         partner = self._turns.step(current.index, alpha, camera.fx)
         old = self._keyframes.find(partner) if partner is not None else None

@@ -806,14 +806,15 @@ class PlanarVoNode(Node):
         self._warn(result.reason.value, f'frame {_format_stamp(stamp_ns)} dropped, '
                                         f'{result.reason.value}: {result.message}')
 
-    def _focal_values(self) -> dict[str, Any]:
+    def _focal_values(self, line: str | None = None) -> dict[str, Any]:
         """``focal_px``, ``focal_std_px``, ``focal_source`` (`VisualOdometry.focal_length`: the
-        focal length the status line describes) and ``focal`` (that line)."""
+        focal length the status line describes) and ``focal`` (that line, or ``line`` when the
+        caller has it)."""
         px, std, source = self._vo.focal_length()
         if source == 'unknown' and self._camera is not None:
             px, std, source = self._camera.fx, 0.0, 'camera_info'
         return {'focal_px': px, 'focal_std_px': std, 'focal_source': source,
-                'focal': self._vo.focal_status()}
+                'focal': self._vo.focal_status() if line is None else line}
 
     def _counts(self) -> dict[str, Any]:
         """The running totals, shared by ``status`` and ``/diagnostics``."""
@@ -850,8 +851,7 @@ class PlanarVoNode(Node):
             'keyframe': result.keyframe,
             # Every frame names its scale source: 'none' when it produced no step.
             'scale_source': result.scale_source if result.ok else 'none',
-            **self._focal_values(),
-            'focal': focal,
+            **self._focal_values(focal),
             'correspondences': result.num_correspondences,
             'inliers': result.num_inliers,
             'alpha_rad': result.alpha,
