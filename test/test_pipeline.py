@@ -684,6 +684,37 @@ def test_a_self_calibrating_odometry_reports_an_honest_covariance(name):
     assert max(position) < 3.5 and max(yaw) < 3.5, (max(position), max(yaw))
 
 
+def test_the_focal_sums_follow_stationary_frames_and_extrapolated_gaps():
+    # Standing, the pose is the keyframe's, and so are the focal sums; across a gap in
+    # tracking the extrapolated step was measured through the focal length too (its lever arm,
+    # its road length and its offsets join the sums, `_focal_sums`).
+    from planar_vo.core.conventions import so3_log
+    from planar_vo.pipeline.odometry import _focal_sums
+
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    trajectory, images, _ = _drive('stop_and_go')
+    vo = VisualOdometry(config)
+    standing = 0
+    vo.process(images[0], float(trajectory.stamps[0]))          # the chain's first keyframe
+    for t, image in zip(trajectory.stamps[1:], images[1:]):
+        vo._focal_sums = vo._focal_sums + 1.0      # stale: every frame must set them anew
+        r = vo.process(image, float(t))
+        assert r.ok
+        if r.scale_source == 'stationary':
+            standing += 1
+            assert np.array_equal(vo._focal_sums, vo._keyframes.current.focal_sums)
+    assert standing >= 5
+    before, pose = vo._focal_sums.copy(), vo.camera_pose.copy()
+    vo._twist = np.array([6.0, 0.0, 0.0, 0.0, 0.0, 0.1])   # base frame: forward, turning left
+    vo._extrapolate(vo._last_out[0] + 0.5)
+    C = pose[:3, :3]
+    expected = _focal_sums(before, C, so3_log(C.T @ vo.camera_pose[:3, :3]),
+                           vo.camera_pose[:3, 3] - pose[:3, 3], vo.camera.fx, True)
+    np.testing.assert_array_equal(vo._focal_sums, expected)
+    assert np.abs(vo._focal_sums[4] - before[4]).max() > 1.0       # 3 m of road length
+
+
 def test_a_self_calibrating_odometry_goes_on_after_an_image_of_another_size():
     # A frame of another size recalibrates (a new image, a new focal length) and restarts the
     # keyframe chain, as a new camera model does; the next frames of the first size track
