@@ -1162,22 +1162,22 @@ def _across(step: np.ndarray) -> np.ndarray:
     ``f_i / f - 1``: its offset across the optical axis scales, its length does not (the
     direction is a unit vector; the length comes from the scale), so the change is that offset
     less its share along the step."""
-    length = float(np.linalg.norm(step))
-    if not length > 0.0:
-        return np.zeros(3)
-    offset = step * _IMAGE_PLANE_AXES
-    return offset - step * float(step @ offset) / (length * length)
+    return _off_step(step * _IMAGE_PLANE_AXES, step)
 
 
 def _sideways(step: np.ndarray) -> np.ndarray:
     """How a displacement ``step`` (camera frame) moves per unit of its direction's x offset
     (a principal point ``d`` pixels off moves it by ``d / f``): ``|s|`` times the camera's x
-    axis less its share along the step."""
-    length = float(np.linalg.norm(step))
-    if not length > 0.0:
+    axis, less its share along the step."""
+    return float(np.linalg.norm(step)) * _off_step(np.array([1.0, 0.0, 0.0]), step)
+
+
+def _off_step(v: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """``v`` less its component along ``step`` (zero for a zero step)."""
+    length2 = float(step @ step)
+    if not length2 > 0.0:
         return np.zeros(3)
-    x = np.array([1.0, 0.0, 0.0])
-    return length * x - step * float(step[0]) / length
+    return v - step * float(step @ v) / length2
 
 
 def _focal_error(sums: np.ndarray, f: float) -> tuple[np.ndarray, np.ndarray]:
