@@ -37,7 +37,7 @@ from planar_vo.core.checks import as_array, as_rotation, same_length
 from planar_vo.core.conventions import normal_from_tilt, normal_tilt_jacobian
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, few_cluster_factor, median
 from planar_vo.errors import ConfigError, InputError
-from planar_vo.pipeline.calibration.tilt import TiltEstimate, refocused
+from planar_vo.pipeline.calibration.tilt import TiltEstimate, check_focal_ratio, refocused
 from planar_vo.pipeline.scale import step_factors
 
 __all__ = ['RoadNormalCalibrator', 'pair_road_normal']
@@ -162,8 +162,7 @@ class RoadNormalCalibrator:
         drive's road roll 0.68 +- 0.15 deg against 1.5 with them, 1.51 without). Dropping them
         instead left KITTI 05's fits to one or two frames each time the focal length moved in
         its turn, and one of them ran off to a roll of -50 deg: they stay."""
-        if not (math.isfinite(ratio) and ratio > 0):
-            raise InputError(f'ratio: expected a positive focal-length ratio, got {ratio}')
+        check_focal_ratio(ratio)
         if ratio == 1.0 or self._stored == 0:
             return
         self._q[:self._stored] *= ratio

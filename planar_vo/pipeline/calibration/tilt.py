@@ -45,7 +45,7 @@ from planar_vo.core.conventions import normal_from_tilt, normal_tilt_jacobian, t
 from planar_vo.core.robust.stats import MAD_TO_SIGMA
 from planar_vo.errors import ConfigError, InputError
 
-__all__ = ['MountTiltEstimator', 'TiltEstimate', 'focal_pitch', 'refocused']
+__all__ = ['MountTiltEstimator', 'TiltEstimate', 'check_focal_ratio', 'focal_pitch', 'refocused']
 
 logger = logging.getLogger(__name__)
 
@@ -99,6 +99,12 @@ def focal_pitch(pitch: float, ratio: float) -> float:
     diag(ratio, ratio, 1)``, which keeps the roll and gives ``tan(pitch') = ratio tan(pitch)``.
     """
     return math.atan(ratio * math.tan(pitch))
+
+
+def check_focal_ratio(ratio: float) -> None:
+    """Raise `InputError` unless ``ratio`` (``f_old / f_new`` of a ``refocus``) is positive."""
+    if not (math.isfinite(ratio) and ratio > 0):
+        raise InputError(f'ratio: expected a positive focal-length ratio, got {ratio}')
 
 
 def refocused(estimate: TiltEstimate, ratio: float) -> TiltEstimate:
@@ -250,8 +256,7 @@ class MountTiltEstimator:
         deg (2.9 sigma) short after the calibration. `latest` is carried along (`refocused`)
         and refitted at the next `update` (one fit more per change of the focal length, every
         few frames while it calibrates in a turn)."""
-        if not (math.isfinite(ratio) and ratio > 0):
-            raise InputError(f'ratio: expected a positive focal-length ratio, got {ratio}')
+        check_focal_ratio(ratio)
         m = self._count
         if ratio == 1.0 or m == 0:
             return
