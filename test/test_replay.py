@@ -163,15 +163,23 @@ def test_replay_camera_info_topic_beside_own_intrinsics_is_an_error(
         assert not (tmp_path / 'o').exists()
 
 
-def test_replay_without_odometry_says_why_in_its_summary(tmp_path, capsys, drive_bags):
-    """A principal point outside the image: no camera model, every frame counted, and the
-    summary's odometry line says why (a user test found only the counts)."""
+def test_replay_without_odometry_says_why_and_exits_1(tmp_path, capsys, drive_bags):
+    """A principal point outside the image: no camera model, every frame counted, the
+    summary's odometry line says why (a user test found only the counts), and the command
+    fails with one line on stderr, so that `replay && eval` stops there; the bag is kept."""
     _, bags = drive_bags
-    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), '--set',
-                 'camera.fx=480', '--set', 'camera.cx=5000', '--no-progress']) == 0
-    text = capsys.readouterr().out
-    assert ('  odometry out       0 (no_camera_info: camera.cx, camera.cy (5000, 0) lie outside '
-            'the 640x480 image: no camera model)') in text, text
+    out = tmp_path / 'o'
+    assert main(['replay', str(bags['mcap']), '--out', str(out), '--set',
+                 'camera.fx=480', '--set', 'camera.cx=5000', '--no-progress']) == 1
+    captured = capsys.readouterr()
+    why = ('no_camera_info: camera.cx, camera.cy (5000, 0) lie outside the 640x480 image: no '
+           'camera model')
+    assert f'  odometry out       0 ({why})' in captured.out, captured.out
+    frames = int(captured.out.split('frames in')[1].split()[0])
+    assert frames > 1
+    assert captured.err == (f'planar_vo replay: error: no odometry out of {frames} frame(s) '
+                            f'({why}); {out} holds the copied topics only\n')
+    assert out.exists()
 
 
 def test_replay_uses_configured_intrinsics_over_the_bags_camera_info(tmp_path, capsys,

@@ -3,12 +3,14 @@
 Reads the images (raw or compressed) and camera info of IN, feeds them with the optional speed
 topic through ``planar_vo.pipeline.VisualOdometry``, and writes ``nav_msgs/Odometry`` on /odom
 (stamped with each image's header stamp) into OUT together with the ground-truth topics of IN
-(Odometry, Path, TF, poses), ready for ``planar_vo eval OUT``.
+(Odometry, Path, TF, poses), ready for ``planar_vo eval OUT``. Exit code 1, after the
+summary, when no frame gave odometry (the summary's odometry line says why; OUT is kept).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 STORAGES = ('mcap', 'sqlite3')       # planar_vo.io.writer.STORAGES (rosbags not imported here)
 
@@ -64,6 +66,13 @@ def run(args: argparse.Namespace) -> int:
         tum_path=args.tum, storage=args.storage, odom_frame=config.ros.odom_frame,
         base_frame=config.ros.base_frame, progress=show_progress(args))
     print(summary.format())
+    if summary.frames_in and not summary.odometry_out:
+        # The output bag is complete (the summary above says what it holds), but a script that
+        # chains `replay && eval` must not go on as if there were odometry in it.
+        why = summary.why_none or 'every frame was the first of a keyframe chain'
+        print(f'{args.parser.prog}: error: no odometry out of {summary.frames_in} frame(s) '
+              f'({why}); {args.out} holds the copied topics only', file=sys.stderr)
+        return 1
     return 0
 
 
