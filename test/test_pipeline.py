@@ -739,6 +739,34 @@ def test_the_focal_sums_follow_stationary_frames_and_extrapolated_gaps():
     assert np.abs(vo._focal_sums[4] - before[4]).max() > 1.0       # 3 m of road length
 
 
+def test_after_camera_info_the_covariance_keeps_the_error_of_the_steps_before_it():
+    # Self-calibrating on the 'left' drive, then a camera model arrives (CameraInfo mid-run):
+    # the steps measured through the provisional focal lengths keep their error, now known
+    # exactly (`_focal_error` at the camera's focal length), as the whole of the focal term,
+    # and the published yaw variance covers it (with the known part dropped it fell to the
+    # steps' noise, a surviving mutation of the last review).
+    from planar_vo.pipeline.odometry import _focal_error
+
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    trajectory, images, _ = _drive('left')
+    vo = VisualOdometry(config)
+    for k, (t, image) in enumerate(zip(trajectory.stamps, images)):
+        r = vo.process(image, float(t), CAMERA if k >= 25 else None)
+        assert r.ok or k == 0
+    known, _ = _focal_error(vo._focal_sums, CAMERA.fx)
+    # World frame = the first camera's: the yaw the prior got wrong is about its y axis.
+    assert abs(known[1]) > np.deg2rad(3.0)
+    C = vo.camera_pose[:3, :3]
+    body = np.concatenate([C.T @ known[:3], C.T @ known[3:]])
+    np.testing.assert_allclose(vo._focal_covariance(), np.outer(body, body), rtol=1e-12,
+                               atol=1e-15)
+    yaw_truth = yaw_of((invert(trajectory.poses[0]) @ trajectory.poses[-1])[:3, :3])
+    yaw_error = abs(math.remainder(yaw_of(r.pose[:3, :3]) - yaw_truth, 2 * math.pi))
+    assert r.pose_covariance[5, 5] >= 0.9 * known[1] ** 2      # up to the camera's tilt
+    assert yaw_error < 3.0 * math.sqrt(r.pose_covariance[5, 5]), yaw_error
+
+
 def test_a_self_calibrating_odometry_goes_on_after_an_image_of_another_size():
     # A frame of another size recalibrates (a new image, a new focal length) and restarts the
     # keyframe chain, as a new camera model does; the next frames of the first size track
