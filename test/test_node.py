@@ -1312,18 +1312,24 @@ def test_ros_arguments_pair_each_p_name_with_the_files_after_it():
 
 
 def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):
+    # The installed executable, and `python -m planar_vo.ros.node` (a user test found the
+    # module silently doing nothing: no __main__ guard).
     import subprocess
 
-    proc = subprocess.run([str(prefix / 'lib/planar_vo/planar_vo_node'), '--help'],
-                          env=ros_env, capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.startswith('usage: ros2 run planar_vo planar_vo_node')
-    for needle in ('-r image:=/camera/image_raw',
-                   '-r image/compressed:=/camera/image_raw/compressed',
-                   'share/planar_vo/config/planar_vo.yaml', 'scale.source (default',
-                   '~/reset'):
-        assert needle in proc.stdout, needle
-    assert 'listening on' not in proc.stdout + proc.stderr
+    outputs = []
+    for command in ([str(prefix / 'lib/planar_vo/planar_vo_node'), '--help'],
+                    [sys.executable, '-m', 'planar_vo.ros.node', '--help']):
+        proc = subprocess.run(command, env=ros_env, capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.startswith('usage: ros2 run planar_vo planar_vo_node')
+        for needle in ('-r image:=/camera/image_raw',
+                       '-r image/compressed:=/camera/image_raw/compressed',
+                       'share/planar_vo/config/planar_vo.yaml', 'scale.source (default',
+                       '~/reset', 'planar_vo_node [--help] [--ros-args ...]'):
+            assert needle in proc.stdout, needle
+        assert 'listening on' not in proc.stdout + proc.stderr
+        outputs.append(proc.stdout)
+    assert outputs[0] == outputs[1]
 
 
 # -- hostile clocks and a fast speed topic (over DDS) ---------------------------------------------

@@ -1079,6 +1079,8 @@ def usage() -> str:
     lines = [
         'usage: ros2 run planar_vo planar_vo_node [--help] [--ros-args [-r FROM:=TO ...]',
         '           [--params-file FILE] [-p NAME:=VALUE ...] [--log-level LEVEL]]',
+        '       planar_vo_node [--help] [--ros-args ...]   (the same, without the ros2 command: '
+        'a venv)',
         '',
         'Planar monocular visual odometry (Hajder and Barath 1AC + voting): images in, odometry '
         'out.',
@@ -1220,3 +1222,7 @@ def main(args: list[str] | None = None) -> int:
         rclpy.try_shutdown()
         stop.done()
     return 0
+
+
+if __name__ == '__main__':      # python -m planar_vo.ros.node: as the planar_vo_node executable
+    sys.exit(main())
