@@ -371,6 +371,22 @@ def test_cli_eval_bag_with_both_topics(tmp_path, rng, capsys):
     assert row.split('|')[2].split('/')[0].strip() == '0.500000'      # the known offset
 
 
+def test_cli_eval_refuses_a_report_folder_that_is_a_file_or_a_bag(tmp_path, rng, capsys):
+    # Before the work (a user test found the table computed first and then an error, and a bag
+    # folder filled with metrics.json and plots).
+    path, _, _ = _bag_with(tmp_path, rng)
+    listing = sorted(p.name for p in path.iterdir())
+    (tmp_path / 'a_file').write_text('x')
+    as_file = 'is a file; expected the folder for the report (made if missing)'
+    for out, why in ((tmp_path / 'a_file', as_file),
+                     (path, 'is a bag; choose another folder for the report')):
+        assert main(['eval', str(path), '--out-dir', str(out)]) == 1
+        captured = capsys.readouterr()
+        assert captured.out == ''
+        assert captured.err == f"planar_vo eval: error: --out-dir: '{out}' {why}\n"
+    assert sorted(p.name for p in path.iterdir()) == listing
+
+
 def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
     gt = _drive(rng, 5)
     write_tum(tmp_path / 'est.tum', gt)

@@ -75,6 +75,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f'--segments: expected positive lengths in metres, got {args.segments}')
     if args.out_dir is not None and not args.out_dir.strip():
         raise InputError('--out-dir: an empty path; expected the folder for the report')
+    out = Path(args.out_dir) if args.out_dir else None
+    if out is not None and out.exists() and not out.is_dir():
+        raise InputError(f"--out-dir: '{args.out_dir}' is a file; expected the folder for the "
+                         f'report (made if missing)')
+    if out is not None and (out / 'metadata.yaml').exists():
+        raise InputError(f"--out-dir: '{args.out_dir}' is a bag; choose another folder for the "
+                         f'report')
     if args.out_dir and not args.force and (Path(args.out_dir) / 'metrics.json').exists():
         # Checked before the work, like every output of the command line.
         raise InputError(f"--out-dir: '{args.out_dir}' holds an earlier evaluation "
