@@ -923,6 +923,23 @@ def test_a_new_frame_rate_is_learned_not_counted_as_lost_frames(local_node):
     assert (node._counters['gaps'], node._counters['missing_frames']) == (1, 2)
 
 
+def test_a_frame_stamped_far_ahead_in_place_of_the_next_is_not_a_lost_frame(local_node):
+    """10 Hz; one frame's stamp jumps 1000 s ahead (a clock glitch) where the next frame was
+    due: the frame after it comes 200 ms after the last accepted one, but nothing was lost
+    (the glitched frame is counted as time_jump_ahead by the pipeline). A real gap later still
+    counts."""
+    node = local_node(MOUNT_PARAMS)
+    stamps = [100_000_000 * i for i in range(10)]
+    for stamp in stamps:
+        node._note_gap(stamp)
+    node._note_gap(stamps[-1] + 100_000_000 + 1000 * 10 ** 9)     # in place of the next one
+    for i in range(2, 6):
+        node._note_gap(stamps[-1] + 100_000_000 * i)
+    assert (node._counters['gaps'], node._counters['missing_frames']) == (0, 0)
+    node._note_gap(stamps[-1] + 100_000_000 * 9)                   # frames 6-8 lost
+    assert (node._counters['gaps'], node._counters['missing_frames']) == (1, 3)
+
+
 @pytest.mark.timeout(60)
 def test_diagnostics_warn_when_images_give_no_odometry(monkeypatch, local_node, drive_bag):
     """The driver switches to an encoding the node cannot read: the tracking state still says

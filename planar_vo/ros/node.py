@@ -230,6 +230,7 @@ class PlanarVoNode(Node):
         self._last_stamp_ns: int | None = None
         self._intervals: deque[int] = deque(maxlen=_PERIOD_WINDOW)
         self._gaps_in_a_row: deque[tuple[int, int]] = deque(maxlen=_RATE_CHANGE_GAPS)
+        self._glitched = 0      # frames refused as far ahead since the last accepted stamp
         self._path: deque[PoseStamped] = deque(maxlen=ros.path_max_length)
         self._path_tip: PoseStamped | None = None     # the latest pose, when not kept
         self._path_published = -math.inf
@@ -660,11 +661,18 @@ class PlanarVoNode(Node):
         The stamps are judged by the pipeline's rules (`FrameClock`, the same limits): a
         duplicate, a frame out of order or a single stamp far ahead (a clock glitch) leave the
         time base alone, and a jump back (a looped bag) or a confirmed jump ahead starts a new
-        one: none of them is a gap of lost frames."""
+        one: none of them is a gap of lost frames. A frame refused as far ahead came in the
+        interval it falls in (its stamp is wrong, not the frame lost): it takes one of the
+        interval's slots off the missing count (a user test: a frame stamped 1000 s ahead in
+        place of the next one counted a frame missing besides its `time_jump_ahead`)."""
         check = self._stamps.check(Stamp(stamp_ns))
-        if check in (StampCheck.DUPLICATE, StampCheck.OUT_OF_ORDER, StampCheck.JUMP_AHEAD):
+        if check is StampCheck.JUMP_AHEAD:
+            self._glitched += 1
+            return
+        if check in (StampCheck.DUPLICATE, StampCheck.OUT_OF_ORDER):
             return
         last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
+        glitched, self._glitched = self._glitched, 0
         if check in (StampCheck.JUMP_BACK, StampCheck.NEW_TIME_BASE) or last is None:
             self._intervals.clear()
             self._gaps_in_a_row.clear()
@@ -673,7 +681,9 @@ class PlanarVoNode(Node):
         if len(self._intervals) >= 3:
             period = float(np.median(self._intervals))
             if dt > _GAP_FACTOR * period:
-                missing = max(1, round(dt / period) - 1)
+                missing = max(1, round(dt / period) - 1) - glitched
+                if missing < 1:
+                    return      # the refused frames filled it: no gap, no new period
                 self._counters['gaps'] += 1
                 self._counters['missing_frames'] += missing
                 self._warn('gap', f'gap of {dt / 1e6:.0f} ms in the image stamps before '
