@@ -19,6 +19,7 @@ from planar_vo.errors import BagError, InputError
 from planar_vo.io import OdometryBagWriter
 from planar_vo.tools.evaluation import (
     associate,
+    covariance_consistency,
     evaluate,
     kitti_drift,
     read_bag_trajectory,
@@ -369,6 +370,67 @@ def test_cli_eval_bag_with_both_topics(tmp_path, rng, capsys):
     assert f'reference: {path} (/ground_truth/odom)' in printed
     row = next(line for line in printed.splitlines() if line.startswith('| ATE (m)'))
     assert row.split('|')[2].split('/')[0].strip() == '0.500000'      # the known offset
+
+
+def _with_known_errors(rng, ref: Trajectory):
+    """The reference moved by an arbitrary rigid transform (the odometry's own origin), each
+    pose after the first then off by a known error (position, and rotation in the world frame)
+    and given a diagonal covariance; returns the estimate, the errors and the deviations."""
+    from planar_vo.core.conventions import se3, so3_exp
+
+    moved = se3(_rotation(rng), rng.normal(0.0, 10.0, 3))
+    errors = rng.normal(0.0, 0.05, (len(ref), 6))
+    errors[0] = 0.0
+    std = rng.uniform(0.01, 0.1, (len(ref), 6))
+    poses = []
+    for P, e in zip(ref.poses, errors):
+        T = moved @ P
+        poses.append(se3(so3_exp(e[3:]) @ T[:3, :3], T[:3, 3] + e[:3]))
+    covariances = np.array([np.diag(s * s) for s in std])
+    return Trajectory(ref.stamps_ns, np.array(poses)), errors, std, covariances
+
+
+def test_covariance_consistency_is_each_error_over_its_reported_deviation(rng):
+    ref = _drive(rng, 40)
+    est, errors, std, covariances = _with_known_errors(rng, ref)
+    c = covariance_consistency(ref, est, covariances)
+    z = np.abs(errors[1:]) / std[1:]
+    assert c['frames'] == 39
+    for i, axis in enumerate(('x', 'y', 'z', 'roll', 'pitch', 'yaw')):
+        assert c['abs_z'][axis]['median'] == pytest.approx(np.median(z[:, i]), rel=1e-9)
+        assert c['abs_z'][axis]['max'] == pytest.approx(np.max(z[:, i]), rel=1e-9)
+        assert c['abs_z'][axis]['within_3'] == pytest.approx(np.mean(z[:, i] <= 3.0))
+    d = np.hypot(errors[1:, 0] / std[1:, 0], errors[1:, 1] / std[1:, 1])
+    assert c['position_2d']['max'] == pytest.approx(np.max(d), rel=1e-9)
+    assert c['position_2d']['p90'] == pytest.approx(np.percentile(d, 90), rel=1e-9)
+    # No usable covariance (all zeros: a topic that does not fill it): nothing to report.
+    assert covariance_consistency(ref, est, np.zeros((40, 6, 6))) == {}
+    with pytest.raises(InputError, match=r'covariances: expected shape \(40, 6, 6\)'):
+        covariance_consistency(ref, est, covariances[1:])
+
+
+def test_cli_eval_prints_the_covariance_consistency_of_an_odometry_bag(tmp_path, rng, capsys):
+    ref = _drive(rng, 30)
+    est, errors, std, covariances = _with_known_errors(rng, ref)
+    path = tmp_path / 'odom'
+    with OdometryBagWriter(path, topic='/odom') as writer:
+        writer.add_topic('/ground_truth/odom', 'nav_msgs/msg/Odometry')
+        for stamp, T_est, T_gt, C in zip(ref.stamps_ns, est.poses, ref.poses, covariances):
+            writer.write(int(stamp), T_est, C)
+            writer.write_odometry('/ground_truth/odom', int(stamp), T_gt)
+    out = tmp_path / 'eval'
+    assert main(['eval', str(path), '--out-dir', str(out)]) == 0
+    printed = capsys.readouterr().out
+    z = np.abs(errors[1:]) / std[1:]
+    row = next(line for line in printed.splitlines() if line.startswith('|   roll '))
+    assert row.split('|')[2].split('/')[0].strip() == f'{np.median(z[:, 3]):.2f}', row
+    assert '(n=29, anchored at the first pose)' in printed
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert metrics['covariance']['abs_z']['yaw']['max'] == pytest.approx(np.max(z[:, 5]))
+    # The ground truth's topic has no covariance (zeros): evaluated as the estimate, nothing.
+    assert main(['eval', str(path), '--est-topic', '/ground_truth/odom', '--gt-topic',
+                 '/odom']) == 0
+    assert 'covariance' not in capsys.readouterr().out
 
 
 def test_cli_eval_refuses_a_report_folder_that_is_a_file_or_a_bag(tmp_path, rng, capsys):

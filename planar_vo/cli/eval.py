@@ -4,7 +4,10 @@ EST and GT are TUM files or bags (directory, .mcap or .db3). A bag written by ``
 replay`` holds both: the estimate on /odom and the copied ground truth, which is used when --gt
 is not given. Poses are associated by stamp, the estimate is aligned (Umeyama SE(3) by default),
 and ATE, RPE per frame and per distance, and per-frame yaw-change and heading errors are printed;
-with --out-dir, metrics.json and PNG plots are written there.
+with --out-dir, metrics.json and PNG plots are written there. When EST is a bag whose topic
+carries a pose covariance (Odometry), its consistency with the errors is printed too: each
+axis's |error| / std and the 2D position's Mahalanobis distance, against the reference anchored
+at the first pose.
 """
 
 from __future__ import annotations
@@ -69,7 +72,7 @@ def _load(path: str, topic: str, name: str, topic_option: str):
 def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError
     from planar_vo.tools.evaluation import evaluate, write_report
-    from planar_vo.tools.evaluation.files import is_bag_path
+    from planar_vo.tools.evaluation.files import is_bag_path, read_bag_covariances
 
     if any(not (math.isfinite(s) and s > 0) for s in args.segments):
         raise InputError(f'--segments: expected positive lengths in metres, got {args.segments}')
@@ -88,6 +91,12 @@ def run(args: argparse.Namespace) -> int:
                          f'(metrics.json); refusing to overwrite it (give --force, or choose '
                          f'another folder)')
     est = _load(args.est, args.est_topic, 'EST', '--est-topic')
+    covariances = None
+    if is_bag_path(args.est):
+        # The pose covariance the odometry published (Odometry, PoseWithCovarianceStamped):
+        # its consistency with the errors is evaluated too.
+        found = read_bag_covariances(args.est, args.est_topic, role='--est-topic')
+        covariances = None if found is None else found[1]
     gt_path = args.gt
     if gt_path is None:
         if not is_bag_path(args.est):
@@ -97,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
                           segment_lengths=tuple(args.segments),
                           names={'ref': '--gt-topic' if args.gt is None else '--gt', 'est': 'EST',
-                                 'max_diff': '--max-diff'})
+                                 'max_diff': '--max-diff'}, covariances=covariances)
     print(f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''))
     print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
     print(evaluation.format_table())

@@ -11,12 +11,14 @@ from planar_vo.tools.evaluation.align import Alignment, align_trajectory, umeyam
 from planar_vo.tools.evaluation.files import (
     associate,
     load_trajectory,
+    read_bag_covariances,
     read_bag_trajectory,
     read_tum,
     write_tum,
 )
 from planar_vo.tools.evaluation.metrics import (
     Evaluation,
+    covariance_consistency,
     evaluate,
     flatten_se2,
     kitti_drift,
@@ -33,10 +35,12 @@ __all__ = [
     'Evaluation',
     'align_trajectory',
     'associate',
+    'covariance_consistency',
     'evaluate',
     'flatten_se2',
     'kitti_drift',
     'load_trajectory',
+    'read_bag_covariances',
     'read_bag_trajectory',
     'read_tum',
     'rpe_by_distance',

@@ -21,6 +21,7 @@ __all__ = [
     'associate',
     'is_bag_path',
     'load_trajectory',
+    'read_bag_covariances',
     'read_bag_trajectory',
     'read_tum',
     'write_tum',
@@ -136,10 +137,27 @@ def read_bag_trajectory(path: str | Path, topic: str, *, role: str = 'topic') ->
         BagError: unreadable bag, unknown topic (listing the available ones), wrong type.
         InputError: no messages on the topic.
     """
+    stamps, poses, _ = _read_pose_topic(path, topic, role, covariances=False)
+    return Trajectory.from_poses(stamps, poses)
+
+
+def read_bag_covariances(path: str | Path, topic: str, *, role: str = 'topic'
+                         ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(stamps_ns (N,), covariances (N, 6, 6))`` of the pose covariances of an Odometry or
+    PoseWithCovarianceStamped topic, in the order and with the stamps of `read_bag_trajectory`
+    (REP-103 order: x, y, z, then rotations about x, y, z); None for a topic without them
+    (PoseStamped). Raises as `read_bag_trajectory`."""
+    stamps, _, covariances = _read_pose_topic(path, topic, role, covariances=True)
+    return None if covariances is None else (stamps, covariances)
+
+
+def _read_pose_topic(path: str | Path, topic: str, role: str, *, covariances: bool
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Sorted, de-duplicated stamps, poses and (when asked for and present) covariances."""
     from planar_vo.io import iter_messages, open_bag
     from planar_vo.ros.messages import pose_from_message
 
-    stamps, poses = [], []
+    stamps, poses, covs = [], [], []
     with open_bag(path) as bag:
         for item in iter_messages(bag, topic, POSE_TYPES, role=role):
             stamps.append(item.stamp_ns)
@@ -148,6 +166,11 @@ def read_bag_trajectory(path: str | Path, topic: str, *, role: str = 'topic') ->
             except InputError as err:
                 raise InputError(f"{role}: '{topic}' in '{path}', the message stamped "
                                  f'{_format_ns(item.stamp_ns)} s: {err}') from err
+            if covariances:
+                # Odometry.pose.covariance, PoseWithCovarianceStamped.pose.covariance.
+                values = getattr(getattr(item.msg, 'pose', None), 'covariance', None)
+                covs.append(None if values is None else
+                            np.asarray(values, dtype=np.float64).reshape(6, 6))
     if not poses:
         raise InputError(f"{role}: '{topic}' in '{path}' has no messages")
     stamps_arr = np.array(stamps, dtype=np.int64)
@@ -158,7 +181,10 @@ def read_bag_trajectory(path: str | Path, topic: str, *, role: str = 'topic') ->
         log.warning("topic '%s': dropped %d messages with repeated stamps", topic,
                     int(np.count_nonzero(~keep)))
     order = order[keep]
-    return Trajectory.from_poses(stamps_arr[order], np.array(poses)[order])
+    cov = None
+    if covariances and all(c is not None for c in covs):
+        cov = np.array(covs)[order]
+    return stamps_arr[order], np.array(poses)[order], cov
 
 
 def load_trajectory(path: str | Path, topic: str | None = None, *, role: str = 'topic'

@@ -23,6 +23,15 @@ Definitions (poses ``T = [R | p]`` in the reference world frame, after associati
 - Heading error per frame: the direction of travel in the previous body frame,
   ``atan2(d_y, d_x)`` with ``d = R(i-1)^T (p(i) - p(i-1))``, estimate minus reference (degrees);
   NaN where either planar displacement is below ``min_step`` (standing still: no direction).
+- Covariance consistency (`covariance_consistency`, when the estimate carries its pose
+  covariance): the error of each estimated pose against the reference anchored at the first
+  matched pose (``T_est(0) T_ref(0)^-1 T_ref(i)``: the odometry's covariance grows from its
+  origin, so no fitted alignment), position ``p_est - p_ref`` and rotation
+  ``log(R_est R_ref^T)`` in the odometry frame (REP-103 order x, y, z, roll, pitch, yaw: the
+  rotations about the fixed axes, to first order), each component divided by its reported
+  standard deviation (``|e| / std``), and the 2D position's Mahalanobis distance
+  ``sqrt(e_xy^T C_xy^-1 e_xy)``. An honest covariance keeps ``|e| / std`` within 3 (a normal
+  error: 99.7 %) and the 2D distance within 3.4 (chi-square, 2 degrees of freedom, 99.7 %).
 """
 
 from __future__ import annotations
@@ -32,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planar_vo.core.conventions import invert, planar_pose, yaw_of
+from planar_vo.core.conventions import invert, planar_pose, so3_log, yaw_of
 from planar_vo.core.trajectory import Trajectory
 from planar_vo.errors import InputError
 from planar_vo.tools.evaluation.align import Alignment, align_trajectory
@@ -41,6 +50,7 @@ from planar_vo.tools.evaluation.files import associate
 __all__ = [
     'Evaluation',
     'ate_errors',
+    'covariance_consistency',
     'evaluate',
     'flatten_se2',
     'kitti_drift',
@@ -87,6 +97,53 @@ def statistics(values: np.ndarray) -> dict[str, float]:
     return {'rmse': float(np.sqrt(np.mean(v * v))), 'mean': float(np.mean(v)),
             'median': float(np.median(v)), 'std': float(np.std(v)), 'min': float(np.min(v)),
             'max': float(np.max(v)), 'count': int(v.size)}
+
+
+COVARIANCE_AXES = ('x', 'y', 'z', 'roll', 'pitch', 'yaw')
+
+
+def covariance_consistency(ref: Trajectory, est: Trajectory, covariances: np.ndarray) -> dict:
+    """How the estimate's errors compare with its reported pose covariance (module docstring).
+
+    Args:
+        ref, est: matched trajectories (same length; the estimate as published, not aligned).
+        covariances: ``(N, 6, 6)`` pose covariances of ``est`` (REP-103 order).
+
+    Returns:
+        ``{}`` when fewer than 2 poses after the first have a positive variance on every axis
+        (e.g. a topic whose covariance is all zeros); else ``frames`` (the poses used),
+        ``abs_z`` (per axis: ``median``, ``p90``, ``max``, ``within_3`` share) and
+        ``position_2d`` (the 2D Mahalanobis distance: ``median``, ``p90``, ``max``,
+        ``within_3.4`` share).
+    """
+    C = np.asarray(covariances, dtype=np.float64)
+    if C.shape != (len(est), 6, 6) or len(ref) != len(est):
+        raise InputError(f'covariances: expected shape ({len(est)}, 6, 6) for {len(est)} poses '
+                         f'matched to {len(ref)}, got {C.shape}')
+    anchor = est.poses[0] @ invert(ref.poses[0])
+    variances = np.diagonal(C, axis1=1, axis2=2)
+    usable = np.all(np.isfinite(C), axis=(1, 2)) & np.all(variances > 0, axis=1)
+    usable[0] = False                       # the anchor itself: no error by construction
+    index = np.flatnonzero(usable)
+    if index.size < 2:
+        return {}
+    z, d2 = [], []
+    for k in index:
+        truth = anchor @ ref.poses[k]
+        e = np.concatenate([est.poses[k][:3, 3] - truth[:3, 3],
+                            so3_log(est.poses[k][:3, :3] @ truth[:3, :3].T)])
+        z.append(np.abs(e) / np.sqrt(variances[k]))
+        d2.append(float(e[:2] @ np.linalg.solve(C[k][:2, :2], e[:2])))
+    z, d = np.array(z), np.sqrt(np.array(d2))
+
+    def summary(values: np.ndarray, bound: float, key: str) -> dict[str, float]:
+        return {'median': float(np.median(values)), 'p90': float(np.percentile(values, 90)),
+                'max': float(np.max(values)), key: float(np.mean(values <= bound))}
+
+    return {'frames': int(index.size),
+            'abs_z': {axis: summary(z[:, i], 3.0, 'within_3')
+                      for i, axis in enumerate(COVARIANCE_AXES)},
+            'position_2d': summary(d, 3.4, 'within_3.4')}
 
 
 def ate_errors(ref: Trajectory, est: Trajectory) -> np.ndarray:
@@ -226,6 +283,7 @@ class Evaluation:
     kitti_se2: dict[str, float] = field(default_factory=dict)
     kitti_short: dict[str, float] = field(default_factory=dict)
     kitti_short_se2: dict[str, float] = field(default_factory=dict)
+    covariance: dict = field(default_factory=dict)
 
     def metrics(self) -> dict:
         """JSON-ready summary."""
@@ -249,6 +307,7 @@ class Evaluation:
                if self.kitti_short else {}),
             'yaw_change_error_deg': abs_stats(self.yaw_change_error_deg),
             'heading_error_deg': abs_stats(self.heading_error_deg),
+            **({'covariance': self.covariance} if self.covariance else {}),
         }
 
     def format_table(self) -> str:
@@ -291,6 +350,17 @@ class Evaluation:
             rows.append((f'{label} mean |e| / rmse / max / bias',
                          f"{s['mean']:.4f} / {s['rmse']:.4f} / {s['max']:.4f} / "
                          f"{s['bias']:+.4f} (n={s['count']})"))
+        if 'covariance' in m:
+            c = m['covariance']
+            rows.append(('covariance: |error| / std, median / p90 / max',
+                         f"(n={c['frames']}, anchored at the first pose)"))
+            for axis, z in c['abs_z'].items():
+                rows.append((f'  {axis}', f"{z['median']:.2f} / {z['p90']:.2f} / {z['max']:.2f} "
+                                          f"({100 * z['within_3']:.1f} % within 3)"))
+            p = c['position_2d']
+            rows.append(('  x, y together (2D Mahalanobis)',
+                         f"{p['median']:.2f} / {p['p90']:.2f} / {p['max']:.2f} "
+                         f"({100 * p['within_3.4']:.1f} % within 3.4)"))
         width = max(len(k) for k, _ in rows)
         lines = [f"| {'metric'.ljust(width)} | value |", f"|{'-' * (width + 2)}|-------|"]
         lines += [f'| {k.ljust(width)} | {v} |' for k, v in rows]
@@ -299,7 +369,8 @@ class Evaluation:
 
 def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: float = 0.02,
              segment_lengths: tuple[float, ...] = DEFAULT_SEGMENTS,
-             min_step: float = 1e-3, names: dict[str, str] | None = None) -> Evaluation:
+             min_step: float = 1e-3, names: dict[str, str] | None = None,
+             covariances: np.ndarray | None = None) -> Evaluation:
     """Associate `est` with `ref` by stamp, align it, and compute every metric.
 
     Args:
@@ -310,6 +381,8 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
         min_step: planar displacement (m) below which a frame has no heading.
         names: what error messages call ``ref``, ``est`` and ``max_diff`` where the caller's
             names differ (the CLI: ``{'ref': '--gt', 'max_diff': '--max-diff'}``).
+        covariances: ``(len(est), 6, 6)`` pose covariances of `est`, for
+            `covariance_consistency` (None: not evaluated).
 
     Raises:
         InputError: fewer than 2 poses matched (the message gives both stamp ranges).
@@ -318,6 +391,9 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
     if not (math.isfinite(max_diff) and max_diff >= 0):
         raise InputError(f"{name['max_diff']}: expected a non-negative number of seconds, got "
                          f'{max_diff}')
+    if covariances is not None and np.shape(covariances) != (len(est), 6, 6):
+        raise InputError(f'covariances: expected shape ({len(est)}, 6, 6) for the {len(est)} '
+                         f'poses of {name["est"]}, got {np.shape(covariances)}')
     ie, ir = associate(est.stamps_ns, ref.stamps_ns, max_diff)
     if len(ie) < 2:
         def span(t: Trajectory) -> str:
@@ -337,7 +413,9 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
                  kitti_drift(ref_m, est_m, planar=True, lengths=KITTI_SHORT_LENGTHS))
         if short[0]['segments'] == 0:       # not even 10 m: nothing to report
             short = ({}, {})
+    consistency = ({} if covariances is None else
+                   covariance_consistency(ref_m, est_m, np.asarray(covariances)[ie]))
     return Evaluation(ref_m, est_m, aligned, alignment, ate_errors(ref_m, aligned), rpe_t, rpe_r,
                       yaw, heading, rpe_by_distance(ref_m, aligned, segment_lengths),
                       {'estimate_unmatched': len(est) - len(ie),
-                       'reference_unmatched': len(ref) - len(ir)}, *kitti, *short)
+                       'reference_unmatched': len(ref) - len(ir)}, *kitti, *short, consistency)
