@@ -393,18 +393,30 @@ def _with_known_errors(rng, ref: Trajectory):
 def test_covariance_consistency_is_each_error_over_its_reported_deviation(rng):
     ref = _drive(rng, 40)
     est, errors, std, covariances = _with_known_errors(rng, ref)
+    # Correlated x and y on every pose: the 2D distance must use the correlation.
+    rho = rng.uniform(-0.9, 0.9, 40)
+    covariances[:, 0, 1] = covariances[:, 1, 0] = rho * std[:, 0] * std[:, 1]
     c = covariance_consistency(ref, est, covariances)
     z = np.abs(errors[1:]) / std[1:]
     assert c['frames'] == 39
     for i, axis in enumerate(('x', 'y', 'z', 'roll', 'pitch', 'yaw')):
         assert c['abs_z'][axis]['median'] == pytest.approx(np.median(z[:, i]), rel=1e-9)
         assert c['abs_z'][axis]['max'] == pytest.approx(np.max(z[:, i]), rel=1e-9)
-        assert c['abs_z'][axis]['within_3'] == pytest.approx(np.mean(z[:, i] <= 3.0))
-    d = np.hypot(errors[1:, 0] / std[1:, 0], errors[1:, 1] / std[1:, 1])
+        assert c['abs_z'][axis]['within'] == pytest.approx(np.mean(z[:, i] <= 3.0))
+    u, v, r = errors[1:, 0] / std[1:, 0], errors[1:, 1] / std[1:, 1], rho[1:]
+    d = np.sqrt((u * u - 2 * r * u * v + v * v) / (1 - r * r))
     assert c['position_2d']['max'] == pytest.approx(np.max(d), rel=1e-9)
     assert c['position_2d']['p90'] == pytest.approx(np.percentile(d, 90), rel=1e-9)
-    # No usable covariance (all zeros: a topic that does not fill it): nothing to report.
-    assert covariance_consistency(ref, est, np.zeros((40, 6, 6))) == {}
+    # A planar odometry (z, roll and pitch at zero) is judged on the axes it reports; a singular
+    # x-y block leaves the 2D distance out instead of failing.
+    planar = covariances.copy()
+    planar[:, 2, 2] = planar[:, 3, 3] = planar[:, 4, 4] = 0.0
+    planar[:, 0, 1] = planar[:, 1, 0] = std[:, 0] * std[:, 1]             # correlation 1
+    c = covariance_consistency(ref, est, planar)
+    assert set(c['abs_z']) == {'x', 'y', 'yaw'} and 'position_2d' not in c
+    # No usable covariance (all zeros: a topic that does not fill it): said so.
+    none = covariance_consistency(ref, est, np.zeros((40, 6, 6)))
+    assert none['frames'] == 0 and 'no pose after the first' in none['reason']
     with pytest.raises(InputError, match=r'covariances: expected shape \(40, 6, 6\)'):
         covariance_consistency(ref, est, covariances[1:])
 
@@ -415,22 +427,29 @@ def test_cli_eval_prints_the_covariance_consistency_of_an_odometry_bag(tmp_path,
     path = tmp_path / 'odom'
     with OdometryBagWriter(path, topic='/odom') as writer:
         writer.add_topic('/ground_truth/odom', 'nav_msgs/msg/Odometry')
-        for stamp, T_est, T_gt, C in zip(ref.stamps_ns, est.poses, ref.poses, covariances):
-            writer.write(int(stamp), T_est, C)
-            writer.write_odometry('/ground_truth/odom', int(stamp), T_gt)
+        # Written newest first, with an extra estimate before the reference starts and a
+        # repeated stamp (dropped by the reader): the covariances must follow their poses.
+        writer.write(int(ref.stamps_ns[0]) - 10 ** 9, est.poses[0], np.eye(6))
+        for k in reversed(range(len(ref))):
+            writer.write(int(ref.stamps_ns[k]), est.poses[k], covariances[k])
+            writer.write_odometry('/ground_truth/odom', int(ref.stamps_ns[k]), ref.poses[k])
+        writer.write(int(ref.stamps_ns[5]), est.poses[5], covariances[5] * 100.0)
     out = tmp_path / 'eval'
     assert main(['eval', str(path), '--out-dir', str(out)]) == 0
     printed = capsys.readouterr().out
     z = np.abs(errors[1:]) / std[1:]
     row = next(line for line in printed.splitlines() if line.startswith('|   roll '))
     assert row.split('|')[2].split('/')[0].strip() == f'{np.median(z[:, 3]):.2f}', row
-    assert '(n=29, anchored at the first pose)' in printed
+    assert 'n=29)' in row
+    assert 'honest: 0.67 / 1.65 (2D: 1.18 / 2.15)' in printed
     metrics = json.loads((out / 'metrics.json').read_text())
     assert metrics['covariance']['abs_z']['yaw']['max'] == pytest.approx(np.max(z[:, 5]))
-    # The ground truth's topic has no covariance (zeros): evaluated as the estimate, nothing.
+    # The ground truth's topic has no covariance (zeros): evaluated as the estimate, said so.
     assert main(['eval', str(path), '--est-topic', '/ground_truth/odom', '--gt-topic',
                  '/odom']) == 0
-    assert 'covariance' not in capsys.readouterr().out
+    row = next(line for line in capsys.readouterr().out.splitlines()
+               if line.startswith('| covariance'))
+    assert 'not evaluated: no pose after the first' in row
 
 
 def test_cli_eval_refuses_a_report_folder_that_is_a_file_or_a_bag(tmp_path, rng, capsys):

@@ -442,7 +442,7 @@ def _step_nees(error: np.ndarray, variance: np.ndarray) -> float:
 
 
 def test_yaw_covariance_covers_errors_the_estimator_does_not_predict(monkeypatch):
-    """Every estimate's yaw disturbed by 0.05 deg of noise its covariance does not know about
+    """Every estimate's yaw disturbed by 0.15 deg of noise its covariance does not know about
     (errors shared by all ACs of a frame, as on real roads): after a few steps the published
     yaw variance includes it, measured from the steps' yaw-rate changes (no ground truth)."""
     import dataclasses
@@ -450,7 +450,7 @@ def test_yaw_covariance_covers_errors_the_estimator_does_not_predict(monkeypatch
     from planar_vo.core.conventions import rotation_y
 
     def disturb(est, R_lc, rng):
-        noise = R_lc.T @ rotation_y(np.deg2rad(0.05) * rng.standard_normal()) @ R_lc
+        noise = R_lc.T @ rotation_y(np.deg2rad(0.15) * rng.standard_normal()) @ R_lc
         return dataclasses.replace(est, R=noise @ est.R)
 
     truth, results = _disturbed_straight_drive(monkeypatch, disturb)
@@ -462,7 +462,7 @@ def test_yaw_covariance_covers_errors_the_estimator_does_not_predict(monkeypatch
 
 def test_roll_and_pitch_covariance_cover_the_rotation_errors_the_estimator_does_not_predict(
         monkeypatch):
-    """Every estimate's rotation disturbed by 0.05 deg of noise about each axis that its
+    """Every estimate's rotation disturbed by 0.15 deg of noise about each axis that its
     covariance does not know about (errors shared by all ACs; on KITTI 05 the roll and pitch
     err by 0.022 and 0.024 deg per step against 0.0015 predicted): the excess measured on the
     yaw widens roll and pitch alike, so all three stay honest. With the excess on the yaw alone
@@ -472,7 +472,7 @@ def test_roll_and_pitch_covariance_cover_the_rotation_errors_the_estimator_does_
     from planar_vo.core.conventions import so3_exp, so3_log
 
     def disturb(est, R_lc, rng):
-        noise = R_lc.T @ so3_exp(np.deg2rad(0.05) * rng.standard_normal(3)) @ R_lc
+        noise = R_lc.T @ so3_exp(np.deg2rad(0.15) * rng.standard_normal(3)) @ R_lc
         return dataclasses.replace(est, R=noise @ est.R)
 
     truth, results = _disturbed_straight_drive(monkeypatch, disturb)

@@ -55,15 +55,20 @@ def register(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
-def _load(path: str, topic: str, name: str, topic_option: str):
-    """The trajectory of `path` (`topic` of a bag); errors call the path `name` (EST, --gt),
-    not the library's 'trajectory', 'tum' or 'bag', and the topic `topic_option`."""
+def _load(path: str, topic: str, name: str, topic_option: str, covariances: bool = False):
+    """The trajectory of `path` (`topic` of a bag), with its pose covariances (None without
+    them: a TUM file, a PoseStamped topic) when asked for; errors call the path `name` (EST,
+    --gt), not the library's 'trajectory', 'tum' or 'bag', and the topic `topic_option`."""
     from planar_vo.cli import relabel
     from planar_vo.errors import PlanarVoError
-    from planar_vo.tools.evaluation import load_trajectory
+    from planar_vo.tools.evaluation import load_trajectory, read_bag_odometry
+    from planar_vo.tools.evaluation.files import is_bag_path
 
     try:
-        return load_trajectory(path, topic, role=topic_option)
+        if covariances and is_bag_path(path):
+            return read_bag_odometry(path, topic, role=topic_option)
+        trajectory = load_trajectory(path, topic, role=topic_option)
+        return (trajectory, None) if covariances else trajectory
     except PlanarVoError as err:
         relabel(err, dict.fromkeys(('trajectory', 'tum', 'bag'), name))
         raise
@@ -72,7 +77,7 @@ def _load(path: str, topic: str, name: str, topic_option: str):
 def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError
     from planar_vo.tools.evaluation import evaluate, write_report
-    from planar_vo.tools.evaluation.files import is_bag_path, read_bag_covariances
+    from planar_vo.tools.evaluation.files import is_bag_path
 
     if any(not (math.isfinite(s) and s > 0) for s in args.segments):
         raise InputError(f'--segments: expected positive lengths in metres, got {args.segments}')
@@ -90,13 +95,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out-dir: '{args.out_dir}' holds an earlier evaluation "
                          f'(metrics.json); refusing to overwrite it (give --force, or choose '
                          f'another folder)')
-    est = _load(args.est, args.est_topic, 'EST', '--est-topic')
-    covariances = None
-    if is_bag_path(args.est):
-        # The pose covariance the odometry published (Odometry, PoseWithCovarianceStamped):
-        # its consistency with the errors is evaluated too.
-        found = read_bag_covariances(args.est, args.est_topic, role='--est-topic')
-        covariances = None if found is None else found[1]
+    # With the pose covariance the odometry published (Odometry, PoseWithCovarianceStamped):
+    # its consistency with the errors is evaluated too.
+    est, covariances = _load(args.est, args.est_topic, 'EST', '--est-topic', covariances=True)
     gt_path = args.gt
     if gt_path is None:
         if not is_bag_path(args.est):

@@ -598,11 +598,12 @@ class VisualOdometry:
         The rotation's excess is measured on the yaw and added about all three axes: the
         errors the ACs share are not the yaw's alone. Measured against the ground truth (dev
         script rollz.py, shipped defaults, calibrated): per step the pitch and roll errors are
-        0.024 and 0.022 deg rms on KITTI 05, 0.024 and 0.030 on the KITTI 06 excerpt, about
-        the yaw's (0.010, 0.044) and ten times what the estimator predicts (0.0011-0.0017). With
-        the excess on the yaw only, the published roll was off by up to 18 of its standard
-        deviations on KITTI 05 (70 on KITTI 06); with it on all three axes by at most 1.4 (3.2)
-        and the pitch by at most 1.2 (0.8)."""
+        0.024 and 0.022 deg rms on KITTI 05 (the yaw's 0.010), 0.024 and 0.030 on the KITTI 06
+        excerpt (the yaw's 0.044), more than ten times what the estimator predicts
+        (0.0011-0.0017). With the excess on the yaw only, the published roll was off by up to
+        18 of its standard deviations on KITTI 05 (70 on the KITTI 06 excerpt); with it on all
+        three axes by at most 1.41 (3.22), the pitch by at most 1.17 (1.04) (`planar_vo eval`,
+        planar_vo/bench/results/covariance)."""
         cov = est.cov.copy()
         R_lc = self._estimator.R_lc
         yaw = float(so3_log(R_lc @ est.R @ R_lc.T)[1])

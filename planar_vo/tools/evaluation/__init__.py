@@ -11,7 +11,7 @@ from planar_vo.tools.evaluation.align import Alignment, align_trajectory, umeyam
 from planar_vo.tools.evaluation.files import (
     associate,
     load_trajectory,
-    read_bag_covariances,
+    read_bag_odometry,
     read_bag_trajectory,
     read_tum,
     write_tum,
@@ -40,7 +40,7 @@ __all__ = [
     'flatten_se2',
     'kitti_drift',
     'load_trajectory',
-    'read_bag_covariances',
+    'read_bag_odometry',
     'read_bag_trajectory',
     'read_tum',
     'rpe_by_distance',

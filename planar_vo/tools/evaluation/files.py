@@ -21,7 +21,7 @@ __all__ = [
     'associate',
     'is_bag_path',
     'load_trajectory',
-    'read_bag_covariances',
+    'read_bag_odometry',
     'read_bag_trajectory',
     'read_tum',
     'write_tum',
@@ -141,14 +141,14 @@ def read_bag_trajectory(path: str | Path, topic: str, *, role: str = 'topic') ->
     return Trajectory.from_poses(stamps, poses)
 
 
-def read_bag_covariances(path: str | Path, topic: str, *, role: str = 'topic'
-                         ) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(stamps_ns (N,), covariances (N, 6, 6))`` of the pose covariances of an Odometry or
-    PoseWithCovarianceStamped topic, in the order and with the stamps of `read_bag_trajectory`
-    (REP-103 order: x, y, z, then rotations about x, y, z); None for a topic without them
-    (PoseStamped). Raises as `read_bag_trajectory`."""
-    stamps, _, covariances = _read_pose_topic(path, topic, role, covariances=True)
-    return None if covariances is None else (stamps, covariances)
+def read_bag_odometry(path: str | Path, topic: str, *, role: str = 'topic'
+                      ) -> tuple[Trajectory, np.ndarray | None]:
+    """`read_bag_trajectory` and, in the same order, the pose covariances ``(N, 6, 6)`` of an
+    Odometry or PoseWithCovarianceStamped topic (REP-103 order: x, y, z, then rotations about
+    x, y, z); None for a topic without them (PoseStamped). One pass over the bag. Raises as
+    `read_bag_trajectory`."""
+    stamps, poses, covariances = _read_pose_topic(path, topic, role, covariances=True)
+    return Trajectory.from_poses(stamps, poses), covariances
 
 
 def _read_pose_topic(path: str | Path, topic: str, role: str, *, covariances: bool
