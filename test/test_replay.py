@@ -170,7 +170,8 @@ def test_replay_without_odometry_says_why_and_exits_1(tmp_path, capsys, drive_ba
     _, bags = drive_bags
     out = tmp_path / 'o'
     assert main(['replay', str(bags['mcap']), '--out', str(out), '--set',
-                 'camera.fx=480', '--set', 'camera.cx=5000', '--no-progress']) == 1
+                 'camera.fx=480', '--set', 'camera.cx=5000', '--no-progress', '--tum',
+                 str(tmp_path / 'o.tum')]) == 1
     captured = capsys.readouterr()
     why = ('no_camera_info: camera.cx, camera.cy (5000, 0) lie outside the 640x480 image: no '
            'camera model')
@@ -178,8 +179,10 @@ def test_replay_without_odometry_says_why_and_exits_1(tmp_path, capsys, drive_ba
     frames = int(captured.out.split('frames in')[1].split()[0])
     assert frames > 1
     assert captured.err == (f'planar_vo replay: error: no odometry out of {frames} frame(s) '
-                            f'({why}); {out} holds the copied topics only\n')
-    assert out.exists()
+                            f'({why}); {out} holds the copied topics only; no TUM file was '
+                            f'written\n')
+    assert out.exists() and not (tmp_path / 'o.tum').exists()
+    assert 'TUM trajectory' not in captured.out
 
 
 def test_replay_uses_configured_intrinsics_over_the_bags_camera_info(tmp_path, capsys,

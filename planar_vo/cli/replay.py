@@ -70,8 +70,9 @@ def run(args: argparse.Namespace) -> int:
         # The output bag is complete (the summary above says what it holds), but a script that
         # chains `replay && eval` must not go on as if there were odometry in it.
         why = summary.why_none or 'every frame was the first of a keyframe chain'
+        tum = '; no TUM file was written' if args.tum else ''
         print(f'{args.parser.prog}: error: no odometry out of {summary.frames_in} frame(s) '
-              f'({why}); {args.out} holds the copied topics only', file=sys.stderr)
+              f'({why}); {args.out} holds the copied topics only{tum}', file=sys.stderr)
         return 1
     return 0
 

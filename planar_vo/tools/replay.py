@@ -332,12 +332,14 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             raise
         finally:
             bar.close()
-    if tum_path is not None:
+    if tum_path is not None and poses.poses:
         try:
             poses.write(tum_path)
         except OutputError as err:
             err.add_note(writer.outcome)
             raise
+    elif tum_path is not None:
+        summary.tum = None          # no poses: no file (an empty one would block the next run)
     summary.odometry_out = writer.count
     summary.dropped = dict(dropped)
     if not summary.odometry_out:
