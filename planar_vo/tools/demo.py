@@ -115,7 +115,8 @@ def _run(out_dir: Path, camera: str, seed: int, frames: int | None, storage: str
     """`run_demo` after the folder is prepared."""
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.sim.drive import demo_drive
-    from planar_vo.tools.evaluation import evaluate, load_trajectory, write_report
+    from planar_vo.tools.evaluation import (evaluate, load_trajectory, read_bag_odometry,
+                                            write_report)
     from planar_vo.tools.record import record_drive
     from planar_vo.tools.replay import replay_bag
 
@@ -133,9 +134,9 @@ def _run(out_dir: Path, camera: str, seed: int, frames: int | None, storage: str
     summary = replay_bag(files['drive'], files['odometry'], VisualOdometry(config),
                          tum_path=files['tum'], storage=storage, progress=progress)
     log(summary.format())
-    est = load_trajectory(files['odometry'], '/odom', role='est-topic')
+    est, covariances = read_bag_odometry(files['odometry'], '/odom', role='est-topic')
     ref = load_trajectory(files['odometry'], '/ground_truth/odom', role='gt-topic')
-    evaluation = evaluate(ref, est, align='se3')
+    evaluation = evaluate(ref, est, align='se3', covariances=covariances)
     log(evaluation.format_table())
     for path in write_report(evaluation, files['evaluation'], estimate=files['odometry'],
                              reference=files['drive']):

@@ -286,7 +286,8 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
     """``planar_vo replay`` and ``planar_vo eval --align sim3`` of one job; fills `row`."""
     from planar_vo.io.camera_bag import GROUND_TRUTH_TOPIC
     from planar_vo.pipeline import VisualOdometry
-    from planar_vo.tools.evaluation import evaluate, load_trajectory, write_report
+    from planar_vo.tools.evaluation import (evaluate, load_trajectory, read_bag_odometry,
+                                            write_report)
     from planar_vo.tools.replay import replay_bag
 
     config = job.config.build()
@@ -299,9 +300,9 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
                odometry=f'{job.run_dir}/{ODOMETRY}', tum=f'{job.run_dir}/{TUM}')
     if not summary.copied.get(GROUND_TRUTH_TOPIC):
         return None
-    est = load_trajectory(odometry, EST_TOPIC, role='est-topic')
+    est, covariances = read_bag_odometry(odometry, EST_TOPIC, role='est-topic')
     ref = load_trajectory(odometry, GROUND_TRUTH_TOPIC, role='gt-topic')
-    evaluation = evaluate(ref, est, align=ALIGN)
+    evaluation = evaluate(ref, est, align=ALIGN, covariances=covariances)
     write_report(evaluation, work / EVALUATION, plots=False, estimate=odometry,
                  reference=odometry)
     metrics = evaluation.metrics()
