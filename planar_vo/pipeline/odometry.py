@@ -221,11 +221,10 @@ class VisualOdometry:
         px (self-calibrated at frame 143)`` / ``... (provisional, 2 of 4 blocks)``."""
         if self._focal is not None and self._camera is None:
             return self._focal.status()
-        if self._in_use is None:
+        px, _, source = self.focal_length()
+        if source == 'unknown':
             return 'focal length unknown (no frame with camera intrinsics yet)'
-        origin = 'configured' if self.config.camera.fx > 0 and self._camera_from_config \
-            else 'CameraInfo'
-        return f'focal length {self._in_use.fx:.1f} px ({origin})'
+        return f"focal length {px:.1f} px ({'CameraInfo' if source == 'camera_info' else source})"
 
     def focal_length(self) -> tuple[float, float, str]:
         """``(pixels, standard deviation, source)`` of the focal length `focal_status`
