@@ -285,8 +285,9 @@ def test_writer_closes_properly_on_exception(tmp_path, storage):
 class ConstantVelocityDouble:
     """TEST DOUBLE standing in for planar_vo.pipeline.VisualOdometry: not visual odometry.
 
-    The first frame initialises (FIRST_FRAME); every later frame moves the pose along x by the
-    last fed speed times the elapsed time and turns it by 0.01 rad; it records what it saw.
+    The first frame initialises (FIRST_FRAME, at the origin); every later frame moves the pose
+    along x by the last fed speed times the elapsed time and turns it by 0.01 rad; it records
+    what it saw.
     """
 
     def __init__(self):
@@ -301,7 +302,8 @@ class ConstantVelocityDouble:
         self.calls.append((stamp, image.shape, camera, list(self.speeds)))
         if self.last is None:
             self.last = stamp
-            return FrameResult(stamp, False, np.eye(4), np.eye(6), reason=DropReason.FIRST_FRAME)
+            return FrameResult(stamp, False, np.eye(4), np.zeros((6, 6)),
+                               reason=DropReason.FIRST_FRAME)
         self.x += self.speed * (stamp - self.last)
         self.yaw += 0.01
         self.last = stamp
@@ -337,8 +339,8 @@ def test_replay_writes_odometry_counts_drops_and_copies_ground_truth(
     tum = tmp_path / 'vo.tum'
     summary = replay_bag(in_bag, tmp_path / 'out', double, speed_topic='/vehicle/twist',
                          tum_path=tum, storage=out_storage, progress=True)
-    assert summary.frames_in == 10 and summary.odometry_out == 8
-    assert summary.dropped == {'first_frame': 1, 'bad_image': 1}
+    assert summary.frames_in == 10 and summary.odometry_out == 9     # the origin's too
+    assert summary.origins == 1 and summary.dropped == {'bad_image': 1}
     assert summary.copied == {'/ground_truth/odom': 10}
     assert summary.image_topic == '/cam/image_raw'
     assert summary.camera_info_topic == '/cam/camera_info'
@@ -368,16 +370,19 @@ def test_replay_writes_odometry_counts_drops_and_copies_ground_truth(
         in_conn = bag.connection('/ground_truth/odom')
     assert [bytes(b) for b in gt_out] == [bytes(b) for b in gt_in]
     assert (gt_conn.msgdef, gt_conn.digest) == (in_conn.msgdef, in_conn.digest)
-    # odometry stamped with the exact header stamps of the processed images
-    assert [m.stamp_ns for m in odom] == ok_stamps[1:]
-    for item, pose in zip(odom, double.poses):
+    # odometry stamped with the exact header stamps of the processed images, the first frame's
+    # at the origin
+    assert [m.stamp_ns for m in odom] == ok_stamps
+    np.testing.assert_array_equal(pose_from_message(odom[0].msg), np.eye(4))
+    assert not np.any(odom[0].msg.pose.covariance)
+    for item, pose in zip(odom[1:], double.poses, strict=True):
         np.testing.assert_allclose(pose_from_message(item.msg), pose, atol=1e-15)
         np.testing.assert_array_equal(item.msg.pose.covariance, np.eye(6).ravel() * 0.5)
         assert item.msg.twist.twist.linear.y == 1.0 and item.msg.twist.covariance[0] == 0.25
     # the TUM file holds the same poses with full-precision stamps
     traj = read_tum(tum)
-    assert traj.stamps_ns.tolist() == ok_stamps[1:]
-    np.testing.assert_allclose(traj.poses, np.array(double.poses), atol=1e-15)
+    assert traj.stamps_ns.tolist() == ok_stamps
+    np.testing.assert_allclose(traj.poses, np.array([np.eye(4), *double.poses]), atol=1e-15)
 
 
 def test_replay_refuses_existing_outputs(tmp_path, rng):
@@ -414,12 +419,13 @@ def test_replay_of_a_bag_corrupt_mid_way_keeps_what_was_written(tmp_path, rng, s
                    progress=False)
     _one_line_error(exc)
     kept = int(re.search(r'/odom: (\d+),', exc.value.__notes__[0]).group(1))
-    assert kept == len(double.poses) >= 5
+    assert kept == len(double.poses) + 1 >= 5                # the origin and the steps
     odom = _read_odometry(tmp_path / 'out')                  # the output is a complete bag
     assert len(odom) == kept
-    assert [m.stamp_ns for m in odom] == [T0 + i * 100_000_000 for i in range(1, kept + 1)]
+    assert [m.stamp_ns for m in odom] == [T0 + i * 100_000_000 for i in range(kept)]
     assert len(read_tum(tmp_path / 'vo.tum')) == kept
-    assert len(_read_odometry(tmp_path / 'out', '/ground_truth/odom')) >= kept
+    # Each frame's ground truth is logged just after its image: the last one may be lost.
+    assert len(_read_odometry(tmp_path / 'out', '/ground_truth/odom')) >= kept - 1
 
 
 @pytest.mark.parametrize('storage', STORAGES)
@@ -453,8 +459,8 @@ def test_replay_logs_the_first_bad_image_and_camera_info_and_counts_them_all(tmp
     in_bag = write_bag(tmp_path / 'in', 'mcap', entries)
     with caplog.at_level('WARNING', logger='planar_vo'):
         summary = replay_bag(in_bag, tmp_path / 'out', ConstantVelocityDouble(), progress=False)
-    assert (summary.frames_in, summary.odometry_out) == (20, 1)
-    assert summary.dropped == {'first_frame': 1, 'bad_image': 18}
+    assert (summary.frames_in, summary.odometry_out, summary.origins) == (20, 2, 1)
+    assert summary.dropped == {'bad_image': 18}
     assert summary.camera_info_errors == 18
     stamp = T0 + 200_000_000
     assert [r.getMessage() for r in caplog.records] == [
@@ -477,8 +483,8 @@ def test_replay_counts_a_decompression_bomb_as_a_bad_image(tmp_path, rng):
          compressed_msg(data, 'png', stamp)) for stamp, data in zip(stamps, frames)])
     double = ConstantVelocityDouble()
     summary = replay_bag(in_bag, tmp_path / 'out', double, progress=False)
-    assert summary.frames_in == 4 and summary.odometry_out == 2
-    assert summary.dropped == {'first_frame': 1, 'bad_image': 1}
+    assert summary.frames_in == 4 and summary.odometry_out == 3 and summary.origins == 1
+    assert summary.dropped == {'bad_image': 1}
     assert [c[0] for c in double.calls] == [stamps[i] / 1_000_000_000 for i in (0, 1, 3)]
 
 

@@ -129,11 +129,12 @@ def test_rows_failures_and_report(drives, fleet_run):
             assert row['status'] == 'ok' and row['reason'] is None
             with open_bag(drives[bag]) as reader:
                 frames = reader.count(IMAGE_TOPIC)
-            assert row['frames_in'] == frames and row['odom_out'] == frames - 1
-            assert row['drops'] == {'first_frame': 1}
+            assert row['frames_in'] == frames and row['odom_out'] == frames   # the origin too
+            assert row['drops'] == {}
             assert row['frames_per_s'] == pytest.approx(frames / row['wall_s'])
-            # Ground truth of the frames with odometry: all but the first.
-            assert 0.85 * drives['distance'][bag] < row['path_m'] < drives['distance'][bag]
+            # The ground truth's path over the frames with odometry: every frame (the first at
+            # the origin).
+            assert row['path_m'] == pytest.approx(drives['distance'][bag], rel=1e-9)
             assert row['ate_sim3_m'] < 0.01 * row['path_m']
             assert 0.0 <= row['yaw_err_mean_deg'] < 0.1
             # Drives under 100 m have no KITTI segment: null, not a number.

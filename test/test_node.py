@@ -202,14 +202,16 @@ def test_drive_gives_one_odometry_per_image_tracking_ground_truth(
                                      extra=reliable_subscriptions(IMAGE_TOPIC,
                                                                   CAMERA_INFO_TOPIC))
 
-    # Every image but the first (which starts the keyframe chain) yields odometry, stamped
-    # exactly with the image's header stamp, in the configured frames.
-    assert [stamp_to_ns(m.header.stamp) for m in odom] == stamps[1:]
+    # Every image yields odometry, stamped exactly with the image's header stamp, in the
+    # configured frames; the first (which starts the keyframe chain) at the origin, exactly.
+    assert [stamp_to_ns(m.header.stamp) for m in odom] == stamps
     assert {(m.header.frame_id, m.child_frame_id) for m in odom} == {('odom', 'base_link')}
+    assert np.array_equal(odom_pose(odom[0]), np.eye(4))
+    assert not np.any(odom[0].pose.covariance)
     final = status_values(status[-1])
     assert (final['frames'], final['odometry_out'], final['dropped']) == \
-        (str(len(stamps)), str(len(stamps) - 1), '1')
-    assert final['dropped.first_frame'] == '1'
+        (str(len(stamps)), str(len(stamps)), '0')
+    assert final['first_frames'] == '1' and 'dropped.first_frame' not in final
     assert [status_values(s)['result'] for s in status] == ['first_frame'] + \
         ['ok'] * (len(stamps) - 1)
     assert {status_values(s)['scale_source'] for s in status[1:]} == {source}
@@ -224,14 +226,14 @@ def test_drive_gives_one_odometry_per_image_tracking_ground_truth(
     assert last.twist.twist.linear.x == pytest.approx(7.0, rel=0.1)
     assert last.twist.twist.angular.z == pytest.approx(7.0 / 20.0, rel=0.2)
     cov = np.array(last.pose.covariance).reshape(6, 6)
-    first_cov = np.array(odom[0].pose.covariance).reshape(6, 6)
+    first_cov = np.array(odom[1].pose.covariance).reshape(6, 6)      # the first step's
     assert np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0)
     assert cov[0, 0] + cov[1, 1] > first_cov[0, 0] + first_cov[1, 1]   # uncertainty grows
     assert np.all(np.diag(np.array(last.twist.covariance).reshape(6, 6)) > 0)
 
     line = summary_line(output)
-    assert f'{len(stamps)} frames in, {len(stamps) - 1} odometry out, 1 dropped ' \
-           f'(first_frame 1)' in line
+    assert f'{len(stamps)} frames in, {len(stamps)} odometry out (1 at the origin: first ' \
+           f'frames of keyframe chains), 0 dropped (none)' in line
     node_ms = np.mean([float(status_values(s)['time_ms.node']) for s in status[1:]])
     print(f'{source}: final yaw error {yaw_err:+.3f} deg, position error {100 * pos_err:.3f}% '
           f'of distance; mean node time {node_ms:.1f} ms/frame')
@@ -250,7 +252,7 @@ def test_compressed_transport_drive(prefix, ros_env, tmp_path, drive_bag):
                                      frames=len(stamps), compress_fmt='jpeg', reliable=True,
                                      extra=reliable_subscriptions(f'{IMAGE_TOPIC}/compressed',
                                                                   CAMERA_INFO_TOPIC))
-    assert [stamp_to_ns(m.header.stamp) for m in odom] == stamps[1:]
+    assert [stamp_to_ns(m.header.stamp) for m in odom] == stamps         # the origin too
     yaw_err, pos_err = assert_tracks_ground_truth(*odom_track(odom), ground_truth(drive_bag),
                                                   stamps[0], yaw_deg=45.0)
     print(f'jpeg: final yaw error {yaw_err:+.3f} deg, position error {100 * pos_err:.3f}%')
@@ -343,20 +345,21 @@ def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
                                                                   CAMERA_INFO_TOPIC))
 
     # Every image has its status, in order, with the expected outcome; odometry exactly for
-    # the good frames, each stamped with its image's stamp.
+    # the good frames and the first (the origin), each stamped with its image's stamp.
     assert [(int(status_values(s)['stamp_ns']), status_values(s)['result'])
             for s in status] == expected
     assert [stamp_to_ns(m.header.stamp) for m in odom] == \
-        [stamp for stamp, result in expected if result == 'ok']
+        [stamp for stamp, result in expected if result in ('ok', 'first_frame')]
     final = status_values(status[-1])
     counts = {reason: sum(r == reason for _, r in expected) for _, reason in expected}
     assert counts == {'no_camera_info': 2, 'first_frame': 1, 'ok': 20, 'bad_image': 2,
                       'blank_image': 2, 'duplicate_stamp': 1, 'out_of_order': 1,
                       'size_changed': 1}
     for reason, count in counts.items():
-        key = 'odometry_out' if reason == 'ok' else f'dropped.{reason}'
-        assert final[key] == str(count), key
-    assert (final['frames'], final['dropped']) == (str(len(expected)), str(len(expected) - 20))
+        names = {'ok': 'odometry_out', 'first_frame': 'first_frames'}
+        key = names.get(reason, f'dropped.{reason}')
+        assert final[key] == str(count + (reason == 'ok')), key    # odometry: the origin's too
+    assert (final['frames'], final['dropped']) == (str(len(expected)), str(len(expected) - 21))
     assert (final['camera_info_errors'], final['gaps'], final['missing_frames']) == \
         ('1', '1', '2')
 
@@ -380,7 +383,8 @@ def test_bad_input_is_counted_logged_once_and_the_node_keeps_publishing(
     turned = invert(truth[expected[2][0]]) @ truth[stamps[-1]]
     assert_tracks_ground_truth(stamps, poses, truth, expected[2][0],
                                yaw_deg=math.degrees(float(yaw_of(turned[:3, :3]))))
-    assert 'summary: 30 frames in, 20 odometry out, 10 dropped' in summary_line(output)
+    assert 'summary: 30 frames in, 21 odometry out (1 at the origin: first frames of keyframe ' \
+           'chains), 9 dropped' in summary_line(output)
 
 
 # -- 4: signals ------------------------------------------------------------------------------------
@@ -626,7 +630,7 @@ def test_tf_follows_the_odometry_and_can_be_switched_off(monkeypatch, local_node
 
     feed(node, drive_bag, 7, switch_off)
     published = node.published['odom']
-    assert len(published) == 6 and len(sent) == 4
+    assert len(published) == 7 and len(sent) == 5          # the origin's too
     for tf, odom in zip(sent, published):
         assert tf.header == odom.header and tf.header.frame_id == 'odom'
         assert tf.child_frame_id == odom.child_frame_id == 'base_link'
@@ -634,6 +638,7 @@ def test_tf_follows_the_odometry_and_can_be_switched_off(monkeypatch, local_node
         assert (tf.transform.translation.x, tf.transform.translation.y,
                 tf.transform.translation.z) == (p.x, p.y, p.z)
         assert tf.transform.rotation == odom.pose.pose.orientation
+    assert sent[0].transform.translation.x == 0.0
     assert sent[-1].transform.translation.x == pytest.approx(3.2, rel=0.05)   # 4 frames at 8 m/s
 
 
@@ -665,10 +670,11 @@ def test_pipeline_failures_are_counted_and_the_node_carries_on(monkeypatch, loca
     assert messages[3] == 'pipeline_error: RuntimeError: injected failure'
     assert messages[5].startswith('pipeline_error: InputError: pose: expected a finite 4x4')
     assert node.published['status'][3].status[0].level == DiagnosticStatus.ERROR
-    assert len(node.published['odom']) == 5 and results[-1]['dropped.pipeline_error'] == '2'
+    assert len(node.published['odom']) == 6 and results[-1]['dropped.pipeline_error'] == '2'
     assert node.outcomes == {'first_frame': 1, 'ok': 5, 'pipeline_error': 2}
-    assert node.summary().startswith('summary: 8 frames in, 5 odometry out, 3 dropped '
-                                     '(first_frame 1, pipeline_error 2)')
+    assert node.summary().startswith('summary: 8 frames in, 6 odometry out (1 at the origin: '
+                                     'first frames of keyframe chains), 2 dropped '
+                                     '(pipeline_error 2)')
 
 
 def statuses(node) -> list[dict[str, str]]:
@@ -767,6 +773,51 @@ def _diagnostics(monkeypatch, node) -> list:
 
 
 @pytest.mark.timeout(60)
+def test_the_no_image_warning_comes_at_the_timeout_and_diagnostics_name_the_silence(
+        monkeypatch, local_node, drive_bag):
+    """The no-image warning comes once the timeout passes (its own timer, not the 1 s
+    diagnostics tick: a user test), once per silence; before the timeout the diagnostics stay
+    OK but say how long no image came."""
+    node = local_node({**MOUNT_PARAMS, 'ros.image_timeout': 0.3})
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    sent = _diagnostics(monkeypatch, node)
+    info, images = _bag_messages(drive_bag, 3)
+    node._on_camera_info(info)
+    node._on_image(images[0])
+    node._on_image(images[1])
+
+    def warnings():
+        return [ln for level, ln in lines if level == 'warning' and 'no image' in ln]
+
+    node._last_image = time.monotonic() - 0.2
+    node._on_image_watch()
+    node._on_diagnostics_timer()
+    assert not warnings()
+    status = sent[-1].status[0]
+    assert status.level == DiagnosticStatus.OK
+    assert re.fullmatch(r'tracking; 2\.0 images/s', status.message), status.message
+    node._on_diagnostics_timer()               # a period without images
+    assert re.fullmatch(r'tracking; 0\.0 images/s; no image for 0\.2 s \(a warning at '
+                        r'ros\.image_timeout, 0\.3 s\)', sent[-1].status[0].message)
+    node._last_image = time.monotonic() - 0.35
+    node._on_image_watch()
+    node._on_image_watch()
+    assert len(warnings()) == 1
+    assert re.match(r'no image for 0\.[34] s on /image \(0 publisher\(s\)\); listening on '
+                    r'/image, /camera_info', warnings()[0]), warnings()
+    # An image ends the silence; the next one is reported again.
+    node._throttle.period = 0.0
+    node._on_image(images[2])
+    node._on_image_watch()
+    assert len(warnings()) == 1
+    node._last_image = time.monotonic() - 0.4
+    node._on_image_watch()
+    assert len(warnings()) == 2
+
+
+@pytest.mark.timeout(60)
 def test_frames_stamped_1_ns_apart_are_not_duplicates(local_node, drive_bag):
     """Header stamps 1 ns apart (the same float seconds at 1.7e9 s): the node hands the
     pipeline the integer nanoseconds, so every frame gets its odometry, stamped exactly."""
@@ -779,7 +830,7 @@ def test_frames_stamped_1_ns_apart_are_not_duplicates(local_node, drive_bag):
         node._on_image(msg)
     assert [s['result'] for s in statuses(node)] == ['first_frame', 'ok', 'ok', 'ok']
     assert [stamp_to_ns(m.header.stamp) for m in node.published['odom']] == \
-        [t0 + 1, t0 + 2, t0 + 3]
+        [t0, t0 + 1, t0 + 2, t0 + 3]
 
 
 @pytest.mark.timeout(60)
@@ -816,7 +867,8 @@ def test_images_wait_for_the_first_camera_info_whatever_the_order_of_arrival(
     assert [(int(s['stamp_ns']), s['result']) for s in statuses(node)] == [
         (stamp_to_ns(images[k].header.stamp), result) for k, result in enumerate(
             ['no_camera_info', 'no_camera_info', 'first_frame', 'ok', 'ok', 'ok'])]
-    assert len(node.published['odom']) == 3
+    assert [stamp_to_ns(m.header.stamp) for m in node.published['odom']] == \
+        [stamp_to_ns(images[k].header.stamp) for k in (2, 3, 4, 5)]      # F2 at the origin
 
 
 @pytest.mark.timeout(60)
@@ -997,9 +1049,9 @@ def test_a_camera_model_change_restarts_tracking_only_when_the_image_moves(
     assert len(warned) == 1 and 'the image moves up to 0.00639 px' in warned[0]
     assert sum('tracking state tracking -> reinitialised' in ln for _, ln in lines) == 1
     assert sum('first frame of the keyframe chain' in ln for _, ln in lines) == 1
-    # Odometry went on through the recalibration, and the pose was carried on through the
-    # restarts (a held pose would stay at the frame-9 position).
-    assert len(node.published['odom']) == 9
+    # Odometry went on through the recalibration (the origin and nine steps), and the pose was
+    # carried on through the restarts (a held pose would stay at the frame-9 position).
+    assert len(node.published['odom']) == 10
 
 
 @pytest.mark.timeout(60)
@@ -1100,6 +1152,11 @@ def test_a_reliable_image_override_leaves_the_speed_subscription_best_effort(loc
     assert node._speed_sub.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
     assert node._speed_sub.qos_profile.depth == 500
     assert qos_profile_sensor_data.reliability == ReliabilityPolicy.BEST_EFFORT
+    # The start-up line names the override with the other settings (a user test: it did not).
+    assert node._start_line().endswith(
+        "parameters, 4 set: mount.height = 1.4, mount.pitch = 0.05, scale.source = 'speed', "
+        "qos_overrides./image.subscription.reliability = 'reliable' (the others: ros2 param "
+        "dump, or DEBUG logs)")
 
 
 @pytest.mark.timeout(60)
@@ -1128,7 +1185,7 @@ def test_implausible_camera_info_is_counted_and_the_last_valid_model_kept(local_
     assert node._camera == CameraModel.from_camera_info(
         to_rclpy(camera_info_msg(0, 640, 480, 500.0, k=CAMERA.K), CameraInfo))
     final = statuses(node)[-1]
-    assert final['camera_info_errors'] == '2' and final['odometry_out'] == '11'
+    assert final['camera_info_errors'] == '2' and final['odometry_out'] == '12'
     assert float(final['focal_px']) == 500.0
     warnings = [ln for level, ln in lines if level == 'warning' and 'camera_info' in ln]
     assert len(warnings) == 2
@@ -1233,8 +1290,10 @@ def test_renamed_node_with_the_shipped_parameter_file_resets_and_publishes_diagn
     restart = results.index('first_frame', 1)
     final = status_values(status[-1])
     assert (final['frames'], final['odometry_out'], final['resets']) == \
-        (str(len(stamps)), str(len(stamps) - 2), '1')
+        (str(len(stamps)), str(len(stamps)), '1')          # the two origins too
     restart_ns = int(status_values(status[restart])['stamp_ns'])
+    (origin,) = [m for m in odom if stamp_to_ns(m.header.stamp) == restart_ns]
+    assert np.array_equal(odom_pose(origin), np.eye(4))
     after = [m for m in odom if stamp_to_ns(m.header.stamp) > restart_ns]
     assert 0.5 < after[0].pose.pose.position.x < 1.0 and abs(after[0].pose.pose.position.y) < 0.05
     assert_tracks_ground_truth(*odom_track(after), ground_truth(drive_bag), restart_ns,
@@ -1273,9 +1332,8 @@ def test_parameter_file_for_another_node_name_is_reported(prefix, ros_env, tmp_p
            f'keyed on planar_vo; key them on /** (any node) or on /front_vo' in warning[0]
     assert '1 set: ros.image_timeout = 0.5' in output
     # No image: the warning names the resolved topics it listens on.
-    assert 'no image for 0 s on /image (0 publisher(s)); listening on /image, /camera_info' \
-        in output or 'no image for 1 s on /image (0 publisher(s)); listening on /image, ' \
-        '/camera_info' in output, output
+    assert re.search(r'no image for \d+\.\d s on /image \(0 publisher\(s\)\); listening on '
+                     r'/image, /camera_info', output), output
 
 
 @pytest.mark.timeout(60)
@@ -1400,7 +1458,7 @@ def test_future_stamp_and_looped_bag_neither_wedge_nor_count_as_gaps(
     assert states == ['tracking'] * 26 + ['reinitialised'] + ['tracking'] * 9
     final = status_values(status[-1])
     assert (final['gaps'], final['missing_frames'], final['dropped.time_jump_ahead'],
-            final['dropped.time_jump_back'], final['odometry_out']) == ('0', '0', '1', '1', '33')
+            final['dropped.time_jump_back'], final['odometry_out']) == ('0', '0', '1', '1', '34')
     looped = odom[-9:]                        # F1-F9 again, from the origin
     assert [stamp_to_ns(m.header.stamp) for m in looped] == [s for s, _ in expected[27:]]
     truth = ground_truth(drive_bag)

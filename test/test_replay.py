@@ -44,7 +44,9 @@ def test_replay_evaluate_and_evo(tmp_path, capsys, drive_bags, evo_env, storage)
     text = capsys.readouterr().out
     frames = len(trajectory)
     assert f'frames in          {frames}' in text
-    assert f'odometry out       {frames - 1}' in text and 'first_frame 1' in text
+    # The first frame's odometry is the origin (it sets odom); it is no drop.
+    assert f'odometry out       {frames} (the first frame, at the origin)' in text
+    assert 'dropped            0 (none)' in text
     # Every odometry message's step length has a named source; the drive's are mostly metric.
     line = next(x for x in text.splitlines() if x.startswith('  step lengths'))
     counts = dict(item.rsplit(' ', 1) for item in
@@ -57,8 +59,9 @@ def test_replay_evaluate_and_evo(tmp_path, capsys, drive_bags, evo_env, storage)
     assert {'/odom', '/ground_truth/odom'} <= topics
     est = load_trajectory(out, '/odom')
     gt = load_trajectory(out, '/ground_truth/odom')
-    np.testing.assert_array_equal(est.stamps_ns, gt.stamps_ns[1:])
+    np.testing.assert_array_equal(est.stamps_ns, gt.stamps_ns)
     np.testing.assert_array_equal(read_tum(tum).stamps_ns, est.stamps_ns)
+    assert np.all(est.positions[0] == 0.0) and np.all(est.quaternions[0] == [0, 0, 0, 1])
     # Evaluation: accurate, and a left turn is positive yaw.
     assert main(['eval', str(out), '--out-dir', str(report)]) == 0
     metrics = json.loads((report / 'metrics.json').read_text())
@@ -178,11 +181,43 @@ def test_replay_without_odometry_says_why_and_exits_1(tmp_path, capsys, drive_ba
     assert f'  odometry out       0 ({why})' in captured.out, captured.out
     frames = int(captured.out.split('frames in')[1].split()[0])
     assert frames > 1
-    assert captured.err == (f'planar_vo replay: error: no odometry out of {frames} frame(s) '
-                            f'({why}); {out} holds the copied topics only; no TUM file was '
-                            f'written\n')
+    assert captured.err == (f'planar_vo replay: error: no motion estimated from {frames} '
+                            f'frame(s) ({why}); {out} holds the copied topics only; no TUM '
+                            f'file was written\n')
     assert out.exists() and not (tmp_path / 'o.tum').exists()
     assert 'TUM trajectory' not in captured.out
+
+
+def test_replay_with_the_origin_only_exits_1(tmp_path, capsys, drive_bags):
+    """The first frame's odometry is the origin; when every later frame fails (here blank),
+    nothing was estimated: the summary says why beside the origin, the command exits 1 and
+    writes no TUM file, and the bag holds the origin's message."""
+    from planar_vo.io import iter_camera_frames
+    from planar_vo.io.camera_bag import CameraBagWriter
+
+    _, bags = drive_bags
+    with open_bag(bags['mcap']) as bag:
+        frame = next(iter(iter_camera_frames(bag)))
+    with CameraBagWriter(tmp_path / 'blank') as writer:
+        writer.write_frame(frame.stamp_ns, frame.image, frame.camera)
+        for i in range(1, 4):
+            writer.write_frame(frame.stamp_ns + i * 100_000_000, np.zeros_like(frame.image),
+                               frame.camera)
+    out = tmp_path / 'o'
+    assert main(['replay', str(tmp_path / 'blank'), '--out', str(out), '--no-progress',
+                 '--tum', str(tmp_path / 'o.tum')]) == 1
+    captured = capsys.readouterr()
+    line = next(x for x in captured.out.splitlines() if x.startswith('  odometry out'))
+    assert line.startswith('  odometry out       1 (the first frame, at the origin; no motion: '
+                           'blank_image: '), line
+    assert 'dropped            3 (blank_image 3)' in captured.out
+    assert captured.err.startswith('planar_vo replay: error: no motion estimated from 4 '
+                                   'frame(s) (blank_image: ')
+    assert captured.err.endswith(f'; {out} holds the copied topics and 1 odometry message(s) '
+                                 f'at the origin; no TUM file was written\n')
+    assert not (tmp_path / 'o.tum').exists()
+    est = load_trajectory(out, '/odom')
+    assert est.stamps_ns.tolist() == [frame.stamp_ns] and np.all(est.positions == 0.0)
 
 
 def test_replay_uses_configured_intrinsics_over_the_bags_camera_info(tmp_path, capsys,
@@ -282,9 +317,10 @@ def test_replay_tells_apart_frames_stamped_1_ns_apart(tmp_path, drive_bags):
     config = PlanarVoConfig.from_flat({'mount.height': 1.5})
     summary = replay_bag(tmp_path / 'ns', tmp_path / 'vo', VisualOdometry(config),
                          progress=False)
-    assert summary.dropped == {'first_frame': 1} and summary.odometry_out == 5
+    assert summary.dropped == {} and summary.odometry_out == 6
+    assert summary.origins == 1 and summary.motion_out == 5
     assert load_trajectory(tmp_path / 'vo', '/odom').stamps_ns.tolist() == \
-        [t0 + i for i in range(1, 6)]
+        [t0 + i for i in range(6)]
 
 
 def test_replay_checks_the_tum_path_before_replaying(tmp_path, capsys, drive_bags):

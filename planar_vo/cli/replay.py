@@ -66,13 +66,15 @@ def run(args: argparse.Namespace) -> int:
         tum_path=args.tum, storage=args.storage, odom_frame=config.ros.odom_frame,
         base_frame=config.ros.base_frame, progress=show_progress(args))
     print(summary.format())
-    if summary.frames_in and not summary.odometry_out:
+    if summary.frames_in and not summary.motion_out:
         # The output bag is complete (the summary above says what it holds), but a script that
         # chains `replay && eval` must not go on as if there were odometry in it.
         why = summary.why_none or 'every frame was the first of a keyframe chain'
+        holds = ('the copied topics only' if not summary.origins else
+                 f'the copied topics and {summary.origins} odometry message(s) at the origin')
         tum = '; no TUM file was written' if args.tum else ''
-        print(f'{args.parser.prog}: error: no odometry out of {summary.frames_in} frame(s) '
-              f'({why}); {args.out} holds the copied topics only{tum}', file=sys.stderr)
+        print(f'{args.parser.prog}: error: no motion estimated from {summary.frames_in} '
+              f'frame(s) ({why}); {args.out} holds {holds}{tum}', file=sys.stderr)
         return 1
     return 0
 

@@ -78,13 +78,18 @@ def compose(T1: np.ndarray, S1: np.ndarray, R: np.ndarray, t: np.ndarray, B: np.
     return T1 @ T12, Ad @ S1 @ Ad.T + step, step
 
 
+_IDENTITY = np.eye(4)
+
+
 def to_base(T_wc: np.ndarray, S_c: np.ndarray, T_bc: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray]:
     """Camera pose (world = the first camera frame) -> base pose (world = the first base frame,
     ``odom``): ``T_ob = T_bc T_wc T_bc^-1``; the camera's right perturbation maps to the base
-    by ``xi_b = Ad(T_bc) xi_c``."""
+    by ``xi_b = Ad(T_bc) xi_c``. The origin maps to the origin exactly (the products would
+    leave rounding of 1e-17 m in a pose that is the identity by definition)."""
     Ad = adjoint(T_bc)
-    return T_bc @ T_wc @ invert(T_bc), Ad @ S_c @ Ad.T
+    T_ob = np.eye(4) if np.array_equal(T_wc, _IDENTITY) else T_bc @ T_wc @ invert(T_bc)
+    return T_ob, Ad @ S_c @ Ad.T
 
 
 def ros_pose_covariance(T: np.ndarray, S: np.ndarray) -> np.ndarray:

@@ -1,7 +1,9 @@
 """What the visual-odometry pipeline returns for every input frame (no ROS types).
 
 Every frame yields a `FrameResult`: either an odometry update (``ok``) or a reason why not, from
-`DropReason`, so nothing is silently lost; the node and replay count and log those reasons.
+`DropReason`, so nothing is silently lost; the node and replay count and log those reasons. The
+first frame of a keyframe chain started at the origin (start-up, a reset) has no motion to
+report, but its pose is the origin itself: it yields odometry too (`FrameResult.has_odometry`).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ class DropReason(str, enum.Enum):
     """Why a frame produced no odometry update (stable keys for counters and logs)."""
 
     FIRST_FRAME = 'first_frame'            # initialises the pipeline; nothing to compare with yet
+    #                                        (its pose, the origin, is still published)
     REINITIALISED = 'reinitialised'        # a new keyframe chain after lost tracking, a new
     #                                        time base or a camera model change
     TIME_JUMP_AHEAD = 'time_jump_ahead'    # stamped implausibly far ahead (a clock glitch)
@@ -86,3 +89,12 @@ class FrameResult:
     timings: dict[str, float] = field(default_factory=dict)
     tracking: TrackingState = TrackingState.INITIALISING
     camera_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    @property
+    def has_odometry(self) -> bool:
+        """The frame yields an odometry message: an update (``ok``), or the first frame of a
+        keyframe chain started at the origin (``first_frame``: start-up or a reset), whose pose
+        is the origin that sets ``odom`` (covariance zero by definition, twist unknown). A
+        consumer then has ``odom -> base_link`` from the first image on, and an evaluation
+        matches every frame."""
+        return self.ok or self.reason is DropReason.FIRST_FRAME

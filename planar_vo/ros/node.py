@@ -150,6 +150,9 @@ _monotonic = time.monotonic            # the waiting images' clock (tests replac
 # The focal length is logged again when it moved by this share since the last line (the
 # self-calibration's progress: a handful of lines in a turn, none while it holds still).
 _FOCAL_LOG_CHANGE = 0.02
+# The no-image warning comes within this many seconds of ``ros.image_timeout`` (a timer of its
+# own: the diagnostics tick, once per ``ros.diagnostics_period``, was late by up to a period).
+_IMAGE_WATCH_PERIOD = 0.1
 # The QoS policies the subscriptions let `qos_overrides.*` change, and the values rclpy knows.
 _QOS_POLICIES = tuple(kind.name.lower() for kind in
                       QoSOverridingOptions.with_default_policies().policy_kinds)
@@ -290,6 +293,9 @@ class PlanarVoNode(Node):
         # Steady time: diagnostics and the no-image warning go on when a simulated clock stops.
         self.create_timer(ros.diagnostics_period, self._on_diagnostics_timer,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._silence_reported = False
+        self.create_timer(_IMAGE_WATCH_PERIOD, self._on_image_watch,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(self._start_line())
 
@@ -400,8 +406,10 @@ class PlanarVoNode(Node):
             self.get_logger().debug(f'{name} = {value!r}')
 
     def _start_line(self) -> str:
-        """One INFO line: topics, scale source, and the parameters set away from the defaults."""
+        """One INFO line: topics, scale source, and the parameters set away from the defaults
+        (the QoS overrides given among them)."""
         changed = {k: v for k, v in flatten(self.config).items() if v != self._defaults[k]}
+        changed.update(sorted(self._qos_overrides().items()))
         settings = ', '.join(f'{k} = {v!r}' for k, v in changed.items()) or 'all defaults'
         camera = (self._camera_info_sub.topic_name if self._camera_info_sub is not None else
                   'camera.* parameters' if self.config.camera.fx > 0 else 'self-calibration')
@@ -502,6 +510,7 @@ class PlanarVoNode(Node):
         that never comes: no image waits much longer than ``_CAMERA_INFO_WAIT`` seconds
         (`_release_overdue`, by the next image or a timer)."""
         self._last_image = time.monotonic()
+        self._silence_reported = False
         self._images_seen += 1
         if self._camera is None and self._expects_camera_info:
             if (self._images_seen > _PENDING_IMAGES
@@ -609,7 +618,7 @@ class PlanarVoNode(Node):
         odom = None
         try:
             result = self._vo.process(decode(msg), Stamp(stamp_ns), self._camera)
-            if result.ok:
+            if result.has_odometry:                          # a motion, or the origin
                 odom = self._odometry(msg.header, result)    # InputError if the pose is not finite
         except ImageError as err:
             result = self._dropped(stamp_ns, DropReason.BAD_IMAGE, str(err))
@@ -623,9 +632,9 @@ class PlanarVoNode(Node):
             self._period_scale[result.scale_source] += 1
         self._note_tracking(stamp_ns, result)
         path_time = 0.0
-        if result.ok:
+        if result.has_odometry:
             path_time = self._publish(odom)
-        else:
+        if not result.ok:
             self._report_drop(stamp_ns, result)
         node_time = time.perf_counter() - start
         self._node_time += node_time
@@ -811,7 +820,7 @@ class PlanarVoNode(Node):
     def _report_drop(self, stamp_ns: int, result: FrameResult) -> None:
         if result.reason is DropReason.FIRST_FRAME:
             self.get_logger().info(f'{_format_stamp(stamp_ns)}: first frame of the keyframe '
-                                   f'chain ({result.message})')
+                                   f'chain ({result.message}); odometry at the origin')
             return
         self._warn(result.reason.value, f'frame {_format_stamp(stamp_ns)} dropped, '
                                         f'{result.reason.value}: {result.message}')
@@ -828,13 +837,16 @@ class PlanarVoNode(Node):
 
     def _counts(self) -> dict[str, Any]:
         """The running totals, shared by ``status`` and ``/diagnostics``."""
+        first = DropReason.FIRST_FRAME.value
         values: dict[str, Any] = {
             'frames': sum(self.outcomes.values()),
-            'odometry_out': self.outcomes['ok'],
-            'dropped': sum(v for k, v in self.outcomes.items() if k != 'ok'),
+            'odometry_out': self.outcomes['ok'] + self.outcomes[first],
+            'first_frames': self.outcomes[first],
+            'dropped': sum(v for k, v in self.outcomes.items() if k not in ('ok', first)),
         }
         for reason in DropReason:
-            values[f'dropped.{reason.value}'] = self.outcomes[reason.value]
+            if reason.value != first:
+                values[f'dropped.{reason.value}'] = self.outcomes[reason.value]
         for name in ('camera_info_errors', 'camera_changes', 'speed_messages', 'speed_errors',
                      'gaps', 'missing_frames', 'resets', 'tracking_changes'):
             values[name] = self._counters[name]
@@ -884,6 +896,23 @@ class PlanarVoNode(Node):
         return [sub.topic_name for sub in (self._image_sub, self._camera_info_sub,
                                            self._speed_sub) if sub is not None]
 
+    def _on_image_watch(self) -> None:
+        """The no-image warning as soon as ``ros.image_timeout`` passes without an image (within
+        `_IMAGE_WATCH_PERIOD`); while the silence lasts, the diagnostics tick repeats it
+        (rate-limited by ``ros.warn_period``)."""
+        if not self._silence_reported and \
+                time.monotonic() - self._last_image >= self.config.ros.image_timeout:
+            self._silence_reported = True
+            self._warn_no_image(time.monotonic() - self._last_image)
+
+    def _warn_no_image(self, silent: float) -> None:
+        image_topic = self._image_sub.topic_name
+        publishers = self.count_publishers(image_topic)
+        self._warn('no_image', f'no image for {silent:.1f} s on {image_topic} '
+                               f'({publishers} publisher(s)); listening on '
+                               f'{", ".join(self.listened_topics())}; check the remapping '
+                               f'(-r image:=...) and the QoS')
+
     def _on_diagnostics_timer(self) -> None:
         """``/diagnostics``: the state and rates since the last message, for
         ``diagnostic_aggregator`` (its analyzers group by the status name, e.g. ``startswith:
@@ -893,11 +922,8 @@ class PlanarVoNode(Node):
         timeout = self.config.ros.image_timeout
         image_topic = self._image_sub.topic_name
         if silent >= timeout:
-            publishers = self.count_publishers(image_topic)
-            self._warn('no_image', f'no image for {silent:.0f} s on {image_topic} '
-                                   f'({publishers} publisher(s)); listening on '
-                                   f'{", ".join(self.listened_topics())}; check the remapping '
-                                   f'(-r image:=...) and the QoS')
+            self._silence_reported = True
+            self._warn_no_image(silent)
         if self._path_header is not None and silent >= self.config.ros.path_period:
             # The end of a stopped stream (while images arrive, ros.path_period paces the path).
             self.publish_path(self._path_header, force=True)
@@ -909,7 +935,7 @@ class PlanarVoNode(Node):
         state = self.tracking
         if silent >= timeout:
             status.level = DiagnosticStatus.WARN
-            status.message = f'no image for {silent:.0f} s on {image_topic}'
+            status.message = f'no image for {silent:.1f} s on {image_topic}'
         elif self._period[DropReason.PIPELINE_ERROR.value]:
             status.level = DiagnosticStatus.ERROR
             status.message = f'{state.value}; pipeline errors'
@@ -928,11 +954,16 @@ class PlanarVoNode(Node):
             status.level = (DiagnosticStatus.OK if state is TrackingState.TRACKING
                             else DiagnosticStatus.WARN)
             status.message = f'{state.value}; {frames / period:.1f} images/s'
+            if not frames:
+                # Not yet a warning (a slow camera), but not silently OK either.
+                status.message += (f'; no image for {silent:.1f} s (a warning at '
+                                   f'ros.image_timeout, {timeout:g} s)')
         last = self._last_result
         values = {
             'tracking': state.value,
             'images_per_s': frames / period,
-            'odometry_per_s': self._period['ok'] / period,
+            'odometry_per_s': (self._period['ok']
+                               + self._period[DropReason.FIRST_FRAME.value]) / period,
             'mean_time_ms': 1e3 * float(np.mean(self._period_time)) if frames else float('nan'),
             'max_time_ms': 1e3 * max(self._period_time) if frames else float('nan'),
             'seconds_since_image': silent,
@@ -985,10 +1016,13 @@ class PlanarVoNode(Node):
     def summary(self) -> str:
         """One line: frames in, odometry out, drops per reason, other counters, mean time."""
         frames = sum(self.outcomes.values())
-        drops = {k: v for k, v in sorted(self.outcomes.items()) if k != 'ok' and v}
+        first = DropReason.FIRST_FRAME.value
+        drops = {k: v for k, v in sorted(self.outcomes.items()) if k not in ('ok', first) and v}
         dropped = ', '.join(f'{k} {v}' for k, v in drops.items()) or 'none'
         mean = f'{1e3 * self._node_time / frames:.1f} ms' if frames else 'n/a'
-        return (f'summary: {frames} frames in, {self.outcomes["ok"]} odometry out, '
+        origins = self.outcomes[first]
+        return (f'summary: {frames} frames in, {self.outcomes["ok"] + origins} odometry out '
+                f'({origins} at the origin: first frames of keyframe chains), '
                 f'{sum(drops.values())} dropped ({dropped}); '
                 f'{self._counters["missing_frames"]} frames missing in '
                 f'{self._counters["gaps"]} gaps; '

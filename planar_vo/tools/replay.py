@@ -6,8 +6,9 @@ The processor is anything with the `FrameProcessor` interface (the pipeline's
 
 1. speed messages stamped at or before the image's header stamp are fed first;
 2. an undecodable image is counted as ``bad_image`` (the processor does not see it);
-3. otherwise ``process`` runs; an ``ok`` result becomes a ``nav_msgs/Odometry`` stamped with the
-   image's exact header stamp, any other result is counted under its `DropReason`.
+3. otherwise ``process`` runs; an ``ok`` result, and the first frame's (``first_frame``: the
+   origin that sets ``odom``), become a ``nav_msgs/Odometry`` stamped with the image's exact
+   header stamp, any other result is counted under its `DropReason`.
 
 The first frame dropped for each reason is logged with the reason's message; further ones are
 only counted (in the summary), so that a bag of undecodable images does not log every frame.
@@ -80,6 +81,8 @@ class ReplaySummary:
         image_topic, camera_info_topic, speed_topic: topics used (None: none).
         frames_in: image messages read.
         odometry_out: odometry messages written.
+        origins: of those, the first frames of keyframe chains, at the origin (no motion
+            estimated; `FrameResult.has_odometry`).
         dropped: frames without odometry, by `DropReason` value (``bad_image`` includes
             undecodable messages).
         copied: messages copied per topic.
@@ -94,8 +97,8 @@ class ReplaySummary:
             ``speed``, ``hold``, ``unit``, ``stationary``, ...).
         road_top_ups: frames whose ground scale asked the front-end for more road ACs (the
             processor's ``road_top_ups``; None if it has none).
-        why_none: without any odometry, the most frequent drop reason and its first message
-            (empty otherwise).
+        why_none: without any motion estimated (no odometry beyond the origin), the most
+            frequent drop reason and its first message (empty otherwise).
     """
 
     input: str
@@ -106,6 +109,7 @@ class ReplaySummary:
     speed_topic: str | None = None
     frames_in: int = 0
     odometry_out: int = 0
+    origins: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
     copied: dict[str, int] = field(default_factory=dict)
     speed_messages: int = 0
@@ -116,6 +120,11 @@ class ReplaySummary:
     scale_sources: dict[str, int] = field(default_factory=dict)
     road_top_ups: int | None = None
     why_none: str = ''
+
+    @property
+    def motion_out(self) -> int:
+        """Odometry messages from an estimated motion (all but the origins)."""
+        return self.odometry_out - self.origins
 
     @property
     def throughput(self) -> float:
@@ -135,8 +144,7 @@ class ReplaySummary:
             f'  image topic        {self.image_topic} (camera info: {info}, speed: '
             f'{self.speed_topic or "none"})',
             f'  frames in          {self.frames_in}',
-            f'  odometry out       {self.odometry_out}'
-            + (f' ({self.why_none})' if self.why_none else ''),
+            f'  odometry out       {self.odometry_out}' + self._origins_note(),
             f'  dropped            {sum(self.dropped.values())} ({dropped})',
             f'  copied             {copied}',
             f'  speed messages     {self.speed_messages}',
@@ -150,6 +158,17 @@ class ReplaySummary:
         if self.tum:
             lines.append(f'  TUM trajectory     {self.tum}')
         return '\n'.join(lines)
+
+    def _origins_note(self) -> str:
+        """What the odometry count holds beyond estimated motion: the origin(s), and why
+        nothing else (``why_none``)."""
+        notes = []
+        if self.origins:
+            notes.append('the first frame, at the origin' if self.origins == 1 else
+                         f'{self.origins} first frames of keyframe chains, at the origin')
+        if self.why_none:
+            notes.append(f'no motion: {self.why_none}' if self.origins else self.why_none)
+        return f' ({"; ".join(notes)})' if notes else ''
 
 
 def _own_intrinsics(config: PlanarVoConfig) -> str:
@@ -175,8 +194,12 @@ def _read_speeds(bag: BagReader, topic: str) -> tuple[list[int], list[float]]:
     return [s[0] for s in samples], [s[1] for s in samples]
 
 
-# Drops that are part of every replay (the first frame sets the reference), not worth a warning.
-_EXPECTED_DROPS = frozenset({'first_frame'})
+FIRST_FRAME = DropReason.FIRST_FRAME.value
+
+
+def _has_odometry(result) -> bool:
+    """`FrameResult.has_odometry` of any processor's result (a motion, or the origin)."""
+    return bool(result.ok) or getattr(result.reason, 'value', result.reason) == FIRST_FRAME
 
 
 def _count_drop(dropped: Counter[str], reason: str, frame: CameraFrame, message: str,
@@ -186,7 +209,7 @@ def _count_drop(dropped: Counter[str], reason: str, frame: CameraFrame, message:
     undecodable images logs one line, not 10,000."""
     dropped[reason] += 1
     first.setdefault(reason, message)
-    if dropped[reason] == 1 and reason not in _EXPECTED_DROPS:
+    if dropped[reason] == 1:
         log.warning('frame %d (%d ns) dropped, %s: %s (further %s frames are counted in the '
                     'summary)', frame.index, frame.stamp_ns, reason, message, reason)
 
@@ -315,13 +338,18 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                     result = processor.process(frame.image, frame.stamp, frame.camera)
                     reason = None if result.ok else getattr(result.reason, 'value',
                                                             str(result.reason))
-                    if result.ok:
+                    if _has_odometry(result):
                         with deferred_interrupts():    # the bag and the TUM poses agree
                             writer.write(frame.stamp_ns, result.pose, result.pose_covariance,
                                          result.twist, result.twist_covariance,
                                          log_time_ns=frame.log_time_ns)
                             poses.add(frame.stamp_ns, result.pose)
+                    if result.ok:
                         sources[str(getattr(result, 'scale_source', 'unknown'))] += 1
+                    elif reason == FIRST_FRAME:
+                        summary.origins += 1
+                        log.debug('frame %d (%d ns): %s, the origin', frame.index,
+                                  frame.stamp_ns, result.message)
                     else:
                         _count_drop(dropped, reason, frame, result.message, first)
                     log.debug('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
@@ -332,19 +360,20 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             raise
         finally:
             bar.close()
-    if tum_path is not None and poses.poses:
+    summary.odometry_out = writer.count
+    if tum_path is not None and summary.motion_out:
         try:
             poses.write(tum_path)
         except OutputError as err:
             err.add_note(writer.outcome)
             raise
     elif tum_path is not None:
-        summary.tum = None          # no poses: no file (an empty one would block the next run)
-    summary.odometry_out = writer.count
+        # No motion: no file (the origin alone says nothing, and a file would block the next
+        # run).
+        summary.tum = None
     summary.dropped = dict(dropped)
-    if not summary.odometry_out:
-        worst = max((r for r in dropped if r not in _EXPECTED_DROPS), key=dropped.__getitem__,
-                    default=None)
+    if not summary.motion_out:
+        worst = max(dropped, key=dropped.__getitem__, default=None)
         if worst is not None:
             summary.why_none = f'{worst}: {first[worst]}'
     summary.copied = {t: writer.counts.get(t, 0) for t in copy}
