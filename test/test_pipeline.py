@@ -382,9 +382,11 @@ def test_the_twist_covariance_covers_braking_stopping_and_starting_off():
                   for r, tw in zip(results[1:], twists[1:]) if r.ok])
     assert len(z) >= 0.9 * (len(results) - 1) and np.all(np.abs(z) < 3.0), np.abs(z).max()
     assert any(r.scale_source == 'stationary' for r in results)
-    # Cruising, the covariance stays that of the mean's noise (the lag's share small).
+    # Cruising, the covariance stays that of the mean's noise (the lag's share small) and of
+    # the camera height's uncertainty (mount.height_std, a relative error of the speed).
     cruise = [r for r, tw in zip(results, twists) if r.ok and abs(tw[0] - 6.0) < 1e-6]
-    assert cruise and max(math.sqrt(r.twist_covariance[0, 0]) for r in cruise) < 0.05
+    height = math.hypot(0.05, 6.0 * PlanarVoConfig().mount.height_std / HEIGHT)
+    assert cruise and max(math.sqrt(r.twist_covariance[0, 0]) for r in cruise) < height
 
 
 def test_a_scale_error_shared_by_the_steps_grows_the_position_std_with_the_distance(
@@ -415,6 +417,29 @@ def test_a_scale_error_shared_by_the_steps_grows_the_position_std_with_the_dista
         v = r.twist[:2]
         np.testing.assert_allclose(r.twist_covariance[:2, :2] - a.twist_covariance[:2, :2],
                                    0.05 ** 2 * np.outer(v, v), rtol=1e-9, atol=1e-15)
+    assert results[-1].pose[0, 3] > 20.0
+
+
+def test_the_camera_heights_uncertainty_is_a_scale_error_shared_by_the_steps():
+    """``mount.height_std``: every ground step is relative to the camera height, so its
+    uncertainty (here 5 %) is a relative error all steps share: the position's variance along
+    the path grows by at least (5 % of the distance)^2 on top of the road normal's shared
+    error (combined per step in quadrature, so a little more), and the poses do not change."""
+    def run(height_std: float):
+        config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT,
+                                                     'height_std': height_std}})
+        return _run('straight', config)[1]
+
+    exact, results = run(0.0), run(0.05 * HEIGHT)
+    assert all(r.ok and r.scale_source == 'ground' for r in results[1:])
+    mount = mount_transform(height=HEIGHT)
+    for r, a in zip(results[1:], exact[1:]):
+        np.testing.assert_array_equal(r.pose, a.pose)
+        path = (r.pose @ mount)[:3, 3] - mount[:3, 3]
+        u = path / np.linalg.norm(path)
+        extra = u @ (r.pose_covariance[:3, :3] - a.pose_covariance[:3, :3]) @ u
+        assert (0.05 * np.linalg.norm(path)) ** 2 * (1 - 1e-9) <= extra \
+            <= 1.1 * (0.05 * np.linalg.norm(path)) ** 2
     assert results[-1].pose[0, 3] > 20.0
 
 

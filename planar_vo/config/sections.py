@@ -123,6 +123,9 @@ class MountConfig(Options):
 
     Attributes:
         x, y, height: camera position in ``base_link`` (metres); ``height`` above the ground.
+        height_std: how well ``height`` is known (metres, a standard deviation: a tape
+            measure, the car's load and tyres); every step of the ground scale shares its
+            relative error, so the position's covariance grows with the distance by it.
         roll, pitch, yaw: camera orientation offsets (radians).
         estimate_tilt: estimate pitch and roll online from the motion (real mounts are not
             level): the general relative poses are fitted with a motion plane, and its pitch
@@ -143,6 +146,7 @@ class MountConfig(Options):
     y: float = bounded(0.0, expected='a finite offset (m)')
     height: float = bounded(1.5, 0.0, low_open=True,
                             expected='a positive height above the ground (m)')
+    height_std: float = bounded(0.01, 0.0, expected='a non-negative distance (m)')
     roll: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
     pitch: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
     yaw: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')

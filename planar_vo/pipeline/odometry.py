@@ -803,7 +803,8 @@ class VisualOdometry:
         drive's road normal (the part of it this pair's normal keeps) is the same for every
         step, so it is returned apart as the standard deviation of the step's relative error
         it causes, for the odometry to accumulate along the drive (steps 3 % short for 20 m
-        are 3 % short at every step: KITTI 05, a dev script).
+        are 3 % short at every step: KITTI 05, a dev script); so is the camera height's
+        (``mount.height_std``: every step is relative to it).
 
         Two passes: the first, with the current road normal, finds the road ACs; they refine the
         drive's road normal (`RoadNormalCalibrator`) and give this pair's own normal
@@ -865,7 +866,9 @@ class VisualOdometry:
             return None
         d = rs.d_rotation
         var = rs.std ** 2 + float(d @ est.cov[:3, :3] @ d)
-        return rs.scale, var, shared * math.hypot(*rs.d_normal) / rs.scale
+        mount = self.config.mount
+        return rs.scale, var, math.hypot(shared * math.hypot(*rs.d_normal) / rs.scale,
+                                         mount.height_std / mount.height)
 
     def _stationary(self, keyframe: Keyframe, stamp: float, count: int) -> FrameResult:
         """The image has not moved: neither has the vehicle (no new keyframe, no drift). The
