@@ -347,6 +347,7 @@ def test_replay_writes_odometry_counts_drops_and_copies_ground_truth(
     assert summary.throughput > 0 and 'frames/s' in summary.format()
     # The double's steps have the default source; it has no road top-ups to count.
     assert summary.scale_sources == {'unit': 8} and summary.road_top_ups is None
+    assert summary.scale == '' and '  scale ' not in summary.format()    # the double has none
     assert '  step lengths       unit 8\n' in summary.format()
     assert 'replay' in capsys.readouterr().err                     # the progress bar
 
@@ -403,6 +404,27 @@ def test_replay_refuses_existing_outputs(tmp_path, rng):
                                        r'TwistStamped or'):
         replay_bag(in_bag, tmp_path / 'out4', ConstantVelocityDouble(),
                    speed_topic='/cam/image_raw', progress=False)
+
+
+def test_replay_interrupted_before_any_motion_writes_no_tum_file(tmp_path, rng):
+    """Stopped after the first frame (the origin's odometry) and before any motion: as after a
+    complete replay without motion, the TUM file is not written (the origin alone says
+    nothing; a review found it written with the one pose)."""
+    in_bag, _ = _replay_input(tmp_path / 'in', 'mcap', rng)
+    double = ConstantVelocityDouble()
+    real = double.process
+
+    def stopped(image, stamp, camera):
+        if double.calls:
+            raise KeyboardInterrupt
+        return real(image, stamp, camera)
+
+    double.process = stopped
+    tum = tmp_path / 'vo.tum'
+    with pytest.raises(KeyboardInterrupt) as exc:
+        replay_bag(in_bag, tmp_path / 'out', double, tum_path=tum, progress=False)
+    assert exc.value.__notes__[-1] == f"no motion was estimated; '{tum}' was not written"
+    assert not tum.exists() and len(_read_odometry(tmp_path / 'out')) == 1
 
 
 @pytest.mark.parametrize('storage', STORAGES)

@@ -72,7 +72,7 @@ def test_soak_trend_ignores_slow_blocks_and_reports_growth(capsys):
     poses = lap().poses
     assert np.linalg.norm(poses[-1][:2, 3] - poses[0][:2, 3]) == pytest.approx(0.8, abs=0.01)
     blocks = [{'frames': int(f), 'rss_mb': 300.0 + 0.01 * f, 'cpu_ms': 20.0, 'node_ms': 25.0,
-               'path_ms': 0.3, 'path_max_ms': 4.0, 'path_poses': 500, 'ok': int(f) - 1}
+               'path_ms': 0.3, 'path_max_ms': 4.0, 'path_poses': 500, 'odometry_out': int(f)}
               for f in x]
     text = report(blocks, {'camera': '640x480', 'lap_frames': 219, 'render_s': 13.0,
                            'summary': 'summary: ...', 'path_subscribed': True, 'every': 500})

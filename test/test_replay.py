@@ -45,8 +45,11 @@ def test_replay_evaluate_and_evo(tmp_path, capsys, drive_bags, evo_env, storage)
     frames = len(trajectory)
     assert f'frames in          {frames}' in text
     # The first frame's odometry is the origin (it sets odom); it is no drop.
-    assert f'odometry out       {frames} (the first frame, at the origin)' in text
+    assert f'odometry out       {frames} (the first frame\'s among them, at the origin)' in text
     assert 'dropped            0 (none)' in text
+    # The scale's source and the camera height it rests on (here the default: said so).
+    assert "  scale              ground at the camera height 1.5 +- 0.01 m (mount.height, the " \
+           "default: set the car's); fallback hold\n" in text
     # Every odometry message's step length has a named source; the drive's are mostly metric.
     line = next(x for x in text.splitlines() if x.startswith('  step lengths'))
     counts = dict(item.rsplit(' ', 1) for item in
@@ -188,6 +191,18 @@ def test_replay_without_odometry_says_why_and_exits_1(tmp_path, capsys, drive_ba
     assert 'TUM trajectory' not in captured.out
 
 
+def test_eval_of_the_camera_bag_itself_says_to_replay_it_first(capsys, drive_bags):
+    """A user test: `planar_vo eval` given the camera bag (not replay's output) named only
+    the missing /odom topic."""
+    _, bags = drive_bags
+    assert main(['eval', str(bags['mcap'])]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"planar_vo eval: error: --est-topic: '/odom' is not a topic of "
+                          f"'{bags['mcap']}'; available topics: ")
+    assert err.endswith(f"; EST holds images, not odometry: replay it first (planar_vo replay "
+                        f"{bags['mcap']} --out ODOMETRY), then evaluate ODOMETRY\n")
+
+
 def test_replay_with_the_origin_only_exits_1(tmp_path, capsys, drive_bags):
     """The first frame's odometry is the origin; when every later frame fails (here blank),
     nothing was estimated: the summary says why beside the origin, the command exits 1 and
@@ -208,7 +223,8 @@ def test_replay_with_the_origin_only_exits_1(tmp_path, capsys, drive_bags):
                  '--tum', str(tmp_path / 'o.tum')]) == 1
     captured = capsys.readouterr()
     line = next(x for x in captured.out.splitlines() if x.startswith('  odometry out'))
-    assert line.startswith('  odometry out       1 (the first frame, at the origin; no motion: '
+    assert line.startswith("  odometry out       1 (the first frame's among them, at the origin; "
+                           'no motion: '
                            'blank_image: '), line
     assert 'dropped            3 (blank_image 3)' in captured.out
     assert captured.err.startswith('planar_vo replay: error: no motion estimated from 4 '
@@ -252,7 +268,7 @@ def test_replay_set_overrides_the_configuration(tmp_path, capsys, drive_bags):
             ('mount.height=1.5,1.6', "set: 'mount.height=1.5,1.6': expected one value (a replay "
                                      'runs one configuration; planar_vo fleet run takes several)'),
             ('mount.hieght=1.6', "set: unknown configuration key 'mount.hieght'; did you mean "
-                                 'mount.height, mount.pitch, mount.y?'),
+                                 'mount.height, mount.height_std, mount.pitch?'),
             ('mount.height=-1', 'set: mount.height: expected a positive height above the ground '
                                 '(m), got -1')):
         assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--set',
@@ -397,7 +413,7 @@ def test_replay_on_a_full_disk_removes_the_bag_and_says_what_was_kept(
     if poses:
         assert len(read_tum(tmp_path / 'kept' / 'vo.tum')) == int(poses.group(1)) > 0
     else:
-        assert line.endswith(f"no poses were computed; '{disk / 'vo.tum'}' was not written") \
+        assert line.endswith(f"no motion was estimated; '{disk / 'vo.tum'}' was not written") \
             or f"tum: cannot write '{disk / 'vo.tum'}'" in line
         assert not (tmp_path / 'kept' / 'vo.tum').exists()
 

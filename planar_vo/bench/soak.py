@@ -169,7 +169,8 @@ def soak(frames: int, every: int, camera_name: str) -> tuple[list[dict], dict]:
                     'path_ms': float(np.mean(times['time_ms.path'][block])),
                     'path_max_ms': float(np.max(times['time_ms.path'][block])),
                     'path_poses': len(node.path_poses()),
-                    'ok': node.outcomes['ok'],
+                    # As the node's summary counts it: the origin's odometry too.
+                    'odometry_out': node.outcomes['ok'] + node.outcomes['first_frame'],
                 })
                 print(f'soak: {blocks[-1]}', flush=True)
         summary = node.summary()
@@ -187,7 +188,7 @@ def report(blocks: list[dict], info: dict) -> str:
 
     rows = [(b['frames'], f'{b["frames"] / RATE / 60:.1f}', f'{b["rss_mb"]:.1f}',
              f'{b["cpu_ms"]:.2f}', f'{b["node_ms"]:.2f}', f'{b["path_ms"]:.3f}',
-             f'{b["path_max_ms"]:.2f}', b['path_poses'], b['ok']) for b in blocks]
+             f'{b["path_max_ms"]:.2f}', b['path_poses'], b['odometry_out']) for b in blocks]
     table = markdown_table(['frames', 'drive (min)', 'RSS (MB)', 'node CPU (ms/frame)',
                             'node wall (ms/frame)', 'path (ms/frame, mean)', 'path (ms, max)',
                             'path poses', 'odometry out'], rows)

@@ -74,8 +74,24 @@ def _load(path: str, topic: str, name: str, topic_option: str, covariances: bool
         raise
 
 
+def _is_camera_bag(path: str) -> bool:
+    """``path`` is a readable bag with an image topic (a camera recording, not odometry)."""
+    from planar_vo.errors import PlanarVoError
+    from planar_vo.io import open_bag
+    from planar_vo.tools.evaluation.files import is_bag_path
+
+    if not is_bag_path(path):
+        return False
+    try:
+        with open_bag(path) as bag:
+            return bool(bag.topics_of_type('sensor_msgs/msg/Image',
+                                           'sensor_msgs/msg/CompressedImage'))
+    except PlanarVoError:
+        return False
+
+
 def run(args: argparse.Namespace) -> int:
-    from planar_vo.errors import InputError
+    from planar_vo.errors import InputError, PlanarVoError
     from planar_vo.tools.evaluation import evaluate, write_report
     from planar_vo.tools.evaluation.files import is_bag_path
 
@@ -97,7 +113,15 @@ def run(args: argparse.Namespace) -> int:
                          f'another folder)')
     # With the pose covariance the odometry published (Odometry, PoseWithCovarianceStamped):
     # its consistency with the errors is evaluated too.
-    est, covariances = _load(args.est, args.est_topic, 'EST', '--est-topic', covariances=True)
+    try:
+        est, covariances = _load(args.est, args.est_topic, 'EST', '--est-topic',
+                                 covariances=True)
+    except PlanarVoError as err:
+        if args.est_topic == DEFAULT_EST_TOPIC and _is_camera_bag(args.est):
+            # A user test: the bag of images itself, given for EST, named only the topic.
+            err.args = (f'{err}; EST holds images, not odometry: replay it first (planar_vo '
+                        f'replay {args.est} --out ODOMETRY), then evaluate ODOMETRY',)
+        raise
     gt_path = args.gt
     if gt_path is None:
         if not is_bag_path(args.est):

@@ -3,8 +3,9 @@
 Reads the images (raw or compressed) and camera info of IN, feeds them with the optional speed
 topic through ``planar_vo.pipeline.VisualOdometry``, and writes ``nav_msgs/Odometry`` on /odom
 (stamped with each image's header stamp) into OUT together with the ground-truth topics of IN
-(Odometry, Path, TF, poses), ready for ``planar_vo eval OUT``. Exit code 1, after the
-summary, when no frame gave odometry (the summary's odometry line says why; OUT is kept).
+(Odometry, Path, TF, poses), ready for ``planar_vo eval OUT``; the first frame's odometry is
+the origin. Exit code 1, after the summary, when no frame gave a motion (the summary's odometry
+line says why; OUT is kept).
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     print(summary.format())
     if summary.frames_in and not summary.motion_out:
         # The output bag is complete (the summary above says what it holds), but a script that
-        # chains `replay && eval` must not go on as if there were odometry in it.
+        # chains `replay && eval` must not go on as if there were motion in it.
         why = summary.why_none or 'every frame was the first of a keyframe chain'
         holds = ('the copied topics only' if not summary.origins else
                  f'the copied topics and {summary.origins} odometry message(s) at the origin')

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import enum
 
-__all__ = ['FrameClock', 'Stamp', 'StampCheck']
+__all__ = ['FrameClock', 'Stamp', 'StampCheck', 'format_stamp']
 
 
 class Stamp(float):
@@ -37,6 +37,16 @@ class Stamp(float):
 
     def __reduce__(self):
         return Stamp, (self.ns,)        # float's would pass the seconds as nanoseconds
+
+
+def format_stamp(stamp: float) -> str:
+    """Seconds as text: a `Stamp`'s exact nanoseconds (``1700000000.415494000``, as the header
+    had them), a plain float's to the microsecond (at 1.7e9 s a float holds about 0.2 us: more
+    digits would be noise)."""
+    if isinstance(stamp, Stamp):
+        sec, nsec = divmod(stamp.ns, 1_000_000_000)
+        return f'{sec}.{nsec:09d}'
+    return f'{stamp:.6f}'
 
 
 def _seconds_between(later: float, earlier: float) -> float:

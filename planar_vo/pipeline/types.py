@@ -2,8 +2,10 @@
 
 Every frame yields a `FrameResult`: either an odometry update (``ok``) or a reason why not, from
 `DropReason`, so nothing is silently lost; the node and replay count and log those reasons. The
-first frame of a keyframe chain started at the origin (start-up, a reset) has no motion to
-report, but its pose is the origin itself: it yields odometry too (`FrameResult.has_odometry`).
+first frame after start-up or a reset (``VisualOdometry.reset``, the node's ``~/reset``) has no
+motion to report, but its pose is the origin itself: it yields odometry too
+(`FrameResult.has_odometry`). A time jump back also restarts at the origin, but stays a counted
+drop (``time_jump_back``, warned about) that publishes nothing.
 """
 
 from __future__ import annotations
@@ -17,7 +19,9 @@ __all__ = ['DropReason', 'FrameResult', 'TrackingState']
 
 
 class DropReason(str, enum.Enum):
-    """Why a frame produced no odometry update (stable keys for counters and logs)."""
+    """Why a frame produced no odometry update (stable keys for counters and logs); all but
+    ``first_frame`` (the origin's odometry, `FrameResult.has_odometry`) are frames without
+    odometry."""
 
     FIRST_FRAME = 'first_frame'            # initialises the pipeline; nothing to compare with yet
     #                                        (its pose, the origin, is still published)
@@ -92,9 +96,9 @@ class FrameResult:
 
     @property
     def has_odometry(self) -> bool:
-        """The frame yields an odometry message: an update (``ok``), or the first frame of a
-        keyframe chain started at the origin (``first_frame``: start-up or a reset), whose pose
-        is the origin that sets ``odom`` (covariance zero by definition, twist unknown). A
-        consumer then has ``odom -> base_link`` from the first image on, and an evaluation
-        matches every frame."""
+        """The frame yields an odometry message: an update (``ok``), or the first frame after
+        start-up or a reset (``first_frame``), whose pose is the origin that sets ``odom``
+        (covariance zero by definition, but for a flat output's assumed z and tilt; twist
+        unknown). A consumer then has ``odom -> base_link`` from the first image on, and an
+        evaluation matches every frame."""
         return self.ok or self.reason is DropReason.FIRST_FRAME

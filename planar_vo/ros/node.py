@@ -21,10 +21,12 @@ Topics (relative names, so that ``--ros-args -r image:=/camera/image_raw`` remap
   the next image, the counters kept.
 
 Every image yields either an odometry message or a counted `DropReason` (an image the node
-cannot decode counts as ``bad_image``); each reason is logged as a specific warning at most once
-per ``ros.warn_period`` seconds, and every change of the tracking state is logged once. Frames
-the transport lost never reach the node: they show up as gaps in the image stamps and are counted
-as ``missing_frames``; a clock glitch or a jump back of the stamps (a looped bag) is not a gap.
+cannot decode counts as ``bad_image``); the first image after start-up or ``~/reset`` yields
+the origin's odometry and is counted as ``first_frames``; each reason is logged as a specific
+warning at most once per ``ros.warn_period`` seconds, and every change of the tracking state
+is logged once. Frames the transport lost never reach the node: they show up as gaps in the
+image stamps and are counted as ``missing_frames``; a clock glitch or a jump back of the
+stamps (a looped bag) is not a gap.
 
 Parameters are the dotted keys of `planar_vo.config.PlanarVoConfig` (``voting.bins``, ...),
 declared with descriptions, ranges and read-only flags, and validated through the same config
@@ -34,6 +36,7 @@ rejected. `LIVE_PARAMETERS` may change at run time; the others are read at start
 
 from __future__ import annotations
 
+import difflib
 import functools
 import logging
 import math
@@ -309,8 +312,12 @@ class PlanarVoNode(Node):
                          if n not in self._defaults and not self.has_parameter(n)
                          and not n.startswith('qos_overrides.'))
         if unknown:
-            self._fatal(f'unknown parameter(s) {", ".join(unknown)}: expected planar_vo '
-                        f'parameters such as {", ".join(list(self._defaults)[:3])}, ... (see '
+            near = list(dict.fromkeys(m for n in unknown for m in difflib.get_close_matches(
+                n, list(self._defaults), n=3)))                # the closest first
+            hint = (f'did you mean {", ".join(near)}?' if near else
+                    f'expected planar_vo parameters such as '
+                    f'{", ".join(list(self._defaults)[:3])}, ...')
+            self._fatal(f'unknown parameter(s) {", ".join(unknown)}: {hint} (see '
                         f'config/planar_vo.yaml)')
 
     def _qos_overrides(self) -> dict[str, Any]:
@@ -406,16 +413,17 @@ class PlanarVoNode(Node):
             self.get_logger().debug(f'{name} = {value!r}')
 
     def _start_line(self) -> str:
-        """One INFO line: topics, scale source, and the parameters set away from the defaults
-        (the QoS overrides given among them)."""
+        """One INFO line: topics, the scale and what it rests on (the camera height), the
+        parameters set away from the defaults and the QoS overrides given."""
         changed = {k: v for k, v in flatten(self.config).items() if v != self._defaults[k]}
-        changed.update(sorted(self._qos_overrides().items()))
         settings = ', '.join(f'{k} = {v!r}' for k, v in changed.items()) or 'all defaults'
+        qos = ', '.join(f'{k} = {v!r}' for k, v in sorted(self._qos_overrides().items()))
         camera = (self._camera_info_sub.topic_name if self._camera_info_sub is not None else
                   'camera.* parameters' if self.config.camera.fx > 0 else 'self-calibration')
-        return (f'listening on {self._image_sub.topic_name} (intrinsics from {camera}); scale '
-                f'from {self.config.scale.source}; {len(self._defaults)} parameters, '
-                f'{len(changed)} set: {settings} (the others: ros2 param dump, or DEBUG logs)')
+        return (f'listening on {self._image_sub.topic_name} (intrinsics from {camera}); scale: '
+                f'{self._vo.scale_status()}; {len(self._defaults)} parameters, '
+                f'{len(changed)} set: {settings}' + (f'; QoS overrides: {qos}' if qos else '')
+                + ' (the others: ros2 param dump, or DEBUG logs)')
 
     def _check_parameter_files(self, files: Sequence[str], given: dict[str, list[str]]
                                ) -> None:
@@ -939,7 +947,7 @@ class PlanarVoNode(Node):
         elif self._period[DropReason.PIPELINE_ERROR.value]:
             status.level = DiagnosticStatus.ERROR
             status.message = f'{state.value}; pipeline errors'
-        elif frames and not self._period['ok']:
+        elif frames and not (self._period['ok'] + self._period[DropReason.FIRST_FRAME.value]):
             # Images arrive but none gives odometry (say, a driver switched to an encoding the
             # node cannot read): the tracking state may still say tracking.
             reason, count = max(self._period.items(), key=lambda kv: kv[1])
@@ -1021,8 +1029,10 @@ class PlanarVoNode(Node):
         dropped = ', '.join(f'{k} {v}' for k, v in drops.items()) or 'none'
         mean = f'{1e3 * self._node_time / frames:.1f} ms' if frames else 'n/a'
         origins = self.outcomes[first]
-        return (f'summary: {frames} frames in, {self.outcomes["ok"] + origins} odometry out '
-                f'({origins} at the origin: first frames of keyframe chains), '
+        among = (f' ({origins} at the origin among them: the first frame of each keyframe '
+                 f'chain)' if origins else '')
+        return (f'summary: {frames} frames in, {self.outcomes["ok"] + origins} odometry out'
+                f'{among}, '
                 f'{sum(drops.values())} dropped ({dropped}); '
                 f'{self._counters["missing_frames"]} frames missing in '
                 f'{self._counters["gaps"]} gaps; '

@@ -93,6 +93,8 @@ class ReplaySummary:
         wall_time: seconds from opening the input to closing the output.
         focal: the focal length in use at the end and where it came from (the processor's
             ``focal_status()``: CameraInfo, configured, or self-calibrated / provisional).
+        scale: where the metric scale came from (the processor's ``scale_status()``: the
+            camera height of the ground scale, the speed topic, ...); empty if it has none.
         scale_sources: odometry messages by the source of their step length (``ground``,
             ``speed``, ``hold``, ``unit``, ``stationary``, ...).
         road_top_ups: frames whose ground scale asked the front-end for more road ACs (the
@@ -117,6 +119,7 @@ class ReplaySummary:
     camera_info_unused: str = ''
     wall_time: float = 0.0
     focal: str = ''
+    scale: str = ''
     scale_sources: dict[str, int] = field(default_factory=dict)
     road_top_ups: int | None = None
     why_none: str = ''
@@ -150,6 +153,7 @@ class ReplaySummary:
             f'  speed messages     {self.speed_messages}',
             f'  camera info errors {self.camera_info_errors}',
             f'  camera             {self.focal or "unknown"}',
+            *([f'  scale              {self.scale}'] if self.scale else []),
             f'  step lengths       {sources}'
             + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups})'),
             f'  wall time          {self.wall_time:.2f} s',
@@ -164,8 +168,9 @@ class ReplaySummary:
         nothing else (``why_none``)."""
         notes = []
         if self.origins:
-            notes.append('the first frame, at the origin' if self.origins == 1 else
-                         f'{self.origins} first frames of keyframe chains, at the origin')
+            notes.append("the first frame's among them, at the origin" if self.origins == 1
+                         else f"{self.origins} first frames' of keyframe chains among them, at "
+                              f"the origin")
         if self.why_none:
             notes.append(f'no motion: {self.why_none}' if self.origins else self.why_none)
         return f' ({"; ".join(notes)})' if notes else ''
@@ -261,7 +266,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     if tum_path is not None:
         tum = Path(tum_path)
         if tum.exists():
-            raise BagError(f"tum: '{tum_path}' already exists; refusing to overwrite it")
+            raise BagError(f"tum: '{tum_path}' already exists; refusing to overwrite it "
+                           f'(remove it or choose another path)')
         if tum.resolve() == out_path.resolve():
             raise BagError(f"tum: '{tum_path}' is also the output bag's path")
         folder = tum.parent
@@ -343,7 +349,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                             writer.write(frame.stamp_ns, result.pose, result.pose_covariance,
                                          result.twist, result.twist_covariance,
                                          log_time_ns=frame.log_time_ns)
-                            poses.add(frame.stamp_ns, result.pose)
+                            poses.add(frame.stamp_ns, result.pose, bool(result.ok))
                     if result.ok:
                         sources[str(getattr(result, 'scale_source', 'unknown'))] += 1
                     elif reason == FIRST_FRAME:
@@ -380,6 +386,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     summary.camera_info_errors = decoder.camera_errors
     status = getattr(processor, 'focal_status', None)
     summary.focal = status() if callable(status) else ''
+    scale = getattr(processor, 'scale_status', None)
+    summary.scale = scale() if callable(scale) else ''
     summary.scale_sources = dict(sources)
     top_ups = getattr(processor, 'road_top_ups', None)
     summary.road_top_ups = top_ups if isinstance(top_ups, int) else None
@@ -393,10 +401,12 @@ class _Poses:
     def __init__(self) -> None:
         self.stamps_ns: list[int] = []
         self.poses: list[np.ndarray] = []
+        self.moved = False              # a pose beyond the origin's (an estimated motion)
 
-    def add(self, stamp_ns: int, pose: np.ndarray) -> None:
+    def add(self, stamp_ns: int, pose: np.ndarray, motion: bool) -> None:
         self.stamps_ns.append(stamp_ns)
         self.poses.append(np.asarray(pose, dtype=np.float64))
+        self.moved = self.moved or motion
 
     def write(self, path: str | Path) -> None:
         """Write them as a TUM file (complete or absent; `OutputError` if it cannot be)."""
@@ -408,9 +418,10 @@ class _Poses:
 
     def save(self, path: str | Path) -> str:
         """`write`, after a failure or an interruption: a note saying what became of the file
-        (not written without poses: an empty file would only block the next run)."""
-        if not self.poses:
-            return f"no poses were computed; '{path}' was not written"
+        (not written without a motion, as after a complete replay: the origin alone says
+        nothing, and the file would only block the next run)."""
+        if not self.moved:
+            return f"no motion was estimated; '{path}' was not written"
         try:
             self.write(path)
         except OutputError as err:

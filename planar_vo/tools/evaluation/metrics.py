@@ -108,8 +108,9 @@ def covariance_consistency(ref: Trajectory, est: Trajectory, covariances: np.nda
     Each axis is judged on the poses after the first (the anchor) whose covariance is finite
     and gives that axis a positive variance (a planar odometry may leave z, roll and pitch at
     zero, ROS's -1 marks an unknown one); the 2D distance on those whose x-y block is positive
-    definite. The anchor's own uncertainty is not taken off: early poses read a little
-    conservative. For an honest covariance and a normal error, ``|e| / std`` has median 0.674
+    definite. The anchor's own uncertainty is not taken off (zero for planar_vo's, whose first
+    odometry is the origin itself; another odometry's early poses read a little
+    conservative). For an honest covariance and a normal error, ``|e| / std`` has median 0.674
     and p90 1.645, the 2D distance median 1.177 and p90 2.146 (`HONEST`); errors of
     successive poses are strongly correlated, so the shares within the bounds are per-frame
     figures.
