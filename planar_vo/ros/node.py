@@ -253,8 +253,7 @@ class PlanarVoNode(Node):
         self._path_pub = self.create_publisher(Path, 'path', 1)
         self._status_pub = self.create_publisher(DiagnosticArray, 'status', 10)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._tf = None
-        self._set_tf(ros.publish_tf)
+        self._tf = None                  # set up after every check: a bad parameter is one line
 
         # Sensor-data QoS (best effort) by default; `qos_overrides.<topic>.subscription.*`
         # parameters change it, e.g. to reliable for images too large for best-effort delivery.
@@ -300,6 +299,7 @@ class PlanarVoNode(Node):
         self.create_timer(_IMAGE_WATCH_PERIOD, self._on_image_watch,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._set_tf(ros.publish_tf)
         self.get_logger().info(self._start_line())
 
     # -- parameters ----------------------------------------------------------------------------

@@ -336,6 +336,18 @@ class Evaluation:
             **({'covariance': self.covariance} if self.covariance else {}),
         }
 
+    def _alignment_line(self) -> str:
+        """The alignment's method and scale; for a path that is almost a line, why its ATE
+        reads low (`Alignment.line_like`)."""
+        a = self.alignment
+        line = f'{a.method} (scale {a.scale:.6f})'
+        if a.line_like:
+            along, across = a.spread
+            line += (f'; the path is almost a line ({across:.2f} m across, {along:.1f} m along '
+                     f'it): the fit turns the estimate about it to absorb errors, so the ATE '
+                     f'reads low (--align origin does not)')
+        return line
+
     def format_table(self) -> str:
         """Markdown table of the main numbers."""
         m = self.metrics()
@@ -346,7 +358,7 @@ class Evaluation:
                         f"{poses['reference_unmatched']} reference)")
         rows = [('matched poses', matched),
                 ('path length (m)', f"{m['path_length_m']:.3f}"),
-                ('alignment', f"{self.alignment.method} (scale {self.alignment.scale:.6f})")]
+                ('alignment', self._alignment_line())]
         for key, label in (('ate_m', 'ATE (m)'),):
             s = m[key]
             rows.append((f'{label} rmse / mean / median / max',
