@@ -782,6 +782,8 @@ def test_the_no_image_warning_comes_at_the_timeout_and_diagnostics_name_the_sile
     """The no-image warning comes once the timeout passes (its own timer, not the 1 s
     diagnostics tick: a user test), once per silence; before the timeout the diagnostics stay
     OK but say how long no image came."""
+    from rclpy.parameter import Parameter
+
     node = local_node({**MOUNT_PARAMS, 'ros.image_timeout': 0.3})
     lines = []
     logger = node.get_logger()
@@ -823,6 +825,17 @@ def test_the_no_image_warning_comes_at_the_timeout_and_diagnostics_name_the_sile
     node._last_image = time.monotonic() - 0.4
     node._on_image_watch()
     assert len(warnings()) == 2
+    # The watch is a timer of period ros.image_timeout that every image restarts (not a poll),
+    # and a new timeout makes a new timer.
+    watch = node._image_watch
+    assert watch.timer_period_ns == 300_000_000
+    time.sleep(0.1)
+    assert watch.time_until_next_call() < 0.25e9
+    node._on_image(images[2])
+    assert watch.time_until_next_call() > 0.28e9
+    (result,) = node.set_parameters([Parameter('ros.image_timeout', value=2.0)])
+    assert result.successful and node._image_watch is not watch
+    assert node._image_watch.timer_period_ns == 2_000_000_000
 
 
 @pytest.mark.timeout(60)

@@ -153,9 +153,11 @@ _monotonic = time.monotonic            # the waiting images' clock (tests replac
 # The focal length is logged again when it moved by this share since the last line (the
 # self-calibration's progress: a handful of lines in a turn, none while it holds still).
 _FOCAL_LOG_CHANGE = 0.02
-# The no-image warning comes within this many seconds of ``ros.image_timeout`` (a timer of its
-# own: the diagnostics tick, once per ``ros.diagnostics_period``, was late by up to a period).
-_IMAGE_WATCH_PERIOD = 0.1
+# The no-image warning has a timer of its own, of period ``ros.image_timeout``, restarted by every
+# image (the diagnostics tick, once per ``ros.diagnostics_period``, was late by up to a period),
+# rather than a poll. It fires when no image came for a whole period; this slack absorbs the two
+# clocks' rounding (an image that raced it is well inside).
+_IMAGE_WATCH_SLACK = 0.005
 # The QoS policies the subscriptions let `qos_overrides.*` change, and the values rclpy knows.
 _QOS_POLICIES = tuple(kind.name.lower() for kind in
                       QoSOverridingOptions.with_default_policies().policy_kinds)
@@ -296,8 +298,7 @@ class PlanarVoNode(Node):
         self.create_timer(ros.diagnostics_period, self._on_diagnostics_timer,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._silence_reported = False
-        self.create_timer(_IMAGE_WATCH_PERIOD, self._on_image_watch,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._image_watch = self._watch_timer(ros.image_timeout)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._set_tf(ros.publish_tf)
         self.get_logger().info(self._start_line())
@@ -481,6 +482,9 @@ class PlanarVoNode(Node):
         self._throttle.period = ros.warn_period
         if ros.publish_tf != self.config.ros.publish_tf:
             self._set_tf(ros.publish_tf)
+        if ros.image_timeout != self.config.ros.image_timeout:
+            self.destroy_timer(self._image_watch)
+            self._image_watch = self._watch_timer(ros.image_timeout)
         self.config = config
         return SetParametersResult(successful=True)
 
@@ -519,6 +523,7 @@ class PlanarVoNode(Node):
         (`_release_overdue`, by the next image or a timer)."""
         self._last_image = time.monotonic()
         self._silence_reported = False
+        self._image_watch.reset()                       # a whole timeout from now
         self._images_seen += 1
         if self._camera is None and self._expects_camera_info:
             if (self._images_seen > _PENDING_IMAGES
@@ -904,14 +909,21 @@ class PlanarVoNode(Node):
         return [sub.topic_name for sub in (self._image_sub, self._camera_info_sub,
                                            self._speed_sub) if sub is not None]
 
+    def _watch_timer(self, timeout: float):
+        """The no-image timer (`_on_image_watch`), on the steady clock (it goes on when a
+        simulated clock stops)."""
+        return self.create_timer(timeout, self._on_image_watch,
+                                 clock=Clock(clock_type=ClockType.STEADY_TIME))
+
     def _on_image_watch(self) -> None:
-        """The no-image warning as soon as ``ros.image_timeout`` passes without an image (within
-        `_IMAGE_WATCH_PERIOD`); while the silence lasts, the diagnostics tick repeats it
-        (rate-limited by ``ros.warn_period``)."""
+        """The no-image warning as soon as ``ros.image_timeout`` passes without an image (the
+        timer's period; every image restarts it); while the silence lasts, the diagnostics tick
+        repeats it (rate-limited by ``ros.warn_period``)."""
+        silent = time.monotonic() - self._last_image
         if not self._silence_reported and \
-                time.monotonic() - self._last_image >= self.config.ros.image_timeout:
+                silent >= self.config.ros.image_timeout - _IMAGE_WATCH_SLACK:
             self._silence_reported = True
-            self._warn_no_image(time.monotonic() - self._last_image)
+            self._warn_no_image(silent)
 
     def _warn_no_image(self, silent: float) -> None:
         image_topic = self._image_sub.topic_name
