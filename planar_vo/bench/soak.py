@@ -169,8 +169,7 @@ def soak(frames: int, every: int, camera_name: str) -> tuple[list[dict], dict]:
                     'path_ms': float(np.mean(times['time_ms.path'][block])),
                     'path_max_ms': float(np.max(times['time_ms.path'][block])),
                     'path_poses': len(node.path_poses()),
-                    # As the node's summary counts it: the origin's odometry too.
-                    'odometry_out': node.outcomes['ok'] + node.outcomes['first_frame'],
+                    'odometry_out': node.odometry_out,     # the origin's too
                 })
                 print(f'soak: {blocks[-1]}', flush=True)
         summary = node.summary()

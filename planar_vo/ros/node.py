@@ -158,6 +158,20 @@ _FOCAL_LOG_CHANGE = 0.02
 # rather than a poll. It fires when no image came for a whole period; this slack absorbs the two
 # clocks' rounding (an image that raced it is well inside).
 _IMAGE_WATCH_SLACK = 0.005
+# The outcome of a frame whose odometry is the origin (counted apart from the drops).
+_FIRST_FRAME = DropReason.FIRST_FRAME.value
+
+
+def _with_odometry(outcomes: Counter[str]) -> int:
+    """Frames of ``outcomes`` that gave an odometry message: a motion or the origin."""
+    return outcomes['ok'] + outcomes[_FIRST_FRAME]
+
+
+def _drops(outcomes: Counter[str]) -> dict[str, int]:
+    """The counts of ``outcomes`` without odometry, by reason."""
+    return {k: v for k, v in sorted(outcomes.items()) if k not in ('ok', _FIRST_FRAME) and v}
+
+
 # The QoS policies the subscriptions let `qos_overrides.*` change, and the values rclpy knows.
 _QOS_POLICIES = tuple(kind.name.lower() for kind in
                       QoSOverridingOptions.with_default_policies().policy_kinds)
@@ -850,15 +864,14 @@ class PlanarVoNode(Node):
 
     def _counts(self) -> dict[str, Any]:
         """The running totals, shared by ``status`` and ``/diagnostics``."""
-        first = DropReason.FIRST_FRAME.value
         values: dict[str, Any] = {
             'frames': sum(self.outcomes.values()),
-            'odometry_out': self.outcomes['ok'] + self.outcomes[first],
-            'first_frames': self.outcomes[first],
-            'dropped': sum(v for k, v in self.outcomes.items() if k not in ('ok', first)),
+            'odometry_out': self.odometry_out,
+            'first_frames': self.outcomes[_FIRST_FRAME],
+            'dropped': sum(_drops(self.outcomes).values()),
         }
         for reason in DropReason:
-            if reason.value != first:
+            if reason.value != _FIRST_FRAME:
                 values[f'dropped.{reason.value}'] = self.outcomes[reason.value]
         for name in ('camera_info_errors', 'camera_changes', 'speed_messages', 'speed_errors',
                      'gaps', 'missing_frames', 'resets', 'tracking_changes'):
@@ -871,7 +884,7 @@ class PlanarVoNode(Node):
         status = DiagnosticStatus()
         status.name = f'{self.get_name()}: visual odometry'
         status.hardware_id = self.get_fully_qualified_name()     # as on /diagnostics
-        if result.ok or result.reason is DropReason.FIRST_FRAME:
+        if result.has_odometry:
             status.level = DiagnosticStatus.OK
         elif result.reason is DropReason.PIPELINE_ERROR:
             status.level = DiagnosticStatus.ERROR
@@ -959,7 +972,7 @@ class PlanarVoNode(Node):
         elif self._period[DropReason.PIPELINE_ERROR.value]:
             status.level = DiagnosticStatus.ERROR
             status.message = f'{state.value}; pipeline errors'
-        elif frames and not (self._period['ok'] + self._period[DropReason.FIRST_FRAME.value]):
+        elif frames and not _with_odometry(self._period):
             # Images arrive but none gives odometry (say, a driver switched to an encoding the
             # node cannot read): the tracking state may still say tracking.
             reason, count = max(self._period.items(), key=lambda kv: kv[1])
@@ -982,8 +995,7 @@ class PlanarVoNode(Node):
         values = {
             'tracking': state.value,
             'images_per_s': frames / period,
-            'odometry_per_s': (self._period['ok']
-                               + self._period[DropReason.FIRST_FRAME.value]) / period,
+            'odometry_per_s': _with_odometry(self._period) / period,
             'mean_time_ms': 1e3 * float(np.mean(self._period_time)) if frames else float('nan'),
             'max_time_ms': 1e3 * max(self._period_time) if frames else float('nan'),
             'seconds_since_image': silent,
@@ -1033,17 +1045,21 @@ class PlanarVoNode(Node):
                        f'{self._throttle.period:g} s)'
         self.get_logger().warning(message)
 
+    @property
+    def odometry_out(self) -> int:
+        """Images that gave an odometry message so far (a motion, or the origin)."""
+        return _with_odometry(self.outcomes)
+
     def summary(self) -> str:
         """One line: frames in, odometry out, drops per reason, other counters, mean time."""
         frames = sum(self.outcomes.values())
-        first = DropReason.FIRST_FRAME.value
-        drops = {k: v for k, v in sorted(self.outcomes.items()) if k not in ('ok', first) and v}
+        drops = _drops(self.outcomes)
         dropped = ', '.join(f'{k} {v}' for k, v in drops.items()) or 'none'
         mean = f'{1e3 * self._node_time / frames:.1f} ms' if frames else 'n/a'
-        origins = self.outcomes[first]
+        origins = self.outcomes[_FIRST_FRAME]
         among = (f' ({origins} at the origin among them: the first frame of each keyframe '
                  f'chain)' if origins else '')
-        return (f'summary: {frames} frames in, {self.outcomes["ok"] + origins} odometry out'
+        return (f'summary: {frames} frames in, {self.odometry_out} odometry out'
                 f'{among}, '
                 f'{sum(drops.values())} dropped ({dropped}); '
                 f'{self._counters["missing_frames"]} frames missing in '

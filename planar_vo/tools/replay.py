@@ -202,11 +202,6 @@ def _read_speeds(bag: BagReader, topic: str) -> tuple[list[int], list[float]]:
 FIRST_FRAME = DropReason.FIRST_FRAME.value
 
 
-def _has_odometry(result) -> bool:
-    """`FrameResult.has_odometry` of any processor's result (a motion, or the origin)."""
-    return bool(result.ok) or getattr(result.reason, 'value', result.reason) == FIRST_FRAME
-
-
 def _count_drop(dropped: Counter[str], reason: str, frame: CameraFrame, message: str,
                 first: dict[str, str]) -> None:
     """Count a frame without odometry under `reason`. The first of each kind says why (and
@@ -344,7 +339,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                     result = processor.process(frame.image, frame.stamp, frame.camera)
                     reason = None if result.ok else getattr(result.reason, 'value',
                                                             str(result.reason))
-                    if _has_odometry(result):
+                    if result.has_odometry:
                         with deferred_interrupts():    # the bag and the TUM poses agree
                             writer.write(frame.stamp_ns, result.pose, result.pose_covariance,
                                          result.twist, result.twist_covariance,
