@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import os
-import random
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from ros_tools import free_domain_id
 
 # A Fast DDS profile that announces participants quickly and often: discovery on loopback then
 # takes well under a second instead of up to three.
@@ -38,13 +38,14 @@ def rng() -> np.random.Generator:
 
 @pytest.fixture(scope='session')
 def ros_env(tmp_path_factory) -> dict[str, str]:
-    """Environment for ROS subprocesses: a domain id unique to this run, fast discovery,
+    """Environment for ROS subprocesses: a domain id unique to this run (and free of other
+    runs' shared-memory leftovers: `free_domain_id`), fast discovery,
     loopback only, and the venv's bin first on PATH (so ``#!/usr/bin/env python3`` finds it)."""
     profile = tmp_path_factory.mktemp('dds') / 'fastdds.xml'
     profile.write_text(FASTDDS_PROFILE)
     env = dict(os.environ)
     env.update({
-        'ROS_DOMAIN_ID': str(random.SystemRandom().randint(1, 100)),
+        'ROS_DOMAIN_ID': str(free_domain_id(1, 100)),
         'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
         'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile),
         'FASTDDS_DEFAULT_PROFILES_FILE': str(profile),

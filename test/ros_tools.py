@@ -19,7 +19,8 @@ message is lost to a publisher going away before delivery.
 
 `Probe` subscribes in the test process (its own rclpy context, no signal handlers) and spins
 until a condition holds or a timeout expires; `NodeProcess` starts ``<prefix>/lib/planar_vo/<exe>``
-exactly as ``ros2 run`` does and always cleans up.
+exactly as ``ros2 run`` does and always cleans up; `free_domain_id` picks a ROS domain for one
+run.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import random
 import signal
 import subprocess
 import sys
@@ -41,6 +43,37 @@ ROOT = Path(__file__).resolve().parents[1]
 PLAYED_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage',
                 'sensor_msgs/msg/CameraInfo', 'geometry_msgs/msg/TwistStamped',
                 'nav_msgs/msg/Odometry')
+
+
+# Fast DDS ports of domain d: 7400 + 250 d + (0 .. 249) (the RTPS port mapping); its
+# shared-memory transport keeps one segment and one mutex per port in /dev/shm.
+_DDS_PORT_BASE, _DDS_DOMAIN_GAIN = 7400, 250
+SHM_DIR = Path('/dev/shm')
+
+
+def free_domain_id(low: int, high: int, rng: random.Random | None = None,
+                   shm_dir: Path = SHM_DIR) -> int:
+    """A random ROS domain id in ``[low, high]`` whose Fast DDS ports have no shared-memory
+    files in ``shm_dir``, or any id of the range when every one has some.
+
+    Why: a process killed before it cleans up leaves its segments and mutexes behind
+    (``fastrtps_port<P>``, ``sem.fastrtps_port<P>_mutex``); a later run on the same domain
+    reuses those ports. Two full test runs on a machine with such leftovers lost images
+    part-way in a node test, and passed after the leftovers were removed (not proven to be the
+    cause; a domain without leftovers costs nothing)."""
+    rng = rng or random.SystemRandom()
+    taken = set()
+    try:
+        names = [p.name for p in shm_dir.iterdir()]
+    except OSError:
+        names = []
+    for name in names:
+        digits = name.removeprefix('sem.').removeprefix('fastrtps_port').removesuffix('_mutex')
+        if name != digits and digits.isdigit():
+            taken.add((int(digits) - _DDS_PORT_BASE) // _DDS_DOMAIN_GAIN)
+    ids = list(range(low, high + 1))
+    free = [d for d in ids if d not in taken]
+    return rng.choice(free or ids)
 
 
 # -- message conversion ----------------------------------------------------------------------------
@@ -292,9 +325,7 @@ def node_cpu(bag: Path, topics: list[str], node_args: list[str]) -> int:
     """Play ``bag`` at its recorded rate into the installed node and compare the node's CPU
     time (utime + stime of /proc/<pid>/stat, all its threads) with the processing time it
     reports per frame (``time_ms.node`` of ``status``), from the first status to the end."""
-    import random
-
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.SystemRandom().randint(101, 200)),
+    env = dict(os.environ, ROS_DOMAIN_ID=str(free_domain_id(101, 200)),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     env['PATH'] = str(Path(sys.executable).parent) + os.pathsep + env.get('PATH', '')
     exe = Path(sys.prefix) / 'lib/planar_vo/planar_vo_node'

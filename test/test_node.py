@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bagdata import camera_info_msg, image_msg
-from ros_tools import NodeProcess, Probe, player_args, to_rclpy
+from ros_tools import NodeProcess, Probe, free_domain_id, player_args, to_rclpy
 
 from planar_vo.config import MountConfig
 from planar_vo.core.camera import CameraModel
@@ -45,6 +45,19 @@ CAMERA = CameraModel.pinhole(640, 480, 500.0)
 REMAP = ['-r', f'image:={IMAGE_TOPIC}', '-r', f'image/compressed:={IMAGE_TOPIC}/compressed',
          '-r', f'camera_info:={CAMERA_INFO_TOPIC}']
 MOUNT_PARAMS = {'mount.height': MOUNT.height, 'mount.pitch': MOUNT.pitch}
+
+
+def test_the_test_domain_avoids_shared_memory_leftovers(tmp_path):
+    """Domains 1 and 2 have Fast DDS leftovers (ports 7660-7661 and 7911): 3 is the only free
+    one; with every domain taken any of them is returned."""
+    import random
+    for name in ('fastrtps_port7661', 'sem.fastrtps_port7660_mutex', 'sem.fastrtps_port7911_mutex',
+                 'fastrtps_0123abcd', 'fastrtps_0123abcd_el'):
+        (tmp_path / name).touch()
+    rng = random.Random(0)
+    assert {free_domain_id(1, 3, rng, tmp_path) for _ in range(20)} == {3}
+    assert {free_domain_id(1, 2, rng, tmp_path) for _ in range(20)} <= {1, 2}
+    assert free_domain_id(5, 5, rng, tmp_path / 'missing') == 5
 
 
 # -- fixtures and helpers --------------------------------------------------------------------------
@@ -809,9 +822,13 @@ def test_the_no_image_warning_comes_at_the_timeout_and_diagnostics_name_the_sile
     assert not warnings()
     status = sent[-1].status[0]
     assert (status.level, status.message) == (DiagnosticStatus.OK, 'tracking; 1.0 images/s')
+    values = {kv.key: kv.value for kv in sent[-1].status[0].values}
+    assert float(values['mean_time_ms']) > 0 and float(values['max_time_ms']) > 0
     node._on_diagnostics_timer()               # a period without images
     assert re.fullmatch(r'tracking; 0\.0 images/s; no image for 0\.2 s \(a warning at '
                         r'ros\.image_timeout, 0\.3 s\)', sent[-1].status[0].message)
+    values = {kv.key: kv.value for kv in sent[-1].status[0].values}
+    assert (values['mean_time_ms'], values['max_time_ms']) == ('n/a', 'n/a'), values
     node._last_image = time.monotonic() - 0.35
     node._on_image_watch()
     node._on_image_watch()                     # the same silence: not again
@@ -1157,6 +1174,30 @@ class _Recorder:
 
     def __getattr__(self, level):
         return lambda message, *args, **kwargs: self._lines.append((level, message))
+
+
+def test_library_log_lines_come_from_a_child_of_the_node_logger(local_node):
+    """A library module's line reaches ROS through a child of the node's logger named after
+    the module, its text as logged (a user test: the module's name stood in the text)."""
+    import logging
+
+    from planar_vo.ros.node import _RosLogHandler
+
+    node = local_node(MOUNT_PARAMS)
+    handler = _RosLogHandler(node.get_logger())
+    child = handler.logger_for('planar_vo.pipeline.calibration.tilt')
+    assert child.name == f'{node.get_logger().name}.pipeline.calibration.tilt'
+    assert handler.logger_for('planar_vo.pipeline.calibration.tilt') is child
+    assert handler.logger_for('planar_vo') is node.get_logger()
+    lines = []
+    handler._children['pipeline.calibration.tilt'] = _Recorder(None, lines)
+    handler._logger = _Recorder(None, lines)
+    for name in ('planar_vo.pipeline.calibration.tilt', 'planar_vo'):
+        for level in (logging.DEBUG, logging.INFO, logging.WARNING, logging.ERROR):
+            handler.emit(logging.LogRecord(name, level, __file__, 1, 'tilt %.1f deg', (0.5,),
+                                           None))
+    assert lines == 2 * [('debug', 'tilt 0.5 deg'), ('info', 'tilt 0.5 deg'),
+                         ('warning', 'tilt 0.5 deg'), ('error', 'tilt 0.5 deg')]
 
 
 def test_a_reliable_image_override_leaves_the_speed_subscription_best_effort(local_node):

@@ -265,8 +265,10 @@ def test_replay_set_overrides_the_configuration(tmp_path, capsys, drive_bags):
                  str(config), '--set', 'camera.fx=500', '--no-progress']) == 0
     assert 'focal length 500.0 px (configured)' in capsys.readouterr().out
     for item, message in (
-            ('mount.height=1.5,1.6', "set: 'mount.height=1.5,1.6': expected one value (a replay "
-                                     'runs one configuration; planar_vo fleet run takes several)'),
+            ('mount.height=1.5,1.6', "set: 'mount.height=1.5,1.6': expected one value (one --set "
+                                     'per key: a replay runs one configuration; planar_vo fleet '
+                                     'run takes several)'),
+            ('mount.height', "set: expected KEY=VALUE, got 'mount.height'"),
             ('mount.hieght=1.6', "set: unknown configuration key 'mount.hieght'; did you mean "
                                  'mount.height, mount.height_std, mount.pitch?'),
             ('mount.height=-1', 'set: mount.height: expected a positive height above the ground '

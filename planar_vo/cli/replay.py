@@ -131,10 +131,10 @@ def with_sets(config, sets):
     values = flatten(config)
     changes = {}
     for item in sets:
-        key, found = parse_set(item, values)
+        key, found = parse_set(item, values, several=False)
         if len(found) != 1:
-            raise ConfigError(f"set: '{item}': expected one value (a replay runs one "
-                              f'configuration; planar_vo fleet run takes several)')
+            raise ConfigError(f"set: '{item}': expected one value (one --set per key: a replay "
+                              f'runs one configuration; planar_vo fleet run takes several)')
         changes[key] = found[0]
     try:
         return PlanarVoConfig.from_flat({**values, **changes})

@@ -93,9 +93,11 @@ def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = '/**')
     return '\n'.join(out) + '\n'
 
 
-def parse_set(item: str, keys) -> tuple[str, list[Any]]:
+def parse_set(item: str, keys, *, several: bool = True) -> tuple[str, list[Any]]:
     """One ``--set KEY=V1[,V2...]`` item: its dotted key (one of ``keys``) and its distinct
     values, read as YAML flow items (``360``, ``true``, ``flow``, ``[0.1, 0.2]``).
+    ``several``: whether the caller takes several values (only the error text differs: a
+    command that takes one value does not offer the comma form).
 
     Raises:
         ConfigError: malformed item, unknown key (with the closest known ones), or values that
@@ -105,7 +107,8 @@ def parse_set(item: str, keys) -> tuple[str, list[Any]]:
 
     key, sep, text = (part.strip() for part in item.partition('='))
     if not sep or not key or not text:
-        raise ConfigError(f"set: expected KEY=VALUE[,VALUE...], got '{item}'")
+        form = 'KEY=VALUE[,VALUE...]' if several else 'KEY=VALUE'
+        raise ConfigError(f"set: expected {form}, got '{item}'")
     if key not in keys:
         near = difflib.get_close_matches(key, list(keys), n=3)
         hint = f'; did you mean {", ".join(near)}?' if near else ''

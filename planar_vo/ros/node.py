@@ -996,8 +996,9 @@ class PlanarVoNode(Node):
             'tracking': state.value,
             'images_per_s': frames / period,
             'odometry_per_s': _with_odometry(self._period) / period,
-            'mean_time_ms': 1e3 * float(np.mean(self._period_time)) if frames else float('nan'),
-            'max_time_ms': 1e3 * max(self._period_time) if frames else float('nan'),
+            # No image in the period: no time to report (a user test: 'nan' read as a fault).
+            'mean_time_ms': 1e3 * float(np.mean(self._period_time)) if frames else 'n/a',
+            'max_time_ms': 1e3 * max(self._period_time) if frames else 'n/a',
             'seconds_since_image': silent,
             'image_topic': image_topic,
             'listening_on': ' '.join(self.listened_topics()),
@@ -1233,22 +1234,39 @@ class _StopRequest:
 
 class _RosLogHandler(logging.Handler):
     """Forwards the library's `logging` records (tilt calibration, time jumps, ...) to the
-    node's logger, so that they reach the console and ``/rosout`` like the node's own lines."""
+    node's logger, so that they reach the console and ``/rosout`` like the node's own lines.
+
+    Each library module logs through a child of the node's logger named after it
+    (``[planar_vo.pipeline.calibration.tilt]``, inheriting the node's level), so the module
+    stands where ROS puts a logger's name, not in the text (a user test: ``[planar_vo]:
+    planar_vo.pipeline...: ...``)."""
 
     def __init__(self, logger) -> None:
         super().__init__()
         self._logger = logger
+        self._children: dict[str, Any] = {}
+
+    def logger_for(self, name: str):
+        """The node logger's child for the library logger ``name`` (the node's own logger for
+        the package's root logger)."""
+        child = name.removeprefix('planar_vo').lstrip('.')
+        if not child:
+            return self._logger
+        if child not in self._children:
+            self._children[child] = self._logger.get_child(child)
+        return self._children[child]
 
     def emit(self, record: logging.LogRecord) -> None:
-        message = f'{record.name}: {record.getMessage()}'
+        logger = self.logger_for(record.name)
+        message = record.getMessage()
         if record.levelno >= logging.ERROR:
-            self._logger.error(message)
+            logger.error(message)
         elif record.levelno >= logging.WARNING:
-            self._logger.warning(message)
+            logger.warning(message)
         elif record.levelno >= logging.INFO:
-            self._logger.info(message)
+            logger.info(message)
         else:
-            self._logger.debug(message)
+            logger.debug(message)
 
 
 def main(args: list[str] | None = None) -> int:
