@@ -171,7 +171,8 @@ def test_a_fitted_alignment_of_a_straight_path_says_its_ate_reads_low(rng):
     assert along == pytest.approx(np.std(np.arange(n)), rel=1e-3) and across < 0.1
     assert line.alignment.line_like and line.metrics()['alignment']['line_like'] is True
     row = next(r for r in line.format_table().splitlines() if r.startswith('| alignment'))
-    assert f'; the path is almost a line ({across:.2f} m across, {along:.1f} m along it): the ' \
+    assert f'; the path is almost a line (standard deviations {across:.2f} m across, ' \
+           f'{along:.1f} m along it): the ' \
            f'fit turns the estimate about it to absorb errors, so the ATE reads low (--align ' \
            f'origin does not)' in row
     assert line.ate.max() < evaluate(gt, est, align='origin').ate.max()

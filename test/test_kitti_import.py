@@ -101,6 +101,36 @@ def test_import_writes_images_intrinsics_stamps_and_rep103_ground_truth(
     assert math.isclose(math.hypot(v3.x, v3.y), math.hypot(0.9, 0.1) / 0.1, rel_tol=1e-9)
 
 
+def test_the_download_layout_keeps_the_poses_apart_and_a_missing_ground_truth_is_said(
+        tmp_path, rng):
+    """The KITTI odometry download has dataset/sequences/06/ and dataset/poses/06.txt (a user
+    test: README's own example imported without ground truth, without a word)."""
+    seq = tmp_path / 'dataset' / 'sequences' / '06'
+    _write_sequence(seq, rng)
+    (tmp_path / 'dataset' / 'poses').mkdir()
+    (seq / 'poses.txt').rename(tmp_path / 'dataset' / 'poses' / '06.txt')
+    summary = import_kitti(seq, tmp_path / 'bag', camera_height=1.65)
+    assert summary.ground_truth
+    assert summary.format().endswith(
+        f"/ground_truth/odom (from {(tmp_path / 'dataset' / 'poses' / '06.txt').resolve()})")
+    with open_bag(tmp_path / 'bag') as bag:
+        gt = list(iter_messages(bag, '/ground_truth/odom'))
+    poses = np.array([pose_from_message(g.msg) for g in gt])
+    np.testing.assert_allclose(poses[3][:3, 3], [2.9, 0.1, 0.0], atol=1e-9)
+    # Another sequence of the tree has no poses file: the summary says which were looked for.
+    other = tmp_path / 'dataset' / 'sequences' / '11'
+    _write_sequence(other, rng, poses=False)
+    summary = import_kitti(other, tmp_path / 'bag11')
+    assert not summary.ground_truth
+    assert summary.format().endswith(
+        f"; no ground truth (no {other / 'poses.txt'} nor "
+        f"{(tmp_path / 'dataset' / 'poses' / '11.txt').resolve()})")
+    # A folder outside such a tree only has its own poses.txt to look for.
+    _write_sequence(tmp_path / 'loose', rng, poses=False)
+    summary = import_kitti(tmp_path / 'loose', tmp_path / 'bag_loose')
+    assert summary.format().endswith(f"; no ground truth (no {tmp_path / 'loose' / 'poses.txt'})")
+
+
 def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
     _write_sequence(tmp_path / 'seq', rng, times=('0', '1.036624e-01', '0.207793512', '0.31'),
                     poses=False)

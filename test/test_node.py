@@ -1147,6 +1147,44 @@ def test_a_speed_topic_on_another_clock_is_reported(monkeypatch, local_node, dri
 
 
 @pytest.mark.timeout(60)
+def test_a_speed_topic_of_another_type_is_named(monkeypatch, local_node, drive_bag):
+    """scale.source speed with the default twist type and an Odometry publisher on the speed
+    topic: nothing arrives, and the warning names the publisher's type and the parameter that
+    reads it (a user test: it said only that no speed message came)."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    node = local_node({**MOUNT_PARAMS, 'scale.source': 'speed'})
+    sent = _diagnostics(monkeypatch, node)
+    topic = node._speed_sub.topic_name
+    node._on_camera_info(_bag_messages(drive_bag, 1)[0])
+    for msg in _bag_messages(drive_bag, 6)[1]:
+        node._on_image(msg)
+    node._on_diagnostics_timer()
+    assert sent[-1].status[0].message.endswith(f'; no speed message received on {topic}')
+    # Another participant: one participant cannot have a topic of two types.
+    from rclpy.signals import SignalHandlerOptions
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        other = rclpy.create_node('odometry_publisher', context=context)
+        other.create_publisher(Odometry, topic, 10)
+        deadline = time.monotonic() + 20.0
+        while not node.get_publishers_info_by_topic(topic) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for msg in _bag_messages(drive_bag, 12)[1][6:]:
+            node._on_image(msg)
+        node._on_diagnostics_timer()
+    finally:
+        rclpy.shutdown(context=context)
+    status = sent[-1].status[0]
+    assert status.level == DiagnosticStatus.WARN
+    assert status.message.endswith(
+        f"; no speed message received on {topic}: its publishers' type is nav_msgs/msg/Odometry, "
+        f'not geometry_msgs/msg/TwistStamped (-p ros.speed_topic_type:=odometry reads it)'), \
+        status.message
+
+
+@pytest.mark.timeout(60)
 def test_twelve_bit_mono16_images_with_camera_mono16_bits(local_node, drive_bag):
     """A 12-bit camera publishing mono16 (values 0-4095): with camera.mono16_bits 12 it tracks
     like the 8-bit images; read as 16-bit values they are nearly black (0-15)."""
@@ -1448,6 +1486,27 @@ def test_ros_arguments_pair_each_p_name_with_the_files_after_it():
     assert files == ['a.yaml', 'b.yaml']
     assert names == {'mount.height': ['a.yaml', 'b.yaml'],
                      'planar_vo:ros.publish_tf': ['b.yaml']}
+
+
+def test_arguments_outside_ros_args_are_one_line_and_exit_1(capsys):
+    """rcl ignores them, so the node would run on its defaults (a user test: ``-p
+    mount.height:=1.65`` before ``--ros-args`` gave the 1.5 m default without a word)."""
+    from planar_vo.ros.node import _stray_arguments, main
+
+    for argv, stray in ((['planar_vo_node', '-p', 'mount.height:=1.65'], "'-p mount.height:=1.65'"),
+                        (['planar_vo_node', '--params-file', 'flat.yaml', '--ros-args', '-p',
+                          'a:=1'], "'--params-file flat.yaml'"),
+                        (['planar_vo_node', '--ros-args', '-p', 'a:=1', '--', '--bogus'],
+                         "'--bogus'")):
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f'planar_vo_node: unexpected argument(s) {stray} outside '
+                              f'--ros-args: ') and err.count('\n') == 1, err
+    assert _stray_arguments(['planar_vo_node', '--ros-args', '-p', 'a:=1', '-r', 'x:=y']) == []
+    assert _stray_arguments(['planar_vo_node', '--help']) == []
+    # What rcl cannot parse is left to rclpy.init, which names the cause.
+    assert _stray_arguments(['planar_vo_node', '--ros-args', '--params-file', 'missing.yaml',
+                             '--', '--bogus']) == []
 
 
 def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):

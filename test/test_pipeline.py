@@ -887,10 +887,14 @@ def test_stamps_1_ns_apart_are_different_frames_as_integer_nanoseconds():
     config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}})
     vo = VisualOdometry(config, CAMERA)
     results = [vo.process(images[i], Stamp(t0 + ns))
-               for i, ns in ((0, 0), (1, 1), (2, 1), (2, 0), (2, 2))]
+               for i, ns in ((0, 0), (1, 1), (2, 1), (2, 0), (2, 2), (2, 3))]
     reasons = [r.reason for r in results]
     assert reasons[0] is DropReason.FIRST_FRAME
     assert reasons[1] is None and reasons[4] is None                  # odometry
+    # The same image again 1 ns later has not moved: standing still, with a finite speed
+    # bound (a user test: the float seconds' difference of 0 divided, a pipeline error).
+    assert reasons[5] is None and results[5].scale_source == 'stationary', results[5].message
+    assert np.all(results[5].twist == 0.0) and np.all(np.isfinite(results[5].twist_covariance))
     assert reasons[2:4] == [DropReason.DUPLICATE_STAMP, DropReason.OUT_OF_ORDER]
     # The messages name the stamps as the headers had them (a user test: a float's 9 decimals
     # showed noise, 1700000000.415493965 for .415494000).

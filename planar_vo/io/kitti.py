@@ -6,7 +6,9 @@ Input folder (KITTI odometry layout):
 - ``calib.txt``: first line ``P0`` as 12 numbers (row-major 3x4), with or without ``P0:``.
 - ``times.txt``: one time in seconds per image (not needed with ``rate_hz``).
 - ``poses.txt`` (optional): per image 12 numbers, the row-major 3x4 pose ``T_w_cam(i)`` of
-  camera 0 in the frame of camera 0 at frame 0 (x right, y down, z forward).
+  camera 0 in the frame of camera 0 at frame 0 (x right, y down, z forward). Without it, in
+  the layout of the KITTI odometry download (``dataset/sequences/06/`` beside
+  ``dataset/poses/06.txt``), the sequence's file in ``poses/`` is read.
 
 Output topics: ``/camera/image_raw`` (``sensor_msgs/Image`` mono8), ``/camera/camera_info``
 (``K`` from ``P0``, no distortion) and, with poses, ``/ground_truth/odom`` (``nav_msgs/Odometry``).
@@ -70,12 +72,16 @@ class KittiSequence:
         P0: ``(3, 4)`` projection matrix of camera 0.
         times: per image, seconds as exact decimals (None when not given).
         poses: ``(N, 4, 4)`` ``T_w_cam`` (None without ``poses.txt``).
+        poses_path: the file the poses came from (None without one).
+        poses_sought: the files looked for (to say what is missing).
     """
 
     images: tuple[Path, ...]
     P0: np.ndarray
     times: tuple[Decimal, ...] | None
     poses: np.ndarray | None
+    poses_path: Path | None = None
+    poses_sought: tuple[Path, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -88,9 +94,18 @@ class KittiImportSummary:
     ground_truth: bool
     first_stamp_ns: int
     last_stamp_ns: int
+    poses_path: Path | None = None
+    poses_sought: tuple[Path, ...] = ()
 
     def format(self) -> str:
-        gt = f', ground truth on {GROUND_TRUTH_TOPIC}' if self.ground_truth else ''
+        if self.ground_truth:
+            source = f' (from {self.poses_path})' if self.poses_path is not None else ''
+            gt = f', ground truth on {GROUND_TRUTH_TOPIC}{source}'
+        else:
+            # Said, not left to `planar_vo eval` to find out (a user test: the download's
+            # layout keeps the poses apart, and the import wrote none without a word).
+            sought = ' nor '.join(str(p) for p in self.poses_sought) or 'poses.txt'
+            gt = f'; no ground truth (no {sought})'
         duration = (self.last_stamp_ns - self.first_stamp_ns) / 1e9
         return (f'wrote {self.frames} frames ({self.camera.width}x{self.camera.height}, '
                 f'fx {self.camera.fx:.2f}, {duration:.2f} s) to {self.path}: {IMAGE_TOPIC}, '
@@ -173,11 +188,16 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
         raise InputError(f"sequence: '{folder}' has no times.txt (give a frame rate instead)")
 
     poses = None
-    poses_path = folder / 'poses.txt'
-    if poses_path.is_file():
+    sought = [folder / 'poses.txt']
+    parent = folder.resolve().parent
+    if parent.name == 'sequences':              # dataset/sequences/06 -> dataset/poses/06.txt
+        sought.append(parent.parent / 'poses' / f'{folder.resolve().name}.txt')
+    poses_path = next((path for path in sought if path.is_file()), None)
+    if poses_path is not None:
+        name = poses_path.name
         rows = [_numbers(poses_path, i, line, 12, 'a 3x4 pose') for i, line in _lines(poses_path)]
         if len(rows) != n:
-            raise InputError(f'poses.txt: expected one pose per image ({n}), got {len(rows)}')
+            raise InputError(f'{name}: expected one pose per image ({n}), got {len(rows)}')
         poses = np.tile(np.eye(4), (n, 1, 1))
         poses[:, :3, :] = np.array(rows).reshape(n, 3, 4)
         # The rotation blocks must be rotations (KITTI writes them to about 1e-6): a scaled,
@@ -187,11 +207,11 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
         bad = np.flatnonzero((error > _ROTATION_TOLERANCE) | (np.linalg.det(R) <= 0.0))
         if bad.size:
             line = [i for i, _ in _lines(poses_path)][bad[0]]
-            raise InputError(f'poses.txt line {line}: expected a rotation matrix in the first '
+            raise InputError(f'{name} line {line}: expected a rotation matrix in the first '
                              f'3x3 block (orthonormal, determinant +1), got R^T R off the '
                              f'identity by {error[bad[0]]:.3g} and determinant '
                              f'{np.linalg.det(R[bad[0]]):.3g}')
-    return KittiSequence(images, P0, times, poses)
+    return KittiSequence(images, P0, times, poses, poses_path, tuple(sought))
 
 
 def _rotation_vector(R: np.ndarray) -> np.ndarray:
@@ -272,8 +292,8 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
         gt_poses, gt_twists = kitti_ground_truth(seq.poses, stamps, camera_height)
         if not np.all(np.isfinite(gt_twists)):
             i = int(np.flatnonzero(~np.all(np.isfinite(gt_twists), axis=1))[0])
-            raise InputError(f'poses.txt: the ground-truth velocity at frame {i} is not finite '
-                             f'(poses too far apart for their stamps)')
+            raise InputError(f'{seq.poses_path.name}: the ground-truth velocity at frame {i} is '
+                             f'not finite (poses too far apart for their stamps)')
 
     with CameraBagWriter(out_path, storage=storage, ground_truth=seq.poses is not None,
                          camera_frame=camera_frame, odom_frame=odom_frame,
@@ -294,7 +314,7 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
                            f'bad image')
             raise
     return KittiImportSummary(Path(out_path), n, camera, seq.poses is not None, int(stamps[0]),
-                              int(stamps[-1]))
+                              int(stamps[-1]), seq.poses_path, seq.poses_sought)
 
 
 def _read_png(path: Path) -> np.ndarray:

@@ -67,7 +67,13 @@ from planar_vo.pipeline.calibration import (
     focal_pitch,
     pair_road_normal,
 )
-from planar_vo.pipeline.clock import FrameClock, Stamp, StampCheck, format_stamp
+from planar_vo.pipeline.clock import (
+    FrameClock,
+    Stamp,
+    StampCheck,
+    format_stamp,
+    seconds_between,
+)
 from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator
 from planar_vo.pipeline.keyframes import Keyframe, KeyframeChain
 from planar_vo.pipeline.motion import (
@@ -399,7 +405,7 @@ class VisualOdometry:
         t = time.perf_counter()
         self.camera_pose, self._camera_cov, step_cov = compose(
             keyframe.pose, keyframe.covariance, est.R, est.t, est.basis,
-            self._motion_covariance(est, stamp - keyframe.stamp), scale, var_scale)
+            self._motion_covariance(est, seconds_between(stamp, keyframe.stamp)), scale, var_scale)
         self._bias = keyframe.bias + bias * (self.camera_pose[:3, 3] - keyframe.pose[:3, 3])
         distance = float(np.linalg.norm(self.camera_pose[:3, 3] - keyframe.pose[:3, 3]))
         if source in _METRIC_SOURCES and distance > 0.0:
@@ -765,7 +771,7 @@ class VisualOdometry:
         deviation of the step's relative error shared with the other steps (`_road_step`; a
         held speed keeps that of its step)."""
         cfg = self.config.scale
-        dt = stamp - keyframe.stamp
+        dt = seconds_between(stamp, keyframe.stamp)
         for source in (cfg.source, cfg.fallback):
             if source == 'speed':
                 d = self._speed.distance(keyframe.stamp, stamp)
@@ -917,8 +923,12 @@ class VisualOdometry:
         # (starting off, the first frames' 0.05-0.16 m/s pass for standing; rendered drive).
         # Before any metric step the threshold means no known speed: the speed of unknown
         # motion (odometry.lost_speed_std, as across a gap in tracking).
-        interval = stamp - self._last_out[0] if self._last_out is not None else math.nan
-        bound = self.config.keyframe.stationary_parallax / self._px_per_metre / interval
+        # (Stamps 1 ns apart are distinct frames: the interval is exact and positive; a user
+        # test's 1 ns repeat divided by a float difference of 0.)
+        interval = (seconds_between(stamp, self._last_out[0]) if self._last_out is not None
+                    else math.nan)
+        bound = (self.config.keyframe.stationary_parallax / self._px_per_metre / interval
+                 if interval > 0 else math.nan)
         if not math.isfinite(bound):
             bound = self.config.odometry.lost_speed_std
         speed_var = max(bound, 1e-3) ** 2
@@ -998,7 +1008,7 @@ class VisualOdometry:
         the covariance grows."""
         cfg = self.config.odometry
         last_stamp, last_pose = self._last_out if self._last_out else (stamp, self.camera_pose)
-        dt = max(stamp - last_stamp, 0.0)
+        dt = max(seconds_between(stamp, last_stamp), 0.0)
         T_bc = self._T_base_camera
         if hold:
             self.camera_pose = last_pose.copy()
@@ -1038,7 +1048,7 @@ class VisualOdometry:
         the two intervals' middles, measures the acceleration, so ``T/2`` times it enters the
         covariance (rank one, along the change); with a steady velocity only the means' noise
         does."""
-        dt = stamp - keyframe.stamp
+        dt = seconds_between(stamp, keyframe.stamp)
         if dt > 0:
             T_bc = self._T_base_camera
             rel = T_bc @ invert(keyframe.pose) @ self.camera_pose @ invert(T_bc)

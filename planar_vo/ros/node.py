@@ -1034,8 +1034,26 @@ class PlanarVoNode(Node):
             received = self._counters['speed_messages']
             line += (f'; {received} speed messages so far, none covering the image stamps '
                      f'(check the speed topic\'s stamps and clock)' if received else
-                     f'; no speed message received on {self._speed_sub.topic_name}')
+                     f'; no speed message received on {self._speed_sub.topic_name}'
+                     + self._speed_type_mismatch())
         return line
+
+    def _speed_type_mismatch(self) -> str:
+        """The publishers of the speed topic whose type is not the subscribed one, and the
+        ``ros.speed_topic_type`` that reads them ('' when there is none): a type mismatch
+        delivers nothing and says nothing (a user test: an Odometry topic with the default
+        twist type)."""
+        topic = self._speed_sub.topic_name
+        wanted = self._speed_sub.msg_type.__module__.split('.')[0]
+        wanted = f'{wanted}/msg/{self._speed_sub.msg_type.__name__}'
+        others = sorted({info.topic_type for info in self.get_publishers_info_by_topic(topic)
+                         if info.topic_type != wanted})
+        if not others:
+            return ''
+        hint = {'nav_msgs/msg/Odometry': ' (-p ros.speed_topic_type:=odometry reads it)',
+                'geometry_msgs/msg/TwistStamped': ' (-p ros.speed_topic_type:=twist reads it)'}
+        return (f": its publishers' type is {', '.join(others)}, not {wanted}"
+                + ''.join(hint.get(t, '') for t in others))
 
     def _warn(self, key: str, message: str) -> None:
         held = self._throttle.admit(key)
@@ -1269,6 +1287,19 @@ class _RosLogHandler(logging.Handler):
             logger.debug(message)
 
 
+def _stray_arguments(argv: Sequence[str]) -> list[str]:
+    """The arguments after the program name that are neither ROS arguments (inside a
+    ``--ros-args`` section) nor ``--help``; none when rcl cannot parse the ROS arguments
+    (`rclpy.init` then says why)."""
+    from rclpy.utilities import remove_ros_args
+
+    try:
+        rest = remove_ros_args(list(argv))
+    except RuntimeError:                    # rclpy's RCLError, as in `main`
+        return []
+    return [a for a in rest[1:] if a not in ('-h', '--help')]
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``--help`` prints `usage`; otherwise init, spin until SIGINT or SIGTERM,
     clean up (Jazzy idiom: try_shutdown in finally).
@@ -1281,6 +1312,15 @@ def main(args: list[str] | None = None) -> int:
     if {'-h', '--help'} & set(argv[1:ros_start]):
         print(usage())
         return 0
+    stray = _stray_arguments(argv)
+    if stray:
+        # Outside --ros-args rcl ignores them: the node would start on its defaults (a user
+        # test ran `planar_vo_node -p mount.height:=1.65` at the default 1.5 m).
+        print(f"planar_vo_node: unexpected argument(s) {' '.join(stray)!r} outside --ros-args:"
+              f' the node takes its parameters, remappings and parameter files after '
+              f'--ros-args (planar_vo_node --ros-args -p mount.height:=1.65); '
+              f'planar_vo_node --help lists them', file=sys.stderr)
+        return 1
     stop = _StopRequest()
     limit_blas_threads()        # idle OpenBLAS workers busy-wait: one thread is faster here
     try:

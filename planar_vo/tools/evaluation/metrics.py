@@ -343,9 +343,9 @@ class Evaluation:
         line = f'{a.method} (scale {a.scale:.6f})'
         if a.line_like:
             along, across = a.spread
-            line += (f'; the path is almost a line ({across:.2f} m across, {along:.1f} m along '
-                     f'it): the fit turns the estimate about it to absorb errors, so the ATE '
-                     f'reads low (--align origin does not)')
+            line += (f'; the path is almost a line (standard deviations {across:.2f} m across, '
+                     f'{along:.1f} m along it): the fit turns the estimate about it to absorb '
+                     f'errors, so the ATE reads low (--align origin does not)')
         return line
 
     def format_table(self) -> str:
