@@ -27,6 +27,9 @@ K = np.array([[500.0, 0.0, 320.0], [0.0, 510.0, 240.0], [0.0, 0.0, 1.0]])
 CAMERAS = {
     'none': CameraModel(640, 480, K),
     'plumb_bob': CameraModel(640, 480, K, 'plumb_bob', (-0.28, 0.07, 1e-3, -5e-4, -0.01)),
+    # A wide lens calibrated with OpenCV's rational model (k4 near k1, as such fits come out).
+    'rational_polynomial': CameraModel(640, 480, K, 'rational_polynomial',
+                                       (0.45, -0.12, 1e-3, -5e-4, 0.01, 0.75, -0.05, 0.02)),
     'equidistant': CameraModel(640, 480, K, 'equidistant', (0.05, -0.01, 0.002, -0.0005)),
 }
 
@@ -70,6 +73,34 @@ def test_camera_info_duck_typed():
     assert CameraModel.from_camera_info(msg) == CAMERAS['plumb_bob']
 
 
+def test_rational_polynomial_is_plumb_bob_with_a_radial_ratio_and_zero_padding_is_accepted(rng):
+    """OpenCV's rational model (a user test: refused, so the node had no camera model): with
+    k4 = k5 = k6 = 0 it is plumb_bob to the bit; drivers' zero-padded coefficient lists (8 for
+    plumb_bob, 14 for the rational model) mean the shorter model, and all zeros no distortion."""
+    x = rng.uniform(-0.6, 0.6, (100, 2))
+    plumb = CAMERAS['plumb_bob']
+    same = CameraModel(640, 480, K, 'rational_polynomial', plumb.D + (0.0, 0.0, 0.0))
+    for a, b in zip(plumb.distort(x), same.distort(x)):
+        np.testing.assert_array_equal(a, b)
+    # The radial factor is the ratio of the two polynomials.
+    rational = CAMERAS['rational_polynomial']
+    k1, k2, p1, p2, k3, k4, k5, k6 = rational.D
+    r2 = (x * x).sum(1)
+    numerator = 1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
+    radial = numerator / (1 + k4 * r2 + k5 * r2 ** 2 + k6 * r2 ** 3)
+    u, v = x.T
+    expected = np.stack([u * radial + 2 * p1 * u * v + p2 * (r2 + 2 * u * u),
+                         v * radial + p1 * (r2 + 2 * v * v) + 2 * p2 * u * v], -1)
+    np.testing.assert_allclose(rational.distort(x)[0], expected, rtol=1e-13, atol=1e-15)
+    msg = SimpleNamespace(width=640, height=480, k=K.ravel(), d=list(plumb.D) + [0.0] * 3,
+                          distortion_model='plumb_bob')
+    assert CameraModel.from_camera_info(msg) == plumb
+    msg.d, msg.distortion_model = list(rational.D) + [0.0] * 6, 'rational_polynomial'
+    assert CameraModel.from_camera_info(msg) == rational
+    msg.d = [0.0] * 8
+    assert CameraModel.from_camera_info(msg) == CAMERAS['none']
+
+
 def test_camera_info_binning_and_roi_give_the_images_model():
     """REP-104: K and the size are the full sensor's; the images are its ROI, binned."""
     full = np.array([[1414.2, 0.0, 1203.8], [0.0, 1414.2, 366.2], [0.0, 0.0, 1.0]])
@@ -94,9 +125,13 @@ def test_camera_info_binning_and_roi_give_the_images_model():
 
 @pytest.mark.parametrize(('changes', 'match'), [
     ({'k': np.zeros(9)}, r'K is all zeros \(uncalibrated camera\)'),
-    ({'distortion_model': 'rational_polynomial', 'd': [0.1] * 8},
-     r"distortion_model: expected one of \['none', 'plumb_bob', 'equidistant'\], "
-     r"got 'rational_polynomial'"),
+    ({'distortion_model': 'kannala_brandt', 'd': [0.1] * 4},
+     r"distortion_model: expected one of \['none', 'plumb_bob', 'rational_polynomial', "
+     r"'equidistant'\], got 'kannala_brandt'"),
+    ({'distortion_model': 'plumb_bob', 'd': [0.1, 0, 0, 0, 0, 0.2, 0, 0]},
+     r"D: expected 5 coefficients for 'plumb_bob', got 8"),
+    ({'distortion_model': 'rational_polynomial', 'd': [0.1] * 5},
+     r"D: expected 8 coefficients for 'rational_polynomial', got 5"),
     ({'distortion_model': 'equidistant', 'd': [0.1, 0.2]}, r"D: expected 4 coefficients"),
     ({'distortion_model': '', 'd': [0.1, 0, 0, 0, 0]}, r'without a distortion model'),
     ({'width': 0}, r'image size: expected positive integers, got 0x480'),

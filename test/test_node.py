@@ -464,7 +464,8 @@ def test_signals_during_the_clean_up_do_not_interrupt_it(prefix, ros_env, tmp_pa
     # QoS overrides: a misspelt policy (rclpy ignores it), values rclpy raises or rcl fails on.
     ('qos_overrides./image.subscription.reliabilty:=reliable',
      'unknown QoS override(s) qos_overrides./image.subscription.reliabilty: expected '
-     'qos_overrides.<topic>.subscription.<history|depth|reliability> for a topic the node '
+     'qos_overrides.<topic>.subscription.<history|depth|reliability|durability> for a topic '
+     'the node '
      'subscribes to (/image, /camera_info)'),
     ('qos_overrides./image.subscription.reliability:=bogus',
      "qos_overrides./image.subscription.reliability: 'bogus' is not a reliability policy"),
@@ -1262,6 +1263,41 @@ def test_a_reliable_image_override_leaves_the_speed_subscription_best_effort(loc
 
 
 @pytest.mark.timeout(60)
+def test_a_latched_camera_info_is_received_with_the_durability_override(local_node, drive_bag):
+    """A CameraInfo published once, reliable and transient-local (latched), before the node
+    starts: received through the reliability and durability overrides (a user test: the
+    durability override was refused and the images waited for a CameraInfo for ever)."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+    from sensor_msgs.msg import CameraInfo
+
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    info, _ = _bag_messages(drive_bag, 0)
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        driver = rclpy.create_node('latched_camera_info', context=context)
+        driver.create_publisher(CameraInfo, '/camera_info', latched).publish(info)
+        node = local_node({**MOUNT_PARAMS,
+                           'qos_overrides./camera_info.subscription.reliability': 'reliable',
+                           'qos_overrides./camera_info.subscription.durability':
+                               'transient_local'})
+        assert node._camera_info_sub.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        assert node._image_sub.qos_profile.durability == DurabilityPolicy.VOLATILE
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        deadline = time.monotonic() + 20.0
+        while node._camera is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        executor.remove_node(node)
+    finally:
+        rclpy.shutdown(context=context)
+    assert node._camera is not None and node._camera.fx == pytest.approx(CAMERA.fx)
+
+
+@pytest.mark.timeout(60)
 def test_implausible_camera_info_is_counted_and_the_last_valid_model_kept(local_node,
                                                                           drive_bag):
     """A CameraInfo with 100 times the focal length (a 0.7-degree field of view) and one whose
@@ -1528,6 +1564,27 @@ def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):
         assert 'listening on' not in proc.stdout + proc.stderr
         outputs.append(proc.stdout)
     assert outputs[0] == outputs[1]
+
+
+def test_the_executables_run_by_another_python_say_so_in_one_line(prefix, tmp_path):
+    """``#!/usr/bin/env python3`` finds the first python3 on PATH: without the venv active that
+    is one that lacks planar_vo (a user test: a traceback ending in ModuleNotFoundError)."""
+    import shutil
+    import subprocess
+
+    bare = tmp_path / 'bin'
+    bare.mkdir()
+    # A python3 of this interpreter without site-packages: it cannot import planar_vo.
+    (bare / 'python3').write_text(f'#!/bin/sh\nexec {sys.executable} -S -I "$@"\n')
+    (bare / 'python3').chmod(0o755)
+    env = {'PATH': f'{bare}:/usr/bin:/bin', 'HOME': str(tmp_path)}
+    assert shutil.which('python3', path=env['PATH']) == str(bare / 'python3')
+    for exe in ('planar_vo_node', 'planar_vo'):
+        proc = subprocess.run([str(prefix / 'lib/planar_vo' / exe), '--help'], env=env,
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 1 and proc.stdout == ''
+        assert proc.stderr.startswith(f'{exe}: ') and proc.stderr.count('\n') == 1, proc.stderr
+        assert 'cannot import planar_vo' in proc.stderr and 'activate the venv' in proc.stderr
 
 
 # -- hostile clocks and a fast speed topic (over DDS) ---------------------------------------------

@@ -48,7 +48,8 @@ class CameraConfig(Options):
         fx, fy, cx, cy: pinhole intrinsics in pixels; ``fx = 0`` means 'from CameraInfo' (or
             ``estimate_focal``), ``fy = 0`` 'the same as fx'; ``cx, cy = 0`` the image centre;
             a principal point outside the image is refused at the first image.
-        distortion_model: ``'none'``, ``'plumb_bob'`` or ``'equidistant'`` (ROS names).
+        distortion_model: ``'none'``, ``'plumb_bob'``, ``'rational_polynomial'`` or
+            ``'equidistant'`` (ROS names).
         distortion: coefficients in the ROS order for that model.
         estimate_focal: self-calibrate the focal length online when ``fx`` is 0, instead of
             CameraInfo (the node does not subscribe to it, replay leaves a bag's unused):
@@ -84,7 +85,8 @@ class CameraConfig(Options):
     fy: float = bounded(0.0, 0.0, expected='fx, fy >= 0 (0 = from CameraInfo)')
     cx: float = bounded(0.0, 0.0, expected='cx, cy >= 0 (0 = the image centre)')
     cy: float = bounded(0.0, 0.0, expected='cx, cy >= 0 (0 = the image centre)')
-    distortion_model: typing.Literal['none', 'plumb_bob', 'equidistant'] = 'none'
+    distortion_model: typing.Literal['none', 'plumb_bob', 'rational_polynomial',
+                                     'equidistant'] = 'none'
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
     focal_tolerance: float = bounded(0.02, 0.0, 1.0, low_open=True, high_open=True)

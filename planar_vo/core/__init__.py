@@ -3,7 +3,8 @@
 - `conventions`: frames (REP-103/105), rigid transforms and the planar-motion parametrisation,
   written once: camera optical frame x right, y down, z forward; ``X2 = Ry(alpha) X1 + t``,
   ``t = [cos beta, 0, sin beta]``.
-- `camera`: the camera model (pinhole, ``plumb_bob``, ``equidistant``) and normalisation;
+- `camera`: the camera model (pinhole, ``plumb_bob``, ``rational_polynomial``,
+  ``equidistant``) and normalisation;
   `homography`: plane-induced maps and their Jacobians (exact ACs).
 - `correspondences`: `AffineCorrespondences`, the one AC container.
 - `solvers`: the minimal solvers 1AC, 1ACf (the paper's), 2PC and 3PC.

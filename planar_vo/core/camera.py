@@ -1,4 +1,5 @@
-"""Camera model: pinhole intrinsics with ROS ``plumb_bob`` or ``equidistant`` distortion.
+"""Camera model: pinhole intrinsics with ROS ``plumb_bob``, ``rational_polynomial`` or
+``equidistant`` distortion.
 
 Everything is expressed as point maps with analytic Jacobians, so that affine correspondences can
 be moved between pixel, distorted and ideal normalised coordinates by the chain rule
@@ -9,6 +10,9 @@ Models (ROS ``sensor_msgs/CameraInfo`` names and coefficient order):
 
 - ``plumb_bob`` ``D = [k1, k2, p1, p2, k3]`` (Brown-Conrady): with ``r2 = x^2 + y^2``,
   ``x_d = x (1 + k1 r2 + k2 r2^2 + k3 r2^3) + 2 p1 x y + p2 (r2 + 2 x^2)`` and likewise for y.
+- ``rational_polynomial`` ``D = [k1, k2, p1, p2, k3, k4, k5, k6]`` (OpenCV's rational model):
+  as ``plumb_bob`` with the radial factor ``(1 + k1 r2 + k2 r2^2 + k3 r2^3) / (1 + k4 r2 + k5
+  r2^2 + k6 r2^3)``.
 - ``equidistant`` ``D = [k1, k2, k3, k4]`` (Kannala-Brandt fisheye): ``theta = atan(r)``,
   ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``,
   ``x_d = (theta_d / r) x``.
@@ -34,17 +38,19 @@ __all__ = [
     'normalize_points',
 ]
 
-DISTORTION_MODELS = {'none': 0, 'plumb_bob': 5, 'equidistant': 4}
+DISTORTION_MODELS = {'none': 0, 'plumb_bob': 5, 'rational_polynomial': 8, 'equidistant': 4}
 
 # Plausible fields of view of real lenses, for `CameraModel.check_plausible` (degrees, across
 # the image's width or height). The narrowest: a 3-degree view is a 700 mm lens on a full-frame
 # sensor (a 100x wrong focal length turns a 60-degree camera into one of 0.6 degrees); nothing
 # narrower is mounted on a vehicle, and no image of such a lens holds the road that planar
-# odometry needs. The widest: a rectilinear (pinhole, plumb_bob) lens cannot reach 180 degrees,
-# and the widest ones built cover about 130 (160 leaves room for calibrations of fisheye lenses
-# with plumb_bob); the widest fisheye lenses built cover about 220-280 degrees.
+# odometry needs. The widest: a rectilinear (pinhole, plumb_bob, rational_polynomial) lens
+# cannot reach 180 degrees, and the widest ones built cover about 130 (160 leaves room for
+# calibrations of fisheye lenses with plumb_bob or the rational model); the widest fisheye lenses
+# built cover about 220-280 degrees.
 MIN_FIELD_OF_VIEW_DEG = 3.0
-MAX_FIELD_OF_VIEW_DEG = {'none': 160.0, 'plumb_bob': 160.0, 'equidistant': 280.0}
+MAX_FIELD_OF_VIEW_DEG = {'none': 160.0, 'plumb_bob': 160.0, 'rational_polynomial': 160.0,
+                         'equidistant': 280.0}
 _UNDISTORT_ITERATIONS = 20
 # The largest plausible skew, as a share of fx (a pixel shear of 5.7 degrees; real cameras: 0).
 _MAX_SKEW = 0.1
@@ -52,9 +58,13 @@ _MAX_SKEW = 0.1
 
 def fits_distortion_model(model: str, D) -> bool:
     """Whether the coefficients ``D`` suit the distortion model (`DISTORTION_MODELS`): their
-    count, 4 also for ``plumb_bob`` (k3 = 0), and any all-zero list for ``none``."""
+    count, 4 also for ``plumb_bob`` (k3 = 0), more when the extra ones are zero for
+    ``plumb_bob`` and ``rational_polynomial`` (drivers publish the 8 or 14 entries of OpenCV's
+    larger models), and any all-zero list for ``none``."""
     n = DISTORTION_MODELS[model]
-    return len(D) == n or (model == 'plumb_bob' and len(D) == 4) or (n == 0 and not any(D))
+    padded = model in ('plumb_bob', 'rational_polynomial') and len(D) > n and not any(D[n:])
+    return (len(D) == n or (model == 'plumb_bob' and len(D) == 4) or padded
+            or (n == 0 and not any(D)))
 
 
 @dataclass(frozen=True)
@@ -93,7 +103,9 @@ class CameraModel:
             raise CameraModelError(f"D: expected {n} coefficients for '{self.distortion_model}', "
                                    f'got {len(D)}')
         if self.distortion_model == 'plumb_bob':
-            D = D + (0.0,) * (5 - len(D))
+            D = (D + (0.0,) * (5 - len(D)))[:5]
+        elif self.distortion_model == 'rational_polynomial':
+            D = D[:8]
         if not np.all(np.isfinite(D)):
             raise CameraModelError(f'D: expected finite coefficients, got {list(D)}')
         K = K.copy()
@@ -159,7 +171,7 @@ class CameraModel:
                                                                     [0.0, 0.0, y0],
                                                                     [0.0, 0.0, 0.0]]) * k[2, 2])
             width, height = roi_w // bx, roi_h // by
-        if model == '' or (model == 'plumb_bob' and not any(d)):
+        if model == '' or (model in ('plumb_bob', 'rational_polynomial') and not any(d)):
             if any(d):
                 raise CameraModelError(f'camera_info: distortion coefficients {list(d)} given '
                                        f'without a distortion model')
@@ -279,6 +291,8 @@ class CameraModel:
             return x.copy(), np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
         if self.distortion_model == 'plumb_bob':
             return _distort_plumb_bob(x, self.D)
+        if self.distortion_model == 'rational_polynomial':
+            return _distort_rational(x, self.D)
         return _distort_equidistant(x, self.D)
 
     def undistort(self, xd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -386,6 +400,26 @@ def _distort_plumb_bob(x: np.ndarray, D: tuple[float, ...]) -> tuple[np.ndarray,
     r2 = u * u + v * v
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)          # d radial / d r2
+    return _brown_conrady(x, u, v, r2, radial, dradial, p1, p2)
+
+
+def _distort_rational(x: np.ndarray, D: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    k1, k2, p1, p2, k3, k4, k5, k6 = D
+    u, v = x[:, 0], x[:, 1]
+    r2 = u * u + v * v
+    num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    dnum = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+    dden = k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        radial = num / den
+        dradial = (dnum * den - num * dden) / (den * den)    # d radial / d r2
+    return _brown_conrady(x, u, v, r2, radial, dradial, p1, p2)
+
+
+def _brown_conrady(x, u, v, r2, radial, dradial, p1, p2) -> tuple[np.ndarray, np.ndarray]:
+    """The distorted points and Jacobian of a radial factor (``radial`` and its derivative
+    with respect to ``r2``) and the tangential terms ``p1, p2``."""
     xd = u * radial + 2.0 * p1 * u * v + p2 * (r2 + 2.0 * u * u)
     yd = v * radial + p1 * (r2 + 2.0 * v * v) + 2.0 * p2 * u * v
     J = np.empty((x.shape[0], 2, 2))

@@ -6,8 +6,8 @@ Both corrections are smooth per-image point maps ``g`` and act on an AC by the c
     p1' = g(p1),  p2' = g(p2),  A' = J_g(p2) A J_g(p1)^-1
 
 - Undistortion: distorted pixels -> pixels of the ideal pinhole camera with the same ``K``,
-  ``p' = K undistort(K^-1 p)`` (`planar_vo.core.camera.CameraModel`, ``plumb_bob`` or
-  ``equidistant``).
+  ``p' = K undistort(K^-1 p)`` (`planar_vo.core.camera.CameraModel`, ``plumb_bob``,
+  ``rational_polynomial`` or ``equidistant``).
 - Levelling (`leveling_rotation`, applied by `AffineCorrespondences.mapped`: to normalised ACs
   as the pipeline does, or to pixels by `level_acs`): the camera is mounted with pitch and roll
   (`planar_vo.config.MountConfig`: the optical frame rotated by ``Rz(yaw) Ry(pitch) Rx(roll)``

@@ -75,7 +75,14 @@ from rcl_interfaces.msg import (
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSPolicyKind,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -172,12 +179,16 @@ def _drops(outcomes: Counter[str]) -> dict[str, int]:
     return {k: v for k, v in sorted(outcomes.items()) if k not in ('ok', _FIRST_FRAME) and v}
 
 
-# The QoS policies the subscriptions let `qos_overrides.*` change, and the values rclpy knows.
-_QOS_POLICIES = tuple(kind.name.lower() for kind in
-                      QoSOverridingOptions.with_default_policies().policy_kinds)
+# The QoS policies the subscriptions let `qos_overrides.*` change (rclpy's defaults and the
+# durability: a CameraInfo published once, latched, needs a transient-local reliable
+# subscription; a user test found it never received), and the values rclpy knows.
+_QOS_KINDS = (*QoSOverridingOptions.with_default_policies().policy_kinds,
+              QoSPolicyKind.DURABILITY)
+_QOS_POLICIES = tuple(kind.name.lower() for kind in _QOS_KINDS)
 _QOS_POLICY_VALUES = {
     policy: tuple(name.lower() for name in enum.__members__ if name != 'UNKNOWN')
-    for policy, enum in (('history', HistoryPolicy), ('reliability', ReliabilityPolicy))}
+    for policy, enum in (('history', HistoryPolicy), ('reliability', ReliabilityPolicy),
+                         ('durability', DurabilityPolicy))}
 # The parameters `usage` lists (the parameter file has them all).
 _MAIN_PARAMETERS = ('scale.source', 'mount.height', 'mount.pitch', 'camera.fx',
                     'camera.estimate_focal', 'ros.image_transport', 'ros.publish_tf',
@@ -275,7 +286,7 @@ class PlanarVoNode(Node):
         # parameters change it, e.g. to reliable for images too large for best-effort delivery.
         # rclpy writes the overrides into the profile it is given: every subscription gets its
         # own (a reliable image must not make the speed subscription reliable too).
-        overriding = QoSOverridingOptions.with_default_policies()
+        overriding = QoSOverridingOptions(_QOS_KINDS)
         self._check_qos_values()
         if ros.image_transport == 'compressed':
             self._image_sub = self.create_subscription(
