@@ -151,8 +151,9 @@ def play(bag_path: str, topics: list[str] | None, compress_fmt: str | None, rate
                 if time.monotonic() > deadline:
                     waiting = [p.topic_name for p, _ in publishers.values()
                                if p.get_subscription_count() == 0]
-                    print(f'player: no subscriber on {", ".join(waiting)} after {timeout} s',
-                          file=sys.stderr)
+                    print(f'player: no subscriber on {", ".join(waiting)} after {timeout} s '
+                          f'(it waits for one on every topic it plays: choose them with '
+                          f'--topics)', file=sys.stderr)
                     return 1
                 rclpy.spin_once(node, timeout_sec=0.02)
             print('player: ready', flush=True)

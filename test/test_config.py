@@ -25,6 +25,19 @@ def test_yaml_file_mirrors_dataclass_defaults():
     assert (ROOT / 'config' / 'planar_vo.yaml').read_text() == to_ros_yaml()
 
 
+def test_the_robot_localization_recipe_fuses_the_twist_of_the_remapped_odometry():
+    """Not the pose in differential mode (a user test): robot_localization derives that
+    velocity's covariance from the poses', which grow with the distance driven."""
+    import yaml
+
+    params = yaml.safe_load((ROOT / 'config' / 'robot_localization_ekf.yaml').read_text())
+    params = params['ekf_filter_node']['ros__parameters']
+    fused = [i for i, on in enumerate(params['odom1_config']) if on]
+    assert fused == [6, 7, 11]                       # vx, vy, vyaw
+    assert params['odom1_differential'] is False and params['odom1'] == '/vo/odom'
+    assert '-r odom:=/vo/odom' in (ROOT / 'README.md').read_text()
+
+
 def test_generated_yaml_round_trips(tmp_path):
     config = PlanarVoConfig.from_dict({'voting': {'bins': 360}, 'camera': {
         'distortion_model': 'plumb_bob', 'distortion': [0.1, -0.05, 0.0, 0.0, 0.01]}})

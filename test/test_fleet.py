@@ -137,8 +137,18 @@ def test_rows_failures_and_report(drives, fleet_run):
             assert row['path_m'] == pytest.approx(drives['distance'][bag], rel=1e-9)
             assert row['ate_sim3_m'] < 0.01 * row['path_m']
             assert 0.0 <= row['yaw_err_mean_deg'] < 0.1
-            # Drives under 100 m have no KITTI segment: null, not a number.
-            assert row['t_rel_pct'] is None and row['r_rel_deg100m'] is None
+            # Drives under 100 m have no segment of 100-800 m: their drift is the one eval
+            # reports on 10-50 m segments (a user test: the fleet showed none), or null.
+            metrics = json.loads((out / row['run_dir'] / 'evaluation' / 'metrics.json')
+                                 .read_text())
+            assert not metrics['kitti']['segments']
+            short = metrics.get('kitti_short') or {}
+            if short.get('segments'):
+                assert (row['t_rel_pct'], row['r_rel_deg100m'], row['drift_segments']) == (
+                    short['t_rel_pct'], short['r_rel_deg_per_100m'], '10-50 m')
+            else:
+                assert (row['t_rel_pct'], row['r_rel_deg100m'], row['drift_segments']) == (
+                    None, None, None)
             assert (out / row['odometry'] / 'metadata.yaml').exists()
             assert (out / row['tum']).stat().st_size > 0
             assert (out / row['run_dir'] / 'evaluation' / 'metrics.json').exists()
@@ -206,7 +216,8 @@ def test_each_result_equals_a_single_replay_and_eval(drives, fleet_run, tmp_path
         assert row['ate_sim3_m'] == mine['ate_m']['rmse']
         assert row['yaw_err_mean_deg'] == mine['yaw_change_error_deg']['mean']
         assert row['path_m'] == mine['path_length_m']
-        assert (row['t_rel_pct'], row['r_rel_deg100m']) == tuple(kitti_fields(mine).values())
+        assert (row['t_rel_pct'], row['r_rel_deg100m'], row['drift_segments']) == tuple(
+            kitti_fields(mine).values())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -611,11 +622,31 @@ def test_kitti_fields_are_the_evaluations_kitti_drift():
     est_poses = poses.copy()
     est_poses[:, 0, 3] *= 1.01
     metrics = evaluate(ref, Trajectory.from_poses(stamps, est_poses)).metrics()
-    if 'kitti' not in metrics:
-        pytest.skip("Evaluation.metrics()['kitti'] comes with main's kitti_drift (f2b94f9)")
     fields = kitti_fields(metrics)
     assert fields['t_rel_pct'] == pytest.approx(1.0, abs=1e-9)
     assert fields['r_rel_deg100m'] == pytest.approx(0.0, abs=1e-9)
+    assert fields['drift_segments'] == '100-800 m'
+    # A 60 m drive: the 10-50 m segments eval reports for it; 5 m: none at all.
+    for length, expected in ((61, {'t_rel_pct': pytest.approx(1.0, abs=1e-9),
+                                   'r_rel_deg100m': pytest.approx(0.0, abs=1e-9),
+                                   'drift_segments': '10-50 m'}),
+                             (6, {'t_rel_pct': None, 'r_rel_deg100m': None,
+                                  'drift_segments': None})):
+        short = evaluate(Trajectory.from_poses(stamps[:length], poses[:length]),
+                         Trajectory.from_poses(stamps[:length], est_poses[:length])).metrics()
+        assert kitti_fields(short) == expected
+    # The report's per-configuration means leave the short drive out, its row names its
+    # segments.
+    from planar_vo.tools.fleet_report import _drift_cell, aggregate
+    from planar_vo.tools.markdown import format_cell
+    rows = [{'status': 'ok', 'wall_s': 1.0, 'frames_in': 1, 'odom_out': 1, 'path_m': 300.0,
+             'yaw_err_mean_deg': 0.0, 'ate_sim3_m': 0.1, 'bag': 'a', **fields},
+            {'status': 'ok', 'wall_s': 1.0, 'frames_in': 1, 'odom_out': 1, 'path_m': 60.0,
+             'yaw_err_mean_deg': 0.0, 'ate_sim3_m': 0.1, 'bag': 'b', 't_rel_pct': 5.0,
+             'r_rel_deg100m': 2.0, 'drift_segments': '10-50 m'}]
+    assert aggregate(rows)['t_rel_pct'] == pytest.approx(1.0, abs=1e-9)
+    assert _drift_cell(rows[1], 't_rel_pct') == '5 (10-50 m)'
+    assert _drift_cell(rows[0], 't_rel_pct') == format_cell(rows[0]['t_rel_pct'])
 
 
 def test_bench_fleet_measures_the_three_setups(tmp_path, capsys):
