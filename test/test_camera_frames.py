@@ -129,7 +129,8 @@ def test_camera_info_binning_and_roi_give_the_images_model():
      r"distortion_model: expected one of \['none', 'plumb_bob', 'rational_polynomial', "
      r"'equidistant'\], got 'kannala_brandt'"),
     ({'distortion_model': 'plumb_bob', 'd': [0.1, 0, 0, 0, 0, 0.2, 0, 0]},
-     r"D: expected 5 coefficients for 'plumb_bob', got 8"),
+     r"D: expected 5 coefficients for 'plumb_bob' \(more only if the extra ones are 0\), "
+     r"got 8"),
     ({'distortion_model': 'rational_polynomial', 'd': [0.1] * 5},
      r"D: expected 8 coefficients for 'rational_polynomial', got 5"),
     ({'distortion_model': 'equidistant', 'd': [0.1, 0.2]}, r"D: expected 4 coefficients"),

@@ -112,7 +112,7 @@ def test_the_download_layout_keeps_the_poses_apart_and_a_missing_ground_truth_is
     summary = import_kitti(seq, tmp_path / 'bag', camera_height=1.65)
     assert summary.ground_truth
     assert summary.format().endswith(
-        f"/ground_truth/odom (from {(tmp_path / 'dataset' / 'poses' / '06.txt').resolve()})")
+        f"/ground_truth/odom (from {tmp_path / 'dataset' / 'poses' / '06.txt'})")
     with open_bag(tmp_path / 'bag') as bag:
         gt = list(iter_messages(bag, '/ground_truth/odom'))
     poses = np.array([pose_from_message(g.msg) for g in gt])
@@ -124,7 +124,12 @@ def test_the_download_layout_keeps_the_poses_apart_and_a_missing_ground_truth_is
     assert not summary.ground_truth
     assert summary.format().endswith(
         f"; no ground truth (no {other / 'poses.txt'} nor "
-        f"{(tmp_path / 'dataset' / 'poses' / '11.txt').resolve()})")
+        f"{tmp_path / 'dataset' / 'poses' / '11.txt'})")
+    # A sequence folder linked into the tree from elsewhere is in the tree (a review).
+    _write_sequence(tmp_path / 'elsewhere' / '07', rng)
+    (tmp_path / 'elsewhere' / '07' / 'poses.txt').rename(tmp_path / 'dataset' / 'poses' / '07.txt')
+    (tmp_path / 'dataset' / 'sequences' / '07').symlink_to(tmp_path / 'elsewhere' / '07')
+    assert import_kitti(tmp_path / 'dataset' / 'sequences' / '07', tmp_path / 'bag07').ground_truth
     # A folder outside such a tree only has its own poses.txt to look for.
     _write_sequence(tmp_path / 'loose', rng, poses=False)
     summary = import_kitti(tmp_path / 'loose', tmp_path / 'bag_loose')

@@ -1,7 +1,9 @@
 """``planar_vo import-kitti``: a KITTI odometry sequence folder -> a ROS 2 bag.
 
 Writes /camera/image_raw (mono8), /camera/camera_info (K from P0 of calib.txt, no distortion)
-and, when poses.txt exists, /ground_truth/odom in REP-103 frames: base_link is the camera
+and, when poses.txt exists (in the folder, or as dataset/poses/<seq>.txt beside
+dataset/sequences/<seq>/ in the KITTI download), /ground_truth/odom in REP-103 frames: base_link
+is the camera
 projected to the ground (CAMERA_HEIGHT below it; x forward, y left, z up), odom is base_link at
 the pose poses.txt counts from (the first frame of a whole KITTI sequence; a cut-out keeps its
 sequence's frame, as planar_vo eval aligns the trajectories anyway). Stamps are times.txt (or
@@ -33,7 +35,8 @@ def register(subparsers) -> argparse.ArgumentParser:
     # 'DIR: ...').
     parser.add_argument('sequence', metavar='DIR',
                         help='sequence folder with image_0/ (or image_l/), calib.txt, times.txt '
-                             'and optionally poses.txt')
+                             'and optionally poses.txt (or dataset/poses/<seq>.txt beside '
+                             'dataset/sequences/<seq>/)')
     parser.add_argument('--out', required=True, metavar='BAG',
                         help='output bag directory (must not exist)')
     parser.add_argument('--storage', choices=list(STORAGES), default='mcap',

@@ -104,7 +104,9 @@ class CameraConfig(Options):
         count = DISTORTION_MODELS[self.distortion_model]
         self._require(fits_distortion_model(self.distortion_model, self.distortion), 'distortion',
                       f"{count} coefficients for distortion_model '{self.distortion_model}'"
-                      + (' (or 4: k3 = 0)' if self.distortion_model == 'plumb_bob' else ''))
+                      + (' (or 4: k3 = 0)' if self.distortion_model == 'plumb_bob' else '')
+                      + (' (more only if the extra ones are 0)' if self.distortion_model in
+                         ('plumb_bob', 'rational_polynomial') else ''))
         self._require(self.focal_max_blocks >= self.focal_min_blocks, 'focal_max_blocks',
                       'at least focal_min_blocks')
         self._require(self.fy == 0 or self.fx > 0, 'fy', '0 while fx is 0 (fy is used with fx '

@@ -100,8 +100,10 @@ class CameraModel:
                                    f'({err})') from err
         n = DISTORTION_MODELS[self.distortion_model]
         if not fits_distortion_model(self.distortion_model, D):
-            raise CameraModelError(f"D: expected {n} coefficients for '{self.distortion_model}', "
-                                   f'got {len(D)}')
+            padding = (' (more only if the extra ones are 0)' if self.distortion_model in
+                       ('plumb_bob', 'rational_polynomial') and len(D) > n else '')
+            raise CameraModelError(f"D: expected {n} coefficients for '{self.distortion_model}'"
+                                   f'{padding}, got {len(D)}')
         if self.distortion_model == 'plumb_bob':
             D = (D + (0.0,) * (5 - len(D)))[:5]
         elif self.distortion_model == 'rational_polynomial':
@@ -136,9 +138,10 @@ class CameraModel:
     def from_camera_info(cls, msg: Any) -> CameraModel:
         """From a ``sensor_msgs/CameraInfo`` (rclpy or rosbags message; duck-typed).
 
-        An empty distortion model with all-zero ``d`` is read as ``'none'``; ``rational_polynomial``
-        and other models are rejected with `CameraModelError`, and so are implausible intrinsics
-        (`check_plausible`).
+        The models of `DISTORTION_MODELS` are read (``plumb_bob``, ``rational_polynomial``,
+        ``equidistant``; a coefficient list padded with zeros as the shorter model, all zeros
+        and an empty model with all-zero ``d`` as ``'none'``); other models are rejected with
+        `CameraModelError`, and so are implausible intrinsics (`check_plausible`).
 
         Binning and region of interest (REP-104): ``width``, ``height`` and ``K`` describe the
         full-resolution sensor, the images are its ``roi`` (0 width: all of it) binned by

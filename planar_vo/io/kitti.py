@@ -71,7 +71,7 @@ class KittiSequence:
         images: PNG paths in frame order.
         P0: ``(3, 4)`` projection matrix of camera 0.
         times: per image, seconds as exact decimals (None when not given).
-        poses: ``(N, 4, 4)`` ``T_w_cam`` (None without ``poses.txt``).
+        poses: ``(N, 4, 4)`` ``T_w_cam`` (None without a poses file).
         poses_path: the file the poses came from (None without one).
         poses_sought: the files looked for (to say what is missing).
     """
@@ -189,9 +189,11 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
 
     poses = None
     sought = [folder / 'poses.txt']
-    parent = folder.resolve().parent
-    if parent.name == 'sequences':              # dataset/sequences/06 -> dataset/poses/06.txt
-        sought.append(parent.parent / 'poses' / f'{folder.resolve().name}.txt')
+    # dataset/sequences/06 -> dataset/poses/06.txt (as given: a symlinked sequence folder
+    # stays in its tree).
+    where = folder.absolute()
+    if where.parent.name == 'sequences':
+        sought.append(where.parent.parent / 'poses' / f'{where.name}.txt')
     poses_path = next((path for path in sought if path.is_file()), None)
     if poses_path is not None:
         name = poses_path.name

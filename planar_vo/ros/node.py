@@ -870,6 +870,8 @@ class PlanarVoNode(Node):
         px, std, source = self._vo.focal_length()
         if source == 'unknown' and self._camera is not None:
             px, std, source = self._camera.fx, 0.0, 'camera_info'
+        if source == 'unknown':
+            px = std = 'n/a'        # not NaN and infinity, read as a fault (a review)
         return {'focal_px': px, 'focal_std_px': std, 'focal_source': source,
                 'focal': self._vo.focal_status() if line is None else line}
 

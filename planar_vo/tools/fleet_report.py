@@ -119,8 +119,9 @@ def plot_drift(rows: Sequence[dict], path: Path, names: dict[str, str], configs:
     colours = [f'C{configs.index(r["config"]) % 10}' for r in rows]
     panels = [(axes[0], [_ate_pct(r) for r in rows], 'ATE sim(3) (% of path)')]
     if kitti:
-        panels.append((axes[1], [(r['t_rel_pct'] or 0.0) if _long(r) else 0.0 for r in rows],
-                       'KITTI t_rel (%)'))
+        # No bar where there is no 100-800 m figure (a 0 would read as no drift).
+        panels.append((axes[1], [r['t_rel_pct'] if r['t_rel_pct'] is not None and _long(r)
+                                 else math.nan for r in rows], 'KITTI t_rel (%)'))
     for ax, values, title in panels:
         ax.barh(y, values, color=colours)
         ax.set_xlabel(title)
