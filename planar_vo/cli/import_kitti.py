@@ -2,12 +2,11 @@
 
 Writes /camera/image_raw (mono8), /camera/camera_info (K from P0 of calib.txt, no distortion)
 and, when poses.txt exists (in the folder, or as dataset/poses/<seq>.txt beside
-dataset/sequences/<seq>/ in the KITTI download), /ground_truth/odom in REP-103 frames: base_link
-is the camera
-projected to the ground (CAMERA_HEIGHT below it; x forward, y left, z up), odom is base_link at
-the pose poses.txt counts from (the first frame of a whole KITTI sequence; a cut-out keeps its
-sequence's frame, as planar_vo eval aligns the trajectories anyway). Stamps are times.txt (or
---rate-hz) plus --start seconds.
+dataset/sequences/<seq>/ in the KITTI download), /ground_truth/odom in REP-103 frames:
+base_link is the camera projected to the ground (CAMERA_HEIGHT below it; x forward, y left, z
+up), odom is base_link at the pose poses.txt counts from (the first frame of a whole KITTI
+sequence; a cut-out keeps its sequence's frame, as planar_vo eval aligns the trajectories
+anyway). Stamps are times.txt (or --rate-hz) plus --start seconds.
 """
 
 from __future__ import annotations
