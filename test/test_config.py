@@ -157,6 +157,13 @@ def test_invalid_values_are_reported_with_their_key(data, match):
         PlanarVoConfig.from_dict(data)
 
 
+def test_from_flat_needs_a_mapping():
+    # (a user test: None gave a TypeError from dict())
+    with pytest.raises(ConfigError, match=r'^config: expected a mapping of dotted keys, got '
+                                          r'NoneType$'):
+        PlanarVoConfig.from_flat(None)
+
+
 def test_config_is_frozen():
     config = PlanarVoConfig()
     with pytest.raises(AttributeError):

@@ -250,6 +250,20 @@ def test_garbage_is_flagged_not_answered():
     assert not est.reliable and est.flag is not None
 
 
+def test_wrong_arguments_are_typed_errors():
+    """Arrays instead of ACs, and levelled ACs of another length (a user test: an
+    AttributeError, and 'no_vote' without saying why)."""
+    from planar_vo.errors import InputError
+
+    s = street_pair(np.random.default_rng(11), 100)
+    level = s.normalized.mapped(s.level)
+    with pytest.raises(InputError, match=r'^acs: expected AffineCorrespondences, got ndarray$'):
+        MotionEstimator().estimate(s.normalized.p1, level)
+    with pytest.raises(InputError, match=rf'^level: expected the {len(level)} ACs of acs '
+                                         rf'levelled, got 10$'):
+        MotionEstimator().estimate(s.normalized, level.subset(np.arange(10)))
+
+
 def test_history_sets_the_prior_from_the_measured_non_planarity():
     rng = np.random.default_rng(11)
     estimator = MotionEstimator()

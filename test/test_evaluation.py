@@ -449,6 +449,11 @@ def test_covariance_consistency_is_each_error_over_its_reported_deviation(rng):
     # No usable covariance (all zeros: a topic that does not fill it): said so.
     none = covariance_consistency(ref, est, np.zeros((40, 6, 6)))
     assert none['frames'] == 0 and 'no pose after the first' in none['reason']
+    # One pose after the first (a two-frame drive): too few, not 'no variance' (a user test).
+    two = covariance_consistency(Trajectory(ref.stamps_ns[:2], ref.poses[:2]),
+                                 Trajectory(est.stamps_ns[:2], est.poses[:2]), covariances[:2])
+    assert two == {'frames': 0, 'reason': 'needs at least 2 poses after the first with a '
+                                          'positive variance on an axis, got 1'}
     with pytest.raises(InputError, match=r'covariances: expected shape \(40, 6, 6\)'):
         covariance_consistency(ref, est, covariances[1:])
 
@@ -516,6 +521,9 @@ def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
     ]
     path, _, _ = _bag_with(tmp_path, rng, topics=('/odom',))
     cases.append((['eval', str(path)], "error: --gt-topic: '/ground_truth/odom' is not a topic of"))
+    # Neither --gt nor --gt-topic given: the message says what to give (a user test).
+    cases.append((['eval', str(path)], '; EST has no ground truth: give it with --gt (a TUM '
+                                       'file or a bag), and its topic with --gt-topic'))
     # Errors of the evaluation itself name the arguments as typed: EST, --gt (--gt-topic when
     # the ground truth is in the EST bag), --max-diff.
     write_tum(tmp_path / 'parked.tum', Trajectory.from_poses(gt.stamps_ns, np.tile(np.eye(4),
@@ -582,6 +590,13 @@ def test_kitti_drift_is_zero_for_the_truth_and_ten_percent_for_a_scale_of_1_1():
     assert kitti_drift(ref, long)['t_rel_pct'] == pytest.approx(10.0, abs=1e-9)
     assert kitti_drift(ref, long, planar=True)['t_rel_pct'] == pytest.approx(10.0, abs=1e-9)
     assert math.isnan(kitti_drift(ref.subset(slice(0, 50)), ref.subset(slice(0, 50)))['t_rel_pct'])
+    # Unassociated trajectories are an error, not NaN (a user test); so is an array given to
+    # evaluate.
+    with pytest.raises(InputError, match=r'ref, est: expected associated trajectories of one '
+                                         r'length, got 351 and 10 poses'):
+        kitti_drift(ref, ref.subset(slice(0, 10)))
+    with pytest.raises(InputError, match=r'^ref: expected a Trajectory .*, got ndarray$'):
+        evaluate(ref.poses, ref)
 
 
 def test_frame_pairs_across_dropped_frames_are_not_per_frame_errors():

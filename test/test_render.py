@@ -384,6 +384,14 @@ def test_concatenate_chains_segments_without_duplicates():
     (lambda: concatenate(), r'segments: expected at least one Trajectory'),
     (lambda: Trajectory.from_poses(np.zeros(2), np.broadcast_to(np.eye(4), (2, 4, 4))),
      r'stamps: expected strictly increasing times'),
+    # Not rigid transforms (a user test: evaluated as some other trajectory without a word).
+    (lambda: Trajectory.from_poses(np.arange(2.0), np.stack([np.diag([3.0, 3.0, 3.0, 1.0])] * 2)),
+     r'poses: expected rigid transforms .* got pose 0 with R\^T R off the identity by 8, '
+     r'determinant 27'),
+    (lambda: Trajectory.from_poses(np.arange(2.0), np.stack([np.eye(4), 2.0 * np.eye(4)])),
+     r'got pose 1 .* bottom row \[0.0, 0.0, 0.0, 2.0\]'),
+    (lambda: Trajectory.from_poses(np.arange(1.0), np.diag([1.0, 1.0, -1.0, 1.0])[None]),
+     r'got pose 0 with R\^T R off the identity by 0, determinant -1'),
     (lambda: StreetWorld.along(np.zeros((3, 3))), r'path: expected shape \(N, 2\), got \(3, 3\)'),
     (lambda: StreetWorld.along(straight(), setback=(9.0, 7.0)),
      r'setback: expected a range 0 <= low <= high \(m\), got \(9.0, 7.0\)'),

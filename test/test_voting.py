@@ -207,7 +207,8 @@ def test_input_errors(rng):
         vote_planar_motion(q1, q2, A, weights=np.ones((100, 1)))
     with pytest.raises(InputError, match=r'same number of items: q1 has 100, weights has 99'):
         vote_planar_motion(q1, q2, A, weights=np.ones(99))
-    with pytest.raises(ConfigError, match=r'weights: expected non-negative values'):
+    # An array input: InputError like the NaN weights (a user test: it was a ConfigError).
+    with pytest.raises(InputError, match=r'weights: expected non-negative values'):
         vote_planar_motion(q1, q2, A, weights=-np.ones(100))
     with pytest.raises(ConfigError, match=r'config: expected VotingConfig, got dict'):
         vote_planar_motion(q1, q2, A, config={'bins': 360})

@@ -127,7 +127,14 @@ def run(args: argparse.Namespace) -> int:
         if not is_bag_path(args.est):
             raise InputError('--gt: expected GT when EST is a TUM file, got none')
         gt_path = args.est
-    ref = _load(gt_path, args.gt_topic, '--gt', '--gt-topic')
+    try:
+        ref = _load(gt_path, args.gt_topic, '--gt', '--gt-topic')
+    except PlanarVoError as err:
+        if args.gt is None and 'is not a topic of' in str(err):
+            # A user test: neither option was given, yet the message named --gt-topic only.
+            err.args = (f'{err}; EST has no ground truth: give it with --gt (a TUM file or a '
+                        f'bag), and its topic with --gt-topic',)
+        raise
     evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
                           segment_lengths=tuple(args.segments),
                           names={'ref': '--gt-topic' if args.gt is None else '--gt', 'est': 'EST',

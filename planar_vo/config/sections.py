@@ -25,6 +25,7 @@ from typing import Any
 from planar_vo.core.camera import DISTORTION_MODELS, fits_distortion_model
 from planar_vo.core.options import Options, bounded, finite, nest_dotted
 from planar_vo.core.robust.options import EstimatorConfig, VotingConfig
+from planar_vo.errors import ConfigError
 
 __all__ = [
     'CameraConfig',
@@ -454,4 +455,7 @@ class PlanarVoConfig(Options):
     @classmethod
     def from_flat(cls, flat: typing.Mapping[str, Any]) -> PlanarVoConfig:
         """Build from dotted keys (``{'voting.bins': 720}``), the form of ROS parameters."""
+        if not isinstance(flat, typing.Mapping):
+            raise ConfigError(f'config: expected a mapping of dotted keys, got '
+                              f'{type(flat).__name__}')
         return cls.from_dict(nest_dotted(dict(flat)))

@@ -74,7 +74,8 @@ class CameraModel:
     Attributes:
         width, height: image size in pixels.
         K: intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (3x3).
-        distortion_model: ``'none'``, ``'plumb_bob'`` or ``'equidistant'``.
+        distortion_model: one of `DISTORTION_MODELS` (``'none'``, ``'plumb_bob'``,
+            ``'rational_polynomial'``, ``'equidistant'``).
         D: distortion coefficients in ROS order (empty for ``'none'``).
     """
 

@@ -28,6 +28,30 @@ __all__ = ['Trajectory', 'concatenate']
 _NS_PER_S = 1_000_000_000
 
 
+# Largest |R^T R - I| entry of a pose's rotation block (as for KITTI's poses.txt, written to
+# about 1e-6; composed poses drift by rounding only).
+_ROTATION_TOLERANCE = 1e-3
+
+
+def _check_rigid(poses: np.ndarray) -> None:
+    """`InputError` unless every ``(4, 4)`` pose is a rigid transform: bottom row ``[0, 0, 0,
+    1]``, rotation block orthonormal with determinant +1 (a scaled or mirrored block would be
+    evaluated as some other trajectory without a word; a user test)."""
+    if not len(poses):
+        return
+    bottom = np.abs(poses[:, 3] - (0.0, 0.0, 0.0, 1.0)).max(axis=1)
+    R = poses[:, :3, :3]
+    error = np.abs(np.einsum('nji,njk->nik', R, R) - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((bottom > 1e-9) | (error > _ROTATION_TOLERANCE)
+                         | ~(np.linalg.det(R) > 0.0))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f'poses: expected rigid transforms (rotation block orthonormal with '
+                         f'determinant +1, bottom row [0, 0, 0, 1]), got pose {k} with R^T R off '
+                         f'the identity by {error[k]:.3g}, determinant '
+                         f'{np.linalg.det(R[k]):.3g} and bottom row {poses[k, 3].tolist()}')
+
+
 @dataclass(frozen=True, eq=False)
 class Trajectory:
     """Stamped poses ``T_world_body``.
@@ -49,6 +73,7 @@ class Trajectory:
             raise InputError(f'stamps_ns: expected a 1-D integer array, got {stamps.dtype} '
                              f'shape {stamps.shape}')
         poses = as_array('poses', self.poses, (stamps.shape[0], 4, 4), min_items=0)
+        _check_rigid(poses)
         if np.any(np.diff(stamps) <= 0):
             raise InputError('stamps: expected strictly increasing times, got a non-increasing '
                              'step')

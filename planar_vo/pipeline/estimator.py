@@ -72,6 +72,7 @@ from planar_vo.core.robust.general import (
 )
 from planar_vo.core.robust.options import EstimatorConfig
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, median
+from planar_vo.errors import InputError
 
 __all__ = ['FrameEstimate', 'MotionEstimator', 'lift_planar']
 
@@ -244,7 +245,18 @@ class MotionEstimator:
     def estimate(self, acs: AffineCorrespondences, level: AffineCorrespondences
                  ) -> FrameEstimate:
         """The motion of one pair from its ACs in normalised camera coordinates (``acs``) and
-        the same ACs levelled by `R_lc` (``level``, same order and length)."""
+        the same ACs levelled by `R_lc` (``level``, same order and length).
+
+        Raises:
+            InputError: either is not an `AffineCorrespondences`, or their lengths differ.
+        """
+        for name, value in (('acs', acs), ('level', level)):
+            if not isinstance(value, AffineCorrespondences):
+                raise InputError(f'{name}: expected AffineCorrespondences, got '
+                                 f'{type(value).__name__}')
+        if len(acs) != len(level):      # (a user test: it gave 'no_vote', not why)
+            raise InputError(f'level: expected the {len(acs)} ACs of acs levelled, got '
+                             f'{len(level)}')
         motion, vstats = vote_planar_motion(level.p1, level.p2, level.A, level.weights,
                                             self.voting)
         vote = (motion.alpha, motion.beta, bool(vstats.reliable))

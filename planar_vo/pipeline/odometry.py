@@ -283,7 +283,8 @@ class VisualOdometry:
         """Process one frame; never raises for bad input (the result says what went wrong).
 
         Args:
-            image: 8-bit grey ``(H, W)`` or BGR ``(H, W, 3)`` image.
+            image: 8-bit grey ``(H, W)`` or ``(H, W, 1)``, BGR ``(H, W, 3)`` or BGRA ``(H, W, 4)``
+                image.
             stamp: its timestamp in seconds; a `Stamp` (integer nanoseconds, e.g.
                 ``CameraFrame.stamp``) is judged exactly: 1 ns later is not a duplicate.
             camera: the camera model for this frame (e.g. from ``CameraInfo``); None keeps the

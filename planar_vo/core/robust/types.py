@@ -79,7 +79,7 @@ def check_inputs(q1, q2, A, weights, config):
         w = as_array('weights', weights, (None,))
         same_length(q1=q1, weights=w)
         if np.any(w < 0):
-            raise ConfigError(f'weights: expected non-negative values, got minimum {w.min()}')
+            raise InputError(f'weights: expected non-negative values, got minimum {w.min()}')
     config = _DEFAULT_CONFIG if config is None else config
     if not isinstance(config, VotingConfig):
         raise ConfigError(f'config: expected VotingConfig, got {type(config).__name__}')

@@ -63,7 +63,7 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
         False, ``stats.flag`` says why; the angles may still be the best guess (or NaN).
 
     Raises:
-        InputError: wrong shapes or non-finite values; ConfigError: bad weights or config.
+        InputError: wrong shapes, non-finite or negative values; ConfigError: a bad config.
     """
     q1, q2, A, w, config = check_inputs(q1, q2, A, weights, config)
     clusters = check_clusters(clusters, q1.shape[0])

@@ -152,8 +152,14 @@ def covariance_consistency(ref: Trajectory, est: Trajectory, covariances: np.nda
             e = errors[k, :2]
             distances.append(math.sqrt(max(float(e @ np.linalg.solve(xy, e)), 0.0)))
     if not abs_z:
-        reason = ('no pose after the first has a positive variance on any axis (a covariance '
-                  'of zeros, unknown or not finite)')
+        usable = max(int(np.count_nonzero(finite & (variances[:, i] > 0)))
+                     for i in range(len(COVARIANCE_AXES)))
+        if usable:          # (a user test: a two-pose bag was said to have no variance)
+            reason = (f'needs at least 2 poses after the first with a positive variance on an '
+                      f'axis, got {usable}')
+        else:
+            reason = ('no pose after the first has a positive variance on any axis (a '
+                      'covariance of zeros, unknown or not finite)')
         return {'frames': 0, 'reason': reason}
     result = {'frames': int(index.size), 'abs_z': abs_z}
     if len(distances) >= 2:
@@ -246,6 +252,9 @@ def kitti_drift(ref: Trajectory, est: Trajectory, *, planar: bool = False,
         per 100 m, 'segments': count, 'lengths_m': the lengths used}``; NaN and 0 segments when
         the drive is shorter than the shortest length.
     """
+    if len(ref) != len(est):        # (a user test: unassociated ones gave NaN, no error)
+        raise InputError(f'ref, est: expected associated trajectories of one length, got '
+                         f'{len(ref)} and {len(est)} poses (evaluate associates them by stamp)')
     if planar:
         ref, est = flatten_se2(ref), flatten_se2(est)
     per_length = rpe_by_distance(ref, est, lengths, step)
@@ -431,6 +440,10 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
         InputError: fewer than 2 poses matched (the message gives both stamp ranges).
     """
     name = {'ref': 'ref', 'est': 'est', 'max_diff': 'max_diff', **(names or {})}
+    for key, value in (('ref', ref), ('est', est)):
+        if not isinstance(value, Trajectory):
+            raise InputError(f'{name[key]}: expected a Trajectory (Trajectory.from_poses, '
+                             f'read_tum, read_bag_trajectory), got {type(value).__name__}')
     if not (math.isfinite(max_diff) and max_diff >= 0):
         raise InputError(f"{name['max_diff']}: expected a non-negative number of seconds, got "
                          f'{max_diff}')
