@@ -23,14 +23,23 @@ from planar_vo.core.conventions import (
 )
 from planar_vo.errors import InputError
 
-__all__ = ['Trajectory', 'concatenate']
+__all__ = ['ROTATION_TOLERANCE', 'Trajectory', 'concatenate', 'rotation_defects']
 
 _NS_PER_S = 1_000_000_000
 
 
-# Largest |R^T R - I| entry of a pose's rotation block (as for KITTI's poses.txt, written to
-# about 1e-6; composed poses drift by rounding only).
-_ROTATION_TOLERANCE = 1e-3
+# Largest |R^T R - I| entry of a rotation block (KITTI's poses.txt writes them to about 1e-6;
+# composed poses drift by rounding only).
+ROTATION_TOLERANCE = 1e-3
+
+
+def rotation_defects(R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For ``(N, 3, 3)`` blocks: the indices of those that are not rotations (``R^T R`` off the
+    identity by more than `ROTATION_TOLERANCE`, or determinant not positive), and every
+    block's largest ``|R^T R - I|`` entry and determinant (for the message)."""
+    error = np.abs(np.einsum('nji,njk->nik', R, R) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    return np.flatnonzero((error > ROTATION_TOLERANCE) | ~(det > 0.0)), error, det
 
 
 def _check_rigid(poses: np.ndarray) -> None:
@@ -40,16 +49,14 @@ def _check_rigid(poses: np.ndarray) -> None:
     if not len(poses):
         return
     bottom = np.abs(poses[:, 3] - (0.0, 0.0, 0.0, 1.0)).max(axis=1)
-    R = poses[:, :3, :3]
-    error = np.abs(np.einsum('nji,njk->nik', R, R) - np.eye(3)).max(axis=(1, 2))
-    bad = np.flatnonzero((bottom > 1e-9) | (error > _ROTATION_TOLERANCE)
-                         | ~(np.linalg.det(R) > 0.0))
+    rotations, error, det = rotation_defects(poses[:, :3, :3])
+    bad = np.union1d(rotations, np.flatnonzero(bottom > 1e-9))
     if bad.size:
         k = int(bad[0])
         raise InputError(f'poses: expected rigid transforms (rotation block orthonormal with '
                          f'determinant +1, bottom row [0, 0, 0, 1]), got pose {k} with R^T R off '
-                         f'the identity by {error[k]:.3g}, determinant '
-                         f'{np.linalg.det(R[k]):.3g} and bottom row {poses[k, 3].tolist()}')
+                         f'the identity by {error[k]:.3g}, determinant {det[k]:.3g} and bottom '
+                         f'row {poses[k, 3].tolist()}')
 
 
 @dataclass(frozen=True, eq=False)

@@ -37,6 +37,7 @@ import numpy as np
 
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import invert, mount_transform, quaternion_from_rotation
+from planar_vo.core.trajectory import rotation_defects
 from planar_vo.errors import CameraModelError, ImageError, InputError
 from planar_vo.frontend.images import read_image
 from planar_vo.io.camera_bag import (
@@ -58,9 +59,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-# Largest |R^T R - I| entry of a poses.txt rotation block (KITTI's own are near 1e-6).
-_ROTATION_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -204,15 +202,13 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
         poses[:, :3, :] = np.array(rows).reshape(n, 3, 4)
         # The rotation blocks must be rotations (KITTI writes them to about 1e-6): a scaled,
         # zero or mirrored block would silently become some other ground truth.
-        R = poses[:, :3, :3]
-        error = np.abs(np.einsum('nji,njk->nik', R, R) - np.eye(3)).max(axis=(1, 2))
-        bad = np.flatnonzero((error > _ROTATION_TOLERANCE) | (np.linalg.det(R) <= 0.0))
+        bad, error, det = rotation_defects(poses[:, :3, :3])
         if bad.size:
             line = [i for i, _ in _lines(poses_path)][bad[0]]
             raise InputError(f'{name} line {line}: expected a rotation matrix in the first '
                              f'3x3 block (orthonormal, determinant +1), got R^T R off the '
                              f'identity by {error[bad[0]]:.3g} and determinant '
-                             f'{np.linalg.det(R[bad[0]]):.3g}')
+                             f'{det[bad[0]]:.3g}')
     return KittiSequence(images, P0, times, poses, poses_path, tuple(sought))
 
 

@@ -140,9 +140,10 @@ def covariance_consistency(ref: Trajectory, est: Trajectory, covariances: np.nda
         errors[k] = np.concatenate([est.poses[k][:3, 3] - truth[:3, 3],
                                     so3_log(est.poses[k][:3, :3] @ truth[:3, :3].T)])
     variances = np.diagonal(C, axis1=1, axis2=2)
-    abs_z = {}
+    abs_z, usable = {}, 0
     for i, axis in enumerate(COVARIANCE_AXES):
         use = finite & (variances[:, i] > 0)
+        usable = max(usable, int(np.count_nonzero(use)))
         if np.count_nonzero(use) >= 2:
             abs_z[axis] = _consistency(np.abs(errors[use, i]) / np.sqrt(variances[use, i]), 3.0)
     distances = []
@@ -152,8 +153,6 @@ def covariance_consistency(ref: Trajectory, est: Trajectory, covariances: np.nda
             e = errors[k, :2]
             distances.append(math.sqrt(max(float(e @ np.linalg.solve(xy, e)), 0.0)))
     if not abs_z:
-        usable = max(int(np.count_nonzero(finite & (variances[:, i] > 0)))
-                     for i in range(len(COVARIANCE_AXES)))
         if usable:          # (a user test: a two-pose bag was said to have no variance)
             reason = (f'needs at least 2 poses after the first with a positive variance on an '
                       f'axis, got {usable}')
