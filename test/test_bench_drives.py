@@ -5,6 +5,7 @@ exact poses are near the truth; the trajectory helpers are exact on exact motion
 from __future__ import annotations
 
 import json
+import math
 
 import cv2
 import numpy as np
@@ -32,7 +33,8 @@ from planar_vo.sim.drive import render_drive
 CAMERA = CameraModel.pinhole(640, 480, 500.0)
 HEIGHT = 1.65
 DRIVE = 'straight_turn'
-PIPELINE_RUNS = ('planar_vo', 'planar_vo_focal', 'planar_vo_focal_pp')
+PIPELINE_RUNS = ('planar_vo', 'planar_vo_focal', 'planar_vo_focal_pp', 'planar_vo_focal_fov')
+FOV = 2.0 * math.atan(320.0 / 500.0)        # CAMERA's horizontal field of view (rad)
 PEER_RUNS = tuple(f'{e}_{s}' for s in SOURCES for e in FIVE_POINT)
 
 
@@ -67,7 +69,8 @@ def report(data, tmp_path_factory):
     """The benchmark's outputs on the rendered drive (run once for the module)."""
     pytest.importorskip('poselib')
     out = tmp_path_factory.mktemp('drives_out')
-    assert main(['bench', 'drives', '--data', str(data), '--out', str(out)]) == 0
+    assert main(['bench', 'drives', '--data', str(data), '--out', str(out),
+                 '--nominal-fov', repr(FOV)]) == 0
     return (out / 'drives.md').read_text(), json.loads((out / 'drives.json').read_text())
 
 
@@ -161,6 +164,14 @@ def test_planar_vo_runs_are_reported_with_their_focal_length(report):
                                  'camera.cx': CAMERA.cx, 'camera.cy': CAMERA.cy}
     assert given['in_use_px'] > 0 and given['status'].startswith('focal length ')
     assert drive['runs']['planar_vo_focal_pp']['odometry_pct'] > 90.0
+    # The field of view of the camera's specification: the calibration starts at the truth
+    # (500 px), so the odometry runs within the calibration's reach of it.
+    stated = drive['focal']['field_of_view_given']
+    assert stated['settings'] == {'mount.height': HEIGHT, 'camera.estimate_focal': True,
+                                  'camera.nominal_fov': FOV}
+    assert abs(math.log(stated['in_use_px'] / 500.0)) < abs(math.log(focal['in_use_px'] / 500.0))
+    assert results['nominal_fov_rad'] == FOV
+    assert drive['runs']['planar_vo_focal_fov']['odometry_pct'] > 90.0
     six = drive['focal']['six_point']
     assert six['pairs'] == 14 and six['vote'] == 'median of the per-pair focal lengths'
     assert len(six['per_pair_px']) == 14
@@ -293,6 +304,8 @@ def test_drive_folders_are_found_or_refused(data, tmp_path):
 @pytest.mark.parametrize('options, message', [
     (['--frames', '2'], '--frames: expected at least 3 frames, got 2'),
     (['--camera-height', '-1'], '--camera-height: expected a positive height in metres, got -1'),
+    (['--nominal-fov', '90'], '--nominal-fov: expected 0 (none) or a horizontal field of view of '
+                              '0.4-2.2 rad, got 90.0'),
     (['--drives', 'kitti99'], '--drives: kitti99 not found'),
 ])
 def test_bad_options_are_one_line_and_exit_1(data, tmp_path, capsys, options, message):

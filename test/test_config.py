@@ -147,6 +147,14 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
     ({'camera': {'estimate_focal': True, 'fx': 707.1}},
      r'camera.estimate_focal: expected false with fx configured \(707.1 px: the focal length '
      r'is known; fx = 0 self-calibrates it\), got True'),
+    ({'camera': {'nominal_fov': 1.5708}},
+     r'camera.nominal_fov: expected 0 without estimate_focal \(it is where the focal '
+     r'self-calibration starts\), got 1.5708'),
+    ({'camera': {'estimate_focal': True, 'nominal_fov': 0.3}},
+     r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view of 0.4-2.2 rad '
+     r'\(23-126 deg, the range the focal calibration searches\), got 0.3'),
+    ({'camera': {'estimate_focal': True, 'nominal_fov': 90.0}},
+     r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view \(rad\)'),
     ({'camera': {'fy': 700.0}}, r'camera.fy: expected 0 while fx is 0 \(fy is used with fx '
                                 r'only'),
     ({'camera': {'cx': -10.0}}, r'camera.cx: expected cx, cy >= 0 \(0 = the image centre\), '

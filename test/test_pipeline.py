@@ -672,6 +672,34 @@ def test_uncalibrated_camera_runs_on_a_provisional_focal_length():
     assert 40.0 < yaw < 80.0
 
 
+def test_a_stated_field_of_view_is_where_the_focal_calibration_starts():
+    # camera.nominal_fov (the camera's data sheet) centres the focal prior: until turning pairs
+    # move it the odometry runs on width / (2 tan(fov / 2)) and the status names that field of
+    # view. Stated right, the turn is measured through the right focal length from its start:
+    # a smaller final yaw error than from the 53-degree default (640 px against 500).
+    fov = 2.0 * math.atan(320.0 / 500.0)                # the rendered camera's: 640 px, f 500
+    runs = {}
+    for label, camera in (('stated', {'estimate_focal': True, 'nominal_fov': fov}),
+                          ('default', {'estimate_focal': True})):
+        config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}, 'camera': camera})
+        trajectory, images, _ = _drive('left')
+        vo = VisualOdometry(config)
+        results = [vo.process(images[0], float(trajectory.stamps[0]))]
+        if label == 'stated':
+            assert vo.camera.fx == pytest.approx(500.0, rel=1e-12)
+            assert vo.focal_status() == ('focal length 500.0 +- 284.2 px (provisional, no turn to '
+                                         'calibrate from yet: the nominal 65-degree field of '
+                                         'view, 0 of 4 blocks)')
+        else:
+            assert vo.camera.fx == pytest.approx(640.0, rel=1e-12)
+            assert '53-degree' in vo.focal_status()
+        results += [vo.process(image, float(t))
+                    for t, image in zip(trajectory.stamps[1:], images[1:])]
+        assert all(r.ok for r in results[1:])
+        runs[label] = _errors(trajectory, results)[1]
+    assert runs['stated'] < 0.6 * runs['default'], runs
+
+
 def test_a_new_focal_length_carries_the_tilt_and_road_normal_measured_through_the_old_one(
         monkeypatch):
     # Uncalibrated, a pitched and rolled mount: every change of the provisional focal length

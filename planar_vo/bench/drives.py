@@ -10,7 +10,8 @@ run it, and the peers run on the same frames:
   ``--camera-height``). The metric scale is the pipeline's own (the shipped ``scale.source``).
 - **planar_vo, self-calibrated focal**: the same frames without CameraInfo and with
   ``camera.estimate_focal: true``; the focal length in use at the end, whether and when it was
-  adopted, its reported standard deviation.
+  adopted, its reported standard deviation. Again with the principal point given, and with
+  ``--nominal-fov`` the field of view of the camera's specification (``camera.nominal_fov``).
 - **Five-point peers, frame to frame**: OpenCV (``findEssentialMat`` + ``recoverPose``) and
   PoseLib LO-RANSAC with its nonlinear refinement (PoseLib's own defaults, at least 1,000
   iterations, and the early-stopping options of `planar_vo.bench.peers`), each on (a) the
@@ -60,6 +61,7 @@ from planar_vo.bench.odometry import (
     OdometryRun,
     PeerOdometry,
 )
+from planar_vo.config.sections import NOMINAL_FOV_RANGE
 from planar_vo.errors import InputError
 
 __all__ = [
@@ -97,6 +99,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--camera-height', type=float, default=1.65, metavar='M',
                         help='camera height above the road in metres, the one setting a user '
                              'of the car knows (default: 1.65, KITTI)')
+    parser.add_argument('--nominal-fov', type=float, default=0.0, metavar='RAD',
+                        help="the cameras' horizontal field of view as their specification "
+                             'states it (rad; KITTI: about 90 deg, 1.5708): one more '
+                             'self-calibrated run, with camera.nominal_fov (default: 0, none)')
     parser.add_argument('--frames', type=int, metavar='N',
                         help='only the first N frames of each drive')
     for flag, text in (('--skip-peers', 'no five-point peers'),
@@ -116,6 +122,10 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.camera_height) and args.camera_height > 0.0):
         raise InputError(f'--camera-height: expected a positive height in metres, got '
                          f'{args.camera_height}')
+    lo, hi = NOMINAL_FOV_RANGE
+    if not (args.nominal_fov == 0.0 or lo <= args.nominal_fov <= hi):
+        raise InputError(f'--nominal-fov: expected 0 (none) or a horizontal field of view of '
+                         f'{lo:g}-{hi:g} rad, got {args.nominal_fov}')
     drives = find_drives(args.data, args.drives)
     if not (args.skip_peers and args.skip_focal):
         require('poselib')
@@ -127,13 +137,14 @@ def run(args: argparse.Namespace) -> int:
     for folder in drives:
         start = time.perf_counter()
         results[folder.name] = run_drive(folder, args.camera_height, frames=frames,
-                                         peers=not args.skip_peers, focal=not args.skip_focal)
+                                         peers=not args.skip_peers, focal=not args.skip_focal,
+                                         nominal_fov=args.nominal_fov)
         if not args.skip_stress:
             results[folder.name]['stress'] = run_stress(folder, args.camera_height,
                                                         frames=frames)
         results[folder.name]['wall_s'] = time.perf_counter() - start
         print(drive_section(folder.name, results[folder.name]) + '\n', flush=True)
-    write_results(Path(args.out), args.command, args.camera_height, results)
+    write_results(Path(args.out), args.command, args.camera_height, results, args.nominal_fov)
     return 0
 
 
@@ -276,8 +287,9 @@ def run_stress(folder: Path, height: float, *, frames: int | None = None) -> dic
 
 
 def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: bool = True,
-              focal: bool = True) -> dict:
-    """Every run on one drive and its evaluation (JSON-ready apart from NaN)."""
+              focal: bool = True, nominal_fov: float = 0.0) -> dict:
+    """Every run on one drive and its evaluation (JSON-ready apart from NaN); with a
+    ``nominal_fov`` (rad) and ``focal``, one more self-calibrated run that states it."""
     from planar_vo.config import PlanarVoConfig
     from planar_vo.core.trajectory import Trajectory
     from planar_vo.io import import_kitti, iter_camera_frames, open_bag
@@ -305,6 +317,11 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
                        'camera.cy': float(seq.P0[1, 2])}
         self_cal_pp = FocalRun(PlanarVoConfig.from_flat(pp_settings),
                                label=FOCAL_PP_LABEL) if focal else None
+        # The same with the field of view from the camera's specification (what a user who
+        # has its data sheet sets): where the calibration starts.
+        fov_settings = {**focal_settings, 'camera.nominal_fov': float(nominal_fov)}
+        self_cal_fov = (FocalRun(PlanarVoConfig.from_flat(fov_settings), label=FOCAL_FOV_LABEL)
+                        if focal and nominal_fov > 0 else None)
         peer = (PeerOdometry(FIVE_POINT if peers else (), SOURCES if peers else (), focal=focal)
                 if peers or focal else None)
         stamps = []
@@ -315,6 +332,8 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
                 if self_cal is not None:
                     self_cal.add(frame)
                     self_cal_pp.add(frame)
+                if self_cal_fov is not None:
+                    self_cal_fov.add(frame)
                 if peer is not None:
                     peer.add(frame.image, frame.camera, true_steps[i - 1] if i else 0.0)
     stamps = np.array(stamps, dtype=np.int64)
@@ -326,6 +345,8 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
     if self_cal is not None:
         runs['planar_vo_focal'] = self_cal.run.aligned(stamps)
         runs['planar_vo_focal_pp'] = self_cal_pp.run.aligned(stamps)
+    if self_cal_fov is not None:
+        runs['planar_vo_focal_fov'] = self_cal_fov.run.aligned(stamps)
     if peer is not None:
         runs.update(peer.runs(stamps))
     out = {
@@ -346,6 +367,9 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
                         'principal_point_given': {'settings': pp_settings,
                                                   **self_cal_pp.summary(float(seq.P0[0, 0]))},
                         'six_point': peer.focal_summary(float(seq.P0[0, 0]))}
+        if self_cal_fov is not None:
+            out['focal']['field_of_view_given'] = {
+                'settings': fov_settings, **self_cal_fov.summary(float(seq.P0[0, 0]))}
     return out
 
 
@@ -426,6 +450,7 @@ def replay_planar_vo(bag: Path, out: Path, config, *, progress: bool = False) ->
 
 FOCAL_LABEL = 'planar_vo, self-calibrated focal (no CameraInfo)'
 FOCAL_PP_LABEL = 'planar_vo, self-calibrated focal, principal point given (camera.cx, cy)'
+FOCAL_FOV_LABEL = 'planar_vo, self-calibrated focal, field of view given (camera.nominal_fov)'
 
 
 class FocalRun:
@@ -676,6 +701,8 @@ def focal_table(drive: dict) -> str:
          *odometry(cal)],
         self_calibrated('planar_vo_focal', 'self_calibrated'),
         self_calibrated('planar_vo_focal_pp', 'principal_point_given'),
+        *([self_calibrated('planar_vo_focal_fov', 'field_of_view_given')]
+          if 'field_of_view_given' in drive['focal'] else []),
         [six['label'], _fmt(six['focal_px'], 4), _fmt(six['error_pct']),
          f"median of {six['pairs_with_focal']} of {six['pairs']} pairs (IQR {_fmt(q25)}-"
          f"{_fmt(q75)} px), {_fmt(six['estimator_ms_median'])} ms / pair", '-', '-',
@@ -797,7 +824,7 @@ def summary_table(results: dict) -> str:
     return '\n'.join(lines)
 
 
-def method_notes(height: float) -> str:
+def method_notes(height: float, nominal_fov: float = 0.0) -> str:
     """Markdown: how each row was run, read from the shipped configuration."""
     from planar_vo.config import PlanarVoConfig
 
@@ -814,7 +841,10 @@ def method_notes(height: float) -> str:
         f'with import_kitti and replayed with replay_bag (CameraInfo from calib.txt). '
         f'Self-calibrated: the same frames without CameraInfo, camera.estimate_focal true; the '
         f'principal point is then assumed at the image centre; "principal point given": the '
-        f'same with camera.cx and camera.cy from calib.txt (a user who knows them).',
+        f'same with camera.cx and camera.cy from calib.txt (a user who knows them)'
+        + (f'; "field of view given": the same with camera.nominal_fov {nominal_fov:g} rad '
+           f'({math.degrees(nominal_fov):.0f} deg, the cameras\' specification)'
+           if nominal_fov > 0 else '') + '.',
         f'- **Five-point peers**, frame to frame, {THRESHOLD_PX:g} px threshold, on (a) the '
         f'point parts of the ACs our front-end (default FrontendConfig) extracts between '
         f'consecutive frames, (b) the same front-end\'s ACs without its per-frame budget '
@@ -847,18 +877,20 @@ def method_notes(height: float) -> str:
     ])
 
 
-def write_results(out: Path, command: Sequence[str], height: float, results: dict) -> None:
+def write_results(out: Path, command: Sequence[str], height: float, results: dict,
+                  nominal_fov: float = 0.0) -> None:
     """``drives.md`` and ``drives.json`` (every number) in ``out``."""
     from planar_vo.bench.common import environment_lines, write_markdown
     from planar_vo.io.outputs import write_file
     from planar_vo.tools.evaluation.report import json_ready
 
-    sections = [method_notes(height), summary_table(results)]
+    sections = [method_notes(height, nominal_fov), summary_table(results)]
     sections += [drive_section(name, drive) for name, drive in results.items()]
     path = out / 'drives.md'
     write_markdown(path, 'planar_vo bench drives', command, sections)
     data = {'command': list(command), 'environment': environment_lines(),
-            'camera_height_m': height, 'threshold_px': THRESHOLD_PX,
+            'camera_height_m': height, 'nominal_fov_rad': nominal_fov,
+            'threshold_px': THRESHOLD_PX,
             'poselib_defaults': POSELIB_DEFAULTS, 'drives': results}
     write_file(out / 'drives.json', json.dumps(json_ready(data), indent=1) + '\n')
     print(f"wrote {path} and {out / 'drives.json'}")

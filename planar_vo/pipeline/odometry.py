@@ -481,8 +481,9 @@ class VisualOdometry:
                     c.distortion_model, c.distortion)
                 self._camera_from_config = True
             elif c.estimate_focal:
-                # Uncalibrated: the self-calibration's focal length, provisional (a prior at a
-                # 53-degree field of view combined with the pairs so far) until adopted.
+                # Uncalibrated: the self-calibration's focal length, provisional (a prior at the
+                # camera's stated field of view, else 53 degrees, combined with the pairs so
+                # far) until adopted.
                 if self._focal is None or (self._focal.width, self._focal.height) != \
                         (width, height):
                     if self._focal is not None:
@@ -495,8 +496,10 @@ class VisualOdometry:
                         if self._keyframes.current is not None:
                             self._keyframes.clear()
                             self._restart = 'a camera model change'
+                    nominal = (0.5 * width / math.tan(0.5 * c.nominal_fov)
+                               if c.nominal_fov > 0 else None)
                     self._focal = OnlineFocalCalibrator(
-                        width, height, pp_std=1.0 if c.cx and c.cy else None,
+                        width, height, nominal, pp_std=1.0 if c.cx and c.cy else None,
                         tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
                         max_queue=c.focal_queue, block_frames=c.focal_block_frames,
                         min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,
