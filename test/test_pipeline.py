@@ -883,6 +883,9 @@ def test_bad_frames_are_counted_and_do_not_stop_the_odometry():
     feed(np.zeros((480, 640), np.uint8), stamps[2], DropReason.BLANK_IMAGE)
     feed(np.full((480, 640), 255, np.uint8), stamps[3], DropReason.BLANK_IMAGE)
     feed(np.zeros((480, 640), np.float32), stamps[4], DropReason.BAD_IMAGE)
+    # A bad image does not take its stamp: a good one sent with it is odometry, not a
+    # duplicate_stamp.
+    feed(images[4], stamps[4], None)
     feed('not an image', stamps[5], DropReason.BAD_IMAGE)
     feed(images[6][:240, :320], stamps[6], DropReason.SIZE_CHANGED)
     feed(images[7], float('nan'), DropReason.BAD_IMAGE)

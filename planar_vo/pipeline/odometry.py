@@ -324,6 +324,13 @@ class VisualOdometry:
 
     def _process(self, image, stamp: float, camera: CameraModel | None,
                  timings: dict[str, float]) -> FrameResult:
+        # The image first: a frame refused as bad_image leaves the clock alone (its stamp
+        # is not taken, so the same stamp sent again with a good image is not a duplicate).
+        t = time.perf_counter()
+        try:
+            gray = _gray(image)
+        except ImageError as err:
+            return self._drop(stamp, DropReason.BAD_IMAGE, str(err))
         last = self._clock.last
         check = self._clock.check(stamp)
         if check is StampCheck.DUPLICATE:
@@ -349,11 +356,6 @@ class VisualOdometry:
                         'motion across a new time base is unknown)', stamp - last)
             self._keyframes.clear()
             self._restart, self._new_time_base = 'the time base moved on', True
-        t = time.perf_counter()
-        try:
-            gray = _gray(image)
-        except ImageError as err:
-            return self._drop(stamp, DropReason.BAD_IMAGE, str(err))
         camera = self._resolve_camera(camera, gray.shape)
         if camera is None:
             c = self.config.camera
