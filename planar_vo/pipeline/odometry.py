@@ -178,8 +178,8 @@ class VisualOdometry:
         self._last_out: tuple[float, np.ndarray] | None = None   # stamp, camera pose
         self._twist = np.zeros(6)
         self._twist_cov = np.eye(6) * _UNKNOWN
-        # (middle of its interval, twist) of the last twist measured over a keyframe interval.
-        self._last_twist: tuple[float, np.ndarray] | None = None
+        # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
+        self._last_twist: tuple[float, float, np.ndarray] | None = None
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
         # The position error (m, camera world frame) one standard deviation of the steps'
         # shared scale errors makes (`_road_step`): the same share of every step, so it grows
@@ -805,7 +805,7 @@ class VisualOdometry:
                 # The last metric speed, its uncertainty growing with the time since: a vehicle
                 # changes its speed by about hold_acceleration_std m/s every second.
                 speed, std, when, bias = self._held
-                std = math.hypot(std, cfg.hold_acceleration_std * (stamp - when))
+                std = math.hypot(std, cfg.hold_acceleration_std * seconds_between(stamp, when))
                 return speed * dt, (std * dt) ** 2, 'hold', bias
         return 1.0, _UNKNOWN, 'unit', 0.0
 
@@ -1063,13 +1063,16 @@ class VisualOdometry:
             Ad = adjoint(T_bc)
             self._twist_cov = ros_twist_covariance(Ad @ step_cov @ Ad.T, dt)
             last = self._last_twist
-            middle = stamp - 0.5 * dt
-            if last is not None and middle > last[0]:
+            # The time between the intervals' middles, from the stamps' exact difference (a
+            # float of absolute seconds holds about 0.2 us).
+            between = (seconds_between(stamp, last[0]) - 0.5 * dt + 0.5 * last[1]
+                       if last is not None else 0.0)
+            if between > 0:
                 # The means' change over the time between the intervals' middles is the
                 # acceleration; the mean lags the velocity at the frame by half the interval.
-                lag = 0.5 * dt * (self._twist - last[1]) / (middle - last[0])
+                lag = 0.5 * dt * (self._twist - last[2]) / between
                 self._twist_cov = self._twist_cov + np.outer(lag, lag)
-            self._last_twist = (middle, self._twist.copy())
+            self._last_twist = (stamp, dt, self._twist.copy())
         self._last_out = (stamp, self.camera_pose.copy())
 
     # -- results -------------------------------------------------------------------------------
