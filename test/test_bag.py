@@ -348,7 +348,8 @@ def test_replay_writes_odometry_counts_drops_and_copies_ground_truth(
     # The double's steps have the default source; it has no road top-ups to count.
     assert summary.scale_sources == {'unit': 8} and summary.road_top_ups is None
     assert summary.scale == '' and '  scale ' not in summary.format()    # the double has none
-    assert '  step lengths       unit 8\n' in summary.format()
+    assert ('  step lengths       unit 8 (8 of 8 without a metric length: their positions are '
+            'in steps, not metres)\n') in summary.format()
     assert 'replay' in capsys.readouterr().err                     # the progress bar
 
     # the processor saw decoded images, the camera, and exactly the speeds stamped before

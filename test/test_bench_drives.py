@@ -304,8 +304,13 @@ def test_drive_folders_are_found_or_refused(data, tmp_path):
 @pytest.mark.parametrize('options, message', [
     (['--frames', '2'], '--frames: expected at least 3 frames, got 2'),
     (['--camera-height', '-1'], '--camera-height: expected a positive height in metres, got -1'),
-    (['--nominal-fov', '90'], '--nominal-fov: expected 0 (none) or a horizontal field of view of '
-                              '0.4-2.2 rad, got 90.0'),
+    (['--nominal-fov', '90'], '--nominal-fov: expected 0 (unknown) or a horizontal field of view '
+                              'of 0.4-2.2 rad (23-126 deg, the range the focal calibration '
+                              'searches; wider: a fisheye lens, distortion_model equidistant; in '
+                              'degrees? 90 deg is 1.5708 rad), got 90.0'),
+    (['--nominal-fov', '1.5', '--skip-focal'],
+     '--nominal-fov: it adds a self-calibrated run, which --skip-focal leaves out; give one of '
+     'them'),
     (['--drives', 'kitti99'], '--drives: kitti99 not found'),
 ])
 def test_bad_options_are_one_line_and_exit_1(data, tmp_path, capsys, options, message):

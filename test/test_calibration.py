@@ -474,7 +474,7 @@ def test_focal_calibration_stays_provisional_without_turns(rng):
     cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX)
     assert cal.provisional == 600.0 and cal.relative_std == pytest.approx(math.exp(0.45) - 1)
     assert cal.status() == ('focal length 600.0 +- 341.0 px (provisional, no turn to calibrate '
-                            'from yet: the nominal 53-degree field of view, 0 of 4 blocks)')
+                            'from yet: an assumed 53-degree field of view, 0 of 4 blocks)')
     for b in range(5):
         syn = shared_motion_acs(rng, 300, 0.5, alpha=0.0, beta=-np.pi / 2)
         pp = np.asarray(PAPER_PRINCIPAL_POINT)

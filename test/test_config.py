@@ -152,9 +152,19 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
      r'self-calibration starts\), got 1.5708'),
     ({'camera': {'estimate_focal': True, 'nominal_fov': 0.3}},
      r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view of 0.4-2.2 rad '
-     r'\(23-126 deg, the range the focal calibration searches\), got 0.3'),
+     r'\(23-126 deg, the range the focal calibration searches; wider: a fisheye lens, '
+     r'distortion_model equidistant\), got 0.3'),
+    # (a user test: degrees, and a 143-degree dashcam, got only 'a horizontal field of view')
     ({'camera': {'estimate_focal': True, 'nominal_fov': 90.0}},
-     r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view \(rad\)'),
+     r'camera.nominal_fov: expected .* of 0.4-2.2 rad .*; in degrees\? 90 deg is 1.5708 rad\), '
+     r'got 90.0'),
+    ({'camera': {'estimate_focal': True, 'nominal_fov': 2.5}},
+     r'camera.nominal_fov: .*wider: a fisheye lens, distortion_model equidistant\), got 2.5'),
+    ({'camera': {'estimate_focal': True, 'nominal_fov': 4.5, 'distortion_model': 'equidistant',
+                 'distortion': [0.0] * 4}},
+     r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view of 0.4-4 rad '
+     r'\(23-229 deg, the range the focal calibration searches through a fisheye lens\), '
+     r'got 4.5'),
     ({'camera': {'fy': 700.0}}, r'camera.fy: expected 0 while fx is 0 \(fy is used with fx '
                                 r'only'),
     ({'camera': {'cx': -10.0}}, r'camera.cx: expected cx, cy >= 0 \(0 = the image centre\), '

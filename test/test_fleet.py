@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from planar_vo.cli import main
-from planar_vo.config import MountConfig, PlanarVoConfig, load_config, to_ros_yaml
+from planar_vo.config import MountConfig, PlanarVoConfig, load_config, read_config, to_ros_yaml
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.trajectory import Trajectory
 from planar_vo.errors import ConfigError, InputError
@@ -591,6 +591,21 @@ def test_config_grid_is_every_combination_of_the_sets():
         config_grid(base, ['x'])
     with pytest.raises(ConfigError, match=r'set: frontend.method=sift: .*expected one of'):
         config_grid(base, ['frontend.method=flow,sift'])
+
+
+def test_config_grid_validates_a_file_with_its_sets(tmp_path):
+    # (a user test: a --config file that needs a --set to be valid was refused on its own)
+    path = tmp_path / 'fov.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    camera: {nominal_fov: 1.5708}\n')
+    values = read_config(path)
+    assert values == {'camera.nominal_fov': 1.5708}
+    (config,) = config_grid(values, ['camera.estimate_focal=true'], source=str(path))
+    assert config.build().camera.nominal_fov == 1.5708 and config.build().camera.estimate_focal
+    with pytest.raises(ConfigError, match=rf'^{path}: camera.nominal_fov: expected 0 without '):
+        config_grid(values, source=str(path))
+    with pytest.raises(ConfigError, match=rf'^{path} with --set: voting.bins=360: '
+                                          r'camera.nominal_fov: expected 0 without '):
+        config_grid(values, ['voting.bins=360'], source=str(path))
 
 
 def test_manifest_and_jobs(tmp_path):

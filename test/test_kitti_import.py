@@ -160,6 +160,10 @@ def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
      r"calib\.txt line 1: expected P0 first, got 'P1:'"),
     (lambda d: (d / 'calib.txt').write_text(' 0' * 12 + '\n'),
      r'calib\.txt: P0 does not hold valid intrinsics'),
+    # (a user test: fx 1 px was imported, and the node then refused every frame's CameraInfo)
+    (lambda d: (d / 'calib.txt').write_text('P0: 1 0 19.5 0 0 1 14.5 0 0 0 1 0\n'),
+     r'calib\.txt: P0 does not hold valid intrinsics \(horizontal field of view 174 deg \(fx 1, '
+     r'fy 1 px on 40x30\) is outside the 3-160 deg of real rectilinear lenses'),
     (lambda d: (d / 'times.txt').write_text('0\n0.1\nabc\n0.3\n'),
      r"times\.txt line 3: expected seconds, got 'abc'"),
     (lambda d: (d / 'times.txt').write_text('0\n0.1\n0.1\n0.3\n'),

@@ -757,7 +757,7 @@ def test_an_uncalibrated_camera_reports_and_logs_its_focal_length(local_node, dr
     first, last = statuses(node)[0], statuses(node)[-1]
     assert first['focal_source'] == 'provisional' and float(first['focal_px']) == 640.0
     assert first['focal'] == ('focal length 640.0 +- 363.7 px (provisional, no turn to '
-                              'calibrate from yet: the nominal 53-degree field of view, 0 of 4 '
+                              'calibrate from yet: an assumed 53-degree field of view, 0 of 4 '
                               'blocks)')
     assert float(first['focal_std_px']) == pytest.approx(640.0 * (math.exp(0.45) - 1.0))
     px, std, source = node._vo.focal_length()

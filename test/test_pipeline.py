@@ -13,6 +13,7 @@ import pytest
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import invert, mount_transform, yaw_of
+from planar_vo.errors import ConfigError
 from planar_vo.frontend import leveling_rotation
 from planar_vo.pipeline import DropReason, Stamp, TrackingState, VisualOdometry
 from planar_vo.pipeline.calibration import focal_pitch
@@ -688,7 +689,7 @@ def test_a_stated_field_of_view_is_where_the_focal_calibration_starts():
         if label == 'stated':
             assert vo.camera.fx == pytest.approx(500.0, rel=1e-12)
             assert vo.focal_status() == ('focal length 500.0 +- 284.2 px (provisional, no turn to '
-                                         'calibrate from yet: the nominal 65-degree field of '
+                                         'calibrate from yet: the stated 65-degree field of '
                                          'view, 0 of 4 blocks)')
         else:
             assert vo.camera.fx == pytest.approx(640.0, rel=1e-12)
@@ -970,6 +971,56 @@ def test_camera_from_configured_intrinsics():
     vo = VisualOdometry(config)
     results = [vo.process(image, float(t)) for t, image in zip(trajectory.stamps[:10], images)]
     assert all(r.ok for r in results[1:])
+
+
+@pytest.mark.parametrize('fx, fov', [(1.0, 180), (100000.0, 0.367)])
+def test_implausible_configured_intrinsics_are_refused_like_a_camera_info(fx, fov):
+    # (a user test: fx 1 px lost every frame as 'unreliable', 100000 px published NaN
+    # covariances) The CameraInfo's checks: every frame a counted no_camera_info that says why.
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                                  'camera': {'fx': fx}}))
+    results = [vo.process(image, float(t)) for t, image in zip(trajectory.stamps[:3], images)]
+    assert all(r.reason is DropReason.NO_CAMERA_INFO for r in results)
+    assert results[0].message == (
+        f'camera.fx/fy/cx/cy: horizontal field of view {fov:g} deg (fx {fx:g}, fy {fx:g} px on '
+        f'640x480) is outside the 3-160 deg of real rectilinear lenses: is the focal length in '
+        f'pixels of this resolution? (no camera model)')
+    assert vo.counters == {'no_camera_info': 3}
+
+
+def test_self_calibration_takes_no_camera_model(caplog):
+    # (a user test: a camera model given with estimate_focal was used without a word)
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    with pytest.raises(ConfigError, match=r'camera: expected None with camera.estimate_focal'):
+        VisualOdometry(config, CAMERA)
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(config)
+    assert vo.focal_status() == ('focal length unknown (the self-calibration starts at the '
+                                 'first image)')
+    with caplog.at_level('WARNING', logger='planar_vo.pipeline.odometry'):
+        for t, image in zip(trajectory.stamps[:3], images):
+            assert vo.process(image, float(t), CAMERA).reason in (DropReason.FIRST_FRAME, None)
+    warnings = [r.getMessage() for r in caplog.records if 'not used' in r.getMessage()]
+    assert warnings == ['camera model given to process() not used: camera.estimate_focal is on '
+                        '(the focal length is self-calibrated)']
+    assert vo.focal_length()[2] == 'provisional' and vo.camera.fx != CAMERA.fx
+
+
+def test_a_fisheye_field_of_view_gives_the_equidistant_focal_length():
+    # r = f theta: 2.0 rad over 640 px is f = 320 px (a rectilinear lens: 205.5 px).
+    trajectory, images, _ = _drive('straight')
+    camera = {'estimate_focal': True, 'nominal_fov': 2.0, 'distortion_model': 'equidistant',
+              'distortion': [0.0] * 4}
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'camera': camera}))
+    vo.process(images[0], float(trajectory.stamps[0]))
+    assert vo.camera.fx == pytest.approx(320.0, rel=1e-12)
+    assert vo.camera.field_of_view[0] == pytest.approx(2.0, rel=1e-3)   # through (cx, cy)
+    camera.update(distortion_model='none', distortion=[])
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'camera': camera}))
+    vo.process(images[0], float(trajectory.stamps[0]))
+    assert vo.camera.fx == pytest.approx(320.0 / math.tan(1.0), rel=1e-12)
 
 
 def test_internal_error_is_a_counted_pipeline_error(monkeypatch):

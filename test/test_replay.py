@@ -278,6 +278,18 @@ def test_replay_set_overrides_the_configuration(tmp_path, capsys, drive_bags):
         err = capsys.readouterr().err
         assert err.startswith(f'planar_vo replay: error: --{message}') and err.count('\n') == 1, err
     assert not (tmp_path / 'x').exists()
+    # The file and the sets are validated together (a user test: a file's camera.fy, valid
+    # with the --set camera.fx, was refused on its own); what neither fixes names both.
+    config.write_text('camera: {fy: 455}\n')
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o2'), '--config',
+                 str(config), '--set', 'camera.fx=450', '--no-progress']) == 0
+    assert 'focal length 450.0 px (configured)' in capsys.readouterr().out
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--config',
+                 str(config), '--set', 'mount.height=1.6']) == 1
+    assert capsys.readouterr().err == (
+        f'planar_vo replay: error: {config} with --set: camera.fy: expected 0 while fx is 0 (fy '
+        f'is used with fx only; fx = 0 means the focal length comes from CameraInfo or '
+        f'estimate_focal), got 455.0\n')
 
 
 def test_replay_names_its_input_as_typed(tmp_path, capsys):

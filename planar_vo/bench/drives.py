@@ -61,8 +61,8 @@ from planar_vo.bench.odometry import (
     OdometryRun,
     PeerOdometry,
 )
-from planar_vo.config.sections import NOMINAL_FOV_RANGE
-from planar_vo.errors import InputError
+from planar_vo.config.sections import CameraConfig
+from planar_vo.errors import ConfigError, InputError
 
 __all__ = [
     'HELP',
@@ -122,10 +122,14 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.camera_height) and args.camera_height > 0.0):
         raise InputError(f'--camera-height: expected a positive height in metres, got '
                          f'{args.camera_height}')
-    lo, hi = NOMINAL_FOV_RANGE
-    if not (args.nominal_fov == 0.0 or lo <= args.nominal_fov <= hi):
-        raise InputError(f'--nominal-fov: expected 0 (none) or a horizontal field of view of '
-                         f'{lo:g}-{hi:g} rad, got {args.nominal_fov}')
+    if args.nominal_fov:
+        if args.skip_focal:
+            raise InputError('--nominal-fov: it adds a self-calibrated run, which --skip-focal '
+                             'leaves out; give one of them')
+        try:                    # the drives' lenses are rectilinear (KITTI layout)
+            CameraConfig(estimate_focal=True, nominal_fov=args.nominal_fov)
+        except ConfigError as err:
+            raise InputError(f'--nominal-fov: {str(err).partition(": ")[2]}') from None
     drives = find_drives(args.data, args.drives)
     if not (args.skip_peers and args.skip_focal):
         require('poselib')

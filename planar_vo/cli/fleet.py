@@ -63,7 +63,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from planar_vo.cli import show_progress
-    from planar_vo.config import load_config
+    from planar_vo.config import read_config
     from planar_vo.errors import InputError
     from planar_vo.tools.fleet import (
         config_grid,
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         # Found before Ray starts; with some bags present the missing ones are failed rows.
         raise InputError(f"BAG: '{missing[0]}' does not exist" if len(missing) == 1 else
                          f"BAG: none of the {len(missing)} bags exists ('{missing[0]}', ...)")
-    configs = config_grid(load_config(args.config), args.set)
+    configs = config_grid(read_config(args.config), args.set, source=args.config)
     speed = [c.name for c in configs if c.values['scale.source'] == 'speed']
     if speed:
         # A fleet run feeds no speed topic: every step would be a fallback (as replay refuses

@@ -55,12 +55,10 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from planar_vo.cli import show_progress
-    from planar_vo.config import load_config
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.tools.replay import replay_bag
 
-    config = speed_scale(with_sets(load_config(args.config), args.set), args.speed_topic,
-                         args.set)
+    config = speed_scale(with_sets(args.config, args.set), args.speed_topic, args.set)
     summary = replay_bag(
         args.bag, args.out, VisualOdometry(config), image_topic=args.image_topic,
         camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
@@ -115,28 +113,33 @@ def speed_scale(config, speed_topic: str | None, sets=()):
     return config
 
 
-def with_sets(config, sets):
-    """The configuration with ``--set KEY=VALUE`` items applied (one value each: a replay runs
-    one configuration; ``planar_vo fleet run`` takes several).
+def with_sets(path, sets):
+    """The configuration of the file ``path`` (None: the defaults) with ``--set KEY=VALUE``
+    items applied (one value each: a replay runs one configuration; ``planar_vo fleet run``
+    takes several), validated as a whole: a file may need a ``--set`` to be valid (a user
+    test: ``camera.nominal_fov`` in the file was refused before ``--set
+    camera.estimate_focal=true`` could allow it).
 
     Raises:
-        ConfigError: a malformed item, an unknown key, several values, or a value the
-            configuration refuses.
+        ConfigError: an unreadable file, a malformed item, an unknown key, several values, or a
+            value the configuration refuses (named after the file, ``set:``, or both).
     """
-    from planar_vo.config import PlanarVoConfig, flatten, parse_set
+    from planar_vo.config import PlanarVoConfig, flatten, load_config, parse_set, read_config
     from planar_vo.errors import ConfigError
 
     if not sets:
-        return config
-    values = flatten(config)
+        return load_config(path)
+    keys = flatten(PlanarVoConfig())
     changes = {}
     for item in sets:
-        key, found = parse_set(item, values, several=False)
+        key, found = parse_set(item, keys, several=False)
         if len(found) != 1:
             raise ConfigError(f"set: '{item}': expected one value (one --set per key: a replay "
                               f'runs one configuration; planar_vo fleet run takes several)')
         changes[key] = found[0]
     try:
-        return PlanarVoConfig.from_flat({**values, **changes})
+        return PlanarVoConfig.from_flat({**read_config(path), **changes})
     except ConfigError as err:
-        raise ConfigError(f'set: {err}') from None
+        if path is None or str(err).startswith(f'{path}: '):
+            raise ConfigError(f'set: {err}' if path is None else str(err)) from None
+        raise ConfigError(f'{path} with --set: {err}') from None

@@ -11,7 +11,7 @@ from planar_vo.config.sections import PlanarVoConfig
 from planar_vo.core.options import nest_dotted
 from planar_vo.errors import ConfigError, one_line
 
-__all__ = ['load_config', 'parse_set', 'to_ros_yaml']
+__all__ = ['load_config', 'parse_set', 'read_config', 'to_ros_yaml']
 
 
 def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
@@ -25,9 +25,44 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
     """
     if path is None:
         return PlanarVoConfig()
+    data = _read_data(Path(path), node_name)
+    if data is None:
+        return PlanarVoConfig()
+    try:
+        return PlanarVoConfig.from_dict(nest_dotted(data) if isinstance(data, dict) else data)
+    except ConfigError as err:
+        raise ConfigError(f'{path}: {err}') from None
+
+
+def read_config(path: str | Path | None, *, node_name: str = 'planar_vo') -> dict[str, Any]:
+    """A configuration file's settings (either form of `load_config`) as dotted keys, read but
+    not yet validated as a whole: a command that applies ``--set`` items over the file
+    validates the result, so a file may lean on them (``camera.nominal_fov`` in the file,
+    ``--set camera.estimate_focal=true`` on the command line). ``{}`` for None or an empty
+    file.
+
+    Raises:
+        ConfigError: the file cannot be read, is not YAML, is a ROS parameter file for another
+            node, or is not a mapping of sections (as `load_config` says it).
+    """
+    if path is None:
+        return {}
+    data = _read_data(Path(path), node_name)
+    if data is None:
+        return {}
+    nested = nest_dotted(data) if isinstance(data, dict) else data
+    if not (isinstance(nested, dict) and all(isinstance(v, dict) for v in nested.values())):
+        load_config(path, node_name=node_name)          # raises the specific error
+        raise ConfigError(f'{path}: expected sections of settings')
+    return {f'{section}.{key}': value for section, values in nested.items()
+            for key, value in values.items()}
+
+
+def _read_data(path: Path, node_name: str) -> Any:
+    """The YAML data of a configuration file: the node's ``ros__parameters`` of a ROS parameter
+    file, else the whole document (None when empty)."""
     import yaml
 
-    path = Path(path)
     try:
         data = yaml.safe_load(path.read_text(encoding='utf-8'))
     except OSError as err:
@@ -37,8 +72,6 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
                           f'{err.object[err.start:err.start + 1]!r})') from err
     except yaml.YAMLError as err:
         raise ConfigError(f'{path}: not valid YAML ({err})') from err
-    if data is None:
-        return PlanarVoConfig()
     if isinstance(data, dict):
         keyed = {str(k): v for k, v in data.items()
                  if isinstance(v, dict) and 'ros__parameters' in v}
@@ -52,10 +85,7 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
             raise ConfigError(f"{path}: a ROS parameter file for {', '.join(keyed)}, not for "
                               f"this node; key its parameters on '{node_name}' (with or "
                               f"without a namespace) or '/**'")
-    try:
-        return PlanarVoConfig.from_dict(nest_dotted(data) if isinstance(data, dict) else data)
-    except ConfigError as err:
-        raise ConfigError(f'{path}: {err}') from None
+    return data
 
 
 def to_ros_yaml(config: PlanarVoConfig | None = None, *, node_name: str = '/**') -> str:

@@ -41,10 +41,11 @@ __all__ = [
 ]
 
 
-# Horizontal fields of view (rad) `camera.nominal_fov` may give: within those of the focal lengths
-# the self-calibration searches, 0.25-2.5 x the image width (22.6-126.9 deg;
-# `planar_vo.pipeline.calibration.focal`).
-NOMINAL_FOV_RANGE = (0.40, 2.20)
+# Horizontal fields of view (rad) `camera.nominal_fov` may give, by lens: those of the focal
+# lengths the self-calibration searches, 0.25-2.5 x the image width
+# (`planar_vo.pipeline.calibration.focal`): through a rectilinear lens 22.6-126.9 deg, through an
+# equidistant (fisheye) one 22.9-229.2 deg (`focal_for_field_of_view`).
+NOMINAL_FOV_RANGE = {'rectilinear': (0.40, 2.20), 'equidistant': (0.40, 4.0)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,11 +66,14 @@ class CameraConfig(Options):
             are 0).
         nominal_fov: the camera's horizontal field of view (rad) as its specification states
             it (a dashcam's data sheet: 90 deg is 1.5708), where the self-calibration starts:
-            the focal length ``width / (2 tan(fov / 2))`` is the prior's centre (log-normal,
-            sigma 0.45) and the odometry's focal length until turning pairs move it; 0
-            (unknown): 0.93 rad, 53 deg (the focal length equals the image width). At most the
-            range the calibration searches, 0.40-2.20 rad (23-126 deg). Only with
-            ``estimate_focal``.
+            its focal length (``width / (2 tan(fov / 2))``; through an ``equidistant`` fisheye
+            lens ``width / fov``) is the prior's centre (log-normal, sigma 0.45) and the
+            odometry's focal length until turning pairs move it; 0 (unknown): the focal length
+            equals the image width (53 deg through a rectilinear lens). Within the range the
+            calibration searches: 0.40-2.20 rad (23-126 deg), with ``distortion_model:
+            equidistant`` 0.40-4.0 rad (23-229 deg). Only with ``estimate_focal``. (The
+            calibration profiles a fisheye's focal length to first order only: it rescales the
+            undistorted points as a pinhole's.)
         focal_tolerance: the calibration is adopted once its relative standard deviation
             (reported so that the error stays within 3 of them) is below this; until then a
             provisional focal length is used and its uncertainty enters the covariance.
@@ -103,7 +107,7 @@ class CameraConfig(Options):
                                      'equidistant'] = 'none'
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
-    nominal_fov: float = bounded(0.0, 0.0, NOMINAL_FOV_RANGE[1],
+    nominal_fov: float = bounded(0.0, 0.0,
                                  expected='0 (unknown) or a horizontal field of view (rad)')
     focal_tolerance: float = bounded(0.02, 0.0, 1.0, low_open=True, high_open=True)
     focal_steps: float = bounded(2.0, 0.0, 100.0, low_open=True,
@@ -131,11 +135,18 @@ class CameraConfig(Options):
         self._require(not (self.estimate_focal and self.fx > 0), 'estimate_focal',
                       f'false with fx configured ({self.fx:g} px: the focal length is known; '
                       f'fx = 0 self-calibrates it)')
-        lo, hi = NOMINAL_FOV_RANGE
-        self._require(self.nominal_fov == 0 or self.nominal_fov >= lo, 'nominal_fov',
+        fisheye = self.distortion_model == 'equidistant'
+        lo, hi = NOMINAL_FOV_RANGE['equidistant' if fisheye else 'rectilinear']
+        fov = self.nominal_fov
+        self._require(fov == 0 or lo <= fov <= hi, 'nominal_fov',
                       f'0 (unknown) or a horizontal field of view of {lo:g}-{hi:g} rad '
                       f'({math.degrees(lo):.0f}-{math.degrees(hi):.0f} deg, the range the focal '
-                      f'calibration searches)')
+                      f'calibration searches'
+                      + (' through a fisheye lens' if fisheye else
+                         '; wider: a fisheye lens, distortion_model equidistant')
+                      + (f'; in degrees? {fov:g} deg is {math.radians(fov):.4f} rad'
+                         if fov > 2.0 * math.pi else '')
+                      + ')')
         self._require(self.nominal_fov == 0 or self.estimate_focal, 'nominal_fov',
                       '0 without estimate_focal (it is where the focal self-calibration starts)')
 

@@ -33,6 +33,7 @@ __all__ = [
     'DISTORTION_MODELS',
     'CameraModel',
     'fits_distortion_model',
+    'focal_for_field_of_view',
     'intrinsic_matrix',
     'normalize_affines',
     'normalize_points',
@@ -54,6 +55,16 @@ MAX_FIELD_OF_VIEW_DEG = {'none': 160.0, 'plumb_bob': 160.0, 'rational_polynomial
 _UNDISTORT_ITERATIONS = 20
 # The largest plausible skew, as a share of fx (a pixel shear of 5.7 degrees; real cameras: 0).
 _MAX_SKEW = 0.1
+
+
+def focal_for_field_of_view(width: float, fov: float, distortion_model: str = 'none') -> float:
+    """The focal length (pixels) that spreads a horizontal field of view of ``fov`` radians over
+    ``width`` pixels, centred: ``width / (2 tan(fov / 2))`` through a rectilinear lens (every
+    model but the fisheye), ``width / fov`` through an equidistant (fisheye) one, whose image
+    radius is ``f theta`` (the inverse of `CameraModel.field_of_view`)."""
+    if distortion_model == 'equidistant':
+        return width / fov
+    return 0.5 * width / math.tan(0.5 * fov)
 
 
 def fits_distortion_model(model: str, D) -> bool:

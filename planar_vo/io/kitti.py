@@ -284,8 +284,12 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
     height, width = first.shape
     try:
         camera = CameraModel(width, height, seq.P0[:, :3])
+        # The checks the node makes of the CameraInfo (a user test: fx 1 px was imported
+        # without a word, and every frame of the bag then refused).
+        camera.check_plausible()
     except CameraModelError as err:
-        raise InputError(f'calib.txt: P0 does not hold valid intrinsics ({err})') from err
+        why = str(err).replace('camera_info: ', '', 1)
+        raise InputError(f'calib.txt: P0 does not hold valid intrinsics ({why})') from err
     if seq.poses is not None:
         gt_poses, gt_twists = kitti_ground_truth(seq.poses, stamps, camera_height)
         if not np.all(np.isfinite(gt_twists)):

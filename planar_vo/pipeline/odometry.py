@@ -39,7 +39,7 @@ from collections import deque
 import numpy as np
 
 from planar_vo.config import PlanarVoConfig
-from planar_vo.core.camera import CameraModel
+from planar_vo.core.camera import CameraModel, focal_for_field_of_view
 from planar_vo.core.conventions import (
     adjoint,
     invert,
@@ -56,7 +56,13 @@ from planar_vo.core.conventions import (
 )
 from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, median
-from planar_vo.errors import ImageError, PlanarVoError, one_line
+from planar_vo.errors import (
+    CameraModelError,
+    ConfigError,
+    ImageError,
+    PlanarVoError,
+    one_line,
+)
 from planar_vo.frontend import ACExtractor, leveling_rotation
 from planar_vo.frontend.images import as_gray
 from planar_vo.pipeline.calibration import (
@@ -100,7 +106,9 @@ class VisualOdometry:
     Args:
         config: the whole configuration (`PlanarVoConfig`); defaults if None.
         camera: the camera model, if known up front (else from `process` or the config's
-            intrinsics).
+            intrinsics; configured intrinsics get `CameraModel.check_plausible`, as a
+            CameraInfo does). With ``camera.estimate_focal`` none is used: one given here is a
+            `ConfigError`, one given to `process` is not used (a warning, once).
 
     Attributes:
         pose: ``T_odom_base`` after the last frame (4x4).
@@ -112,10 +120,17 @@ class VisualOdometry:
     def __init__(self, config: PlanarVoConfig | None = None,
                  camera: CameraModel | None = None) -> None:
         self.config = PlanarVoConfig() if config is None else config
+        if camera is not None and self.config.camera.estimate_focal:
+            # (a user test: the camera model was used and both options ignored without a word)
+            raise ConfigError('camera: expected None with camera.estimate_focal (the focal '
+                              'length is self-calibrated; a camera model gives it: turn '
+                              'estimate_focal off to use one)')
         self._extractor = ACExtractor(self.config.frontend)
         self._estimator = MotionEstimator(self.config.estimator, self.config.voting)
         self._camera = camera
         self._camera_from_config = False
+        self._camera_problem: str | None = None     # why the configured intrinsics are refused
+        self._ignored_camera = False                # a camera given while self-calibrating
         scale = self.config.scale
         self._speed = SpeedIntegrator(max_gap=scale.speed_max_gap)
         # Created at the first image (they need its size) when the focal length is unknown.
@@ -229,6 +244,8 @@ class VisualOdometry:
             return self._focal.status()
         px, _, source = self.focal_length()
         if source == 'unknown':
+            if self.config.camera.estimate_focal:     # (a user test: it said 'intrinsics')
+                return 'focal length unknown (the self-calibration starts at the first image)'
             return 'focal length unknown (no frame with camera intrinsics yet)'
         return f"focal length {px:.1f} px ({'CameraInfo' if source == 'camera_info' else source})"
 
@@ -359,6 +376,10 @@ class VisualOdometry:
         camera = self._resolve_camera(camera, gray.shape)
         if camera is None:
             c = self.config.camera
+            if c.fx > 0 and self._camera_problem is not None:
+                return self._drop(stamp, DropReason.NO_CAMERA_INFO,
+                                  f'camera.fx/fy/cx/cy: {self._camera_problem} (no camera '
+                                  f'model)')
             if c.fx > 0 or c.estimate_focal:
                 return self._drop(stamp, DropReason.NO_CAMERA_INFO,
                                   f'camera.cx, camera.cy ({c.cx:g}, {c.cy:g}) lie outside the '
@@ -457,6 +478,12 @@ class VisualOdometry:
 
     def _resolve_camera(self, camera: CameraModel | None, shape: tuple[int, int]
                         ) -> CameraModel | None:
+        if camera is not None and self.config.camera.estimate_focal:
+            if not self._ignored_camera:
+                log.warning('camera model given to process() not used: camera.estimate_focal '
+                            'is on (the focal length is self-calibrated)')
+                self._ignored_camera = True
+            camera = None
         if camera is not None:
             if self._camera is not None and camera != self._camera:
                 shift = self._camera.pixel_shift(camera)
@@ -477,10 +504,18 @@ class VisualOdometry:
             if (c.fx > 0 or c.estimate_focal) and not (cx <= width - 1 and cy <= height - 1):
                 return None                 # a principal point outside the image
             if c.fx > 0:
-                self._camera = CameraModel(
+                model = CameraModel(
                     width, height, np.array([[c.fx, 0.0, cx], [0.0, c.fy or c.fx, cy],
                                              [0.0, 0.0, 1.0]]),
                     c.distortion_model, c.distortion)
+                try:
+                    # The checks a CameraInfo gets (a user test: fx 1 px lost every frame as
+                    # 'unreliable', 100000 px published NaN covariances).
+                    model.check_plausible()
+                except CameraModelError as err:
+                    self._camera_problem = str(err).replace('camera_info: ', '', 1)
+                    return None
+                self._camera, self._camera_problem = model, None
                 self._camera_from_config = True
             elif c.estimate_focal:
                 # Uncalibrated: the self-calibration's focal length, provisional (a prior at the
@@ -498,10 +533,12 @@ class VisualOdometry:
                         if self._keyframes.current is not None:
                             self._keyframes.clear()
                             self._restart = 'a camera model change'
-                    nominal = (0.5 * width / math.tan(0.5 * c.nominal_fov)
+                    nominal = (focal_for_field_of_view(width, c.nominal_fov,
+                                                       c.distortion_model)
                                if c.nominal_fov > 0 else None)
                     self._focal = OnlineFocalCalibrator(
                         width, height, nominal, pp_std=1.0 if c.cx and c.cy else None,
+                        stated_fov=c.nominal_fov or None,
                         tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
                         max_queue=c.focal_queue, block_frames=c.focal_block_frames,
                         min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,

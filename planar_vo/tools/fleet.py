@@ -53,7 +53,7 @@ import shutil
 import socket
 import sys
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -118,11 +118,15 @@ def _format_value(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value)
 
 
-def config_grid(base: PlanarVoConfig, sets: Sequence[str] = ()) -> list[FleetConfig]:
+def config_grid(base: PlanarVoConfig | Mapping[str, Any], sets: Sequence[str] = (),
+                source: str | None = None) -> list[FleetConfig]:
     """The configurations of ``--set KEY=V1,V2 ...`` on top of `base`: every combination.
 
     Args:
-        base: the configuration the sets change (``--config`` file or the defaults).
+        base: the configuration the sets change: a `PlanarVoConfig`, or the settings of a
+            ``--config`` file as dotted keys (`planar_vo.config.read_config`), validated only
+            with each combination (a file may lean on the sets).
+        source: the file ``base`` was read from, to name it in errors.
         sets: ``'KEY=V1[,V2...]'`` items with dotted keys (`planar_vo.config.flatten`); the
             values are YAML flow items (``360``, ``true``, ``flow``, ``[0.1, 0.2]``).
 
@@ -134,15 +138,19 @@ def config_grid(base: PlanarVoConfig, sets: Sequence[str] = ()) -> list[FleetCon
         ConfigError: malformed item, unknown key (with the closest known ones), a key given
             twice, or a combination that does not validate (named by its values).
     """
-    base_values = flatten(base)
+    keys = flatten(PlanarVoConfig())
+    base_values = flatten(base) if isinstance(base, PlanarVoConfig) else {**keys, **base}
     axes: list[tuple[str, list[Any]]] = []
     for item in sets:
-        key, values = parse_set(item, base_values)
+        key, values = parse_set(item, keys)
         if any(key == k for k, _ in axes):
             raise ConfigError(f"set: '{key}' given twice; list its values once: {key}=V1,V2")
         axes.append((key, values))
     if not axes:
-        return [FleetConfig('default', base_values)]
+        try:
+            return [FleetConfig('default', flatten(PlanarVoConfig.from_flat(base_values)))]
+        except ConfigError as err:
+            raise ConfigError(f'{source}: {err}' if source else str(err)) from None
     grid = []
     for combo in itertools.product(*(values for _, values in axes)):
         changes = dict(zip((key for key, _ in axes), combo))
@@ -150,7 +158,8 @@ def config_grid(base: PlanarVoConfig, sets: Sequence[str] = ()) -> list[FleetCon
         try:
             config = PlanarVoConfig.from_flat({**base_values, **changes})
         except ConfigError as err:
-            raise ConfigError(f'set: {name}: {err}') from None
+            where = f'{source} with --set' if source else 'set'
+            raise ConfigError(f'{where}: {name}: {err}') from None
         grid.append(FleetConfig(name, flatten(config)))
     return grid
 

@@ -155,13 +155,24 @@ class ReplaySummary:
             f'  camera             {self.focal or "unknown"}',
             *([f'  scale              {self.scale}'] if self.scale else []),
             f'  step lengths       {sources}'
-            + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups})'),
+            + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups})')
+            + self._unit_note(),
             f'  wall time          {self.wall_time:.2f} s',
             f'  throughput         {self.throughput:.1f} frames/s',
         ]
         if self.tum:
             lines.append(f'  TUM trajectory     {self.tum}')
         return '\n'.join(lines)
+
+    def _unit_note(self) -> str:
+        """Steps without a metric length, said in words (a user test: 'unit 50' alone read
+        like a success)."""
+        unit = self.scale_sources.get('unit', 0)
+        if not unit:
+            return ''
+        total = sum(self.scale_sources.values())
+        return (f' ({unit} of {total} without a metric length: their positions are in steps, '
+                f'not metres)')
 
     def _origins_note(self) -> str:
         """What the odometry count holds beyond estimated motion: the origin(s), and why

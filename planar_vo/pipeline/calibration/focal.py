@@ -191,6 +191,8 @@ class OnlineFocalCalibrator:
         width, height: image size (pixels).
         nominal: provisional focal before any information (default ``max(width, height)``,
             a 53-deg field of view).
+        stated_fov: the field of view (rad) ``nominal`` was computed from, when the user
+            stated it (``camera.nominal_fov``; the status names it).
         pp_std: standard deviation (pixels) of the horizontal principal point the caller
             assumed (default 1 % of the width, for the image centre; about 1 when cx, cy are
             configured).
@@ -209,7 +211,7 @@ class OnlineFocalCalibrator:
     """
 
     def __init__(self, width: int, height: int, nominal: float | None = None,
-                 pp_std: float | None = None, *,
+                 pp_std: float | None = None, *, stated_fov: float | None = None,
                  tolerance: float = CameraConfig.focal_tolerance,
                  max_acs: int = CameraConfig.focal_max_acs,
                  max_queue: int = CameraConfig.focal_queue,
@@ -225,6 +227,7 @@ class OnlineFocalCalibrator:
                      focal_max_blocks=max_blocks)        # validates the options
         self.width, self.height = int(width), int(height)
         self.nominal = float(nominal) if nominal is not None else float(max(width, height))
+        self.stated_fov = stated_fov
         if not (math.isfinite(self.nominal) and self.nominal > 0):
             raise ConfigError(f'nominal: expected a positive focal length, got {nominal}')
         self.pp_std = _PP_STEP * width if pp_std is None else float(pp_std)
@@ -441,7 +444,7 @@ class OnlineFocalCalibrator:
         (self-calibrated at frame 143)`` (``..., updated at frame 180)`` once a later block
         moved it) or ``focal length 1241.0 +- 702.3 px (provisional, 2 of 4 blocks)`` /
         ``(provisional, calibration 651.2 +- 9.9 %, adopted at 2 %)`` / ``(provisional: no
-        turn to calibrate from yet: the nominal 53-degree field of view, 0 of 4 blocks)``."""
+        turn to calibrate from yet: an assumed 53-degree field of view, 0 of 4 blocks)``."""
         if self.adopted is not None:
             updated = '' if self.updated_at is None else f', updated at frame {self.updated_at}'
             return (f'focal length {self.adopted:.1f} +- {self.adopted_std:.1f} px '
@@ -449,9 +452,13 @@ class OnlineFocalCalibrator:
         f = self.provisional
         blocks = len(self._blocks)
         if not blocks:
-            fov = math.degrees(2.0 * math.atan(0.5 * self.width / self.nominal))
-            why = (f'no turn to calibrate from yet: the nominal {fov:.0f}-degree field of '
-                   f'view, 0 of {self.min_blocks} blocks')
+            if self.stated_fov is not None:
+                prior = f'the stated {math.degrees(self.stated_fov):.0f}-degree field of view'
+            else:
+                fov = math.degrees(2.0 * math.atan(0.5 * self.width / self.nominal))
+                prior = f'an assumed {fov:.0f}-degree field of view'
+            why = (f'no turn to calibrate from yet: {prior}, 0 of {self.min_blocks} '
+                   f'blocks')
         elif blocks < self.min_blocks:
             why = f'{blocks} of {self.min_blocks} blocks'
         else:
