@@ -14,6 +14,7 @@ import pytest
 from planar_vo.bench.drives import (
     STRESS,
     camera_pose,
+    causal_bound,
     find_drives,
     first_frames,
     level_world,
@@ -85,6 +86,8 @@ def test_report_has_every_row_and_the_command(report, data):
         assert run['label'] in text                       # a row per run in the tables
         assert text.count(f"| {run['label']} |") >= 2     # drive table and summary
     assert 'PoseLib shared-focal six-point' in text and 'median of 14 of 14 pairs' in text
+    assert "  - the least a causal self-calibration could reach here (the self-calibrated run's " \
+           'per-frame errors until its first turning pair, at frame ' in text
     # The drive is 12 m long: no 100 m segment, so the 10-50 m protocol, labelled.
     assert drive['path_length_m'] == pytest.approx(11.85, abs=0.05)
     assert '10-50 m segments (drive < 100 m)' in text
@@ -148,6 +151,16 @@ def test_paired_yaw_mean_and_batch_means_standard_error():
     assert p['frames'] == 0 and np.isnan(p['mean_diff_deg']) and np.isnan(p['se_deg'])
 
 
+def test_the_causal_bound_takes_the_self_calibrated_errors_until_the_first_turning_pair():
+    calibrated = {(0, 1): 0.1, (1, 2): 0.1, (2, 3): 0.1, (3, 4): 0.1}
+    self_cal = {(0, 1): 0.5, (1, 2): 0.5, (2, 3): 0.9, (3, 4): 0.9}
+    assert causal_bound(calibrated, self_cal, 2)['mean_deg'] == pytest.approx(0.3)
+    assert causal_bound(calibrated, self_cal, None)['mean_deg'] == pytest.approx(0.7)
+    # A frame the self-calibrated run lost counts as nothing, not as the calibrated error.
+    del self_cal[(0, 1)]
+    assert causal_bound(calibrated, self_cal, 2)['mean_deg'] == pytest.approx(0.7 / 3)
+
+
 def test_planar_vo_runs_are_reported_with_their_focal_length(report):
     _, results = report
     drive = results['drives'][DRIVE]
@@ -172,6 +185,10 @@ def test_planar_vo_runs_are_reported_with_their_focal_length(report):
     assert abs(math.log(stated['in_use_px'] / 500.0)) < abs(math.log(focal['in_use_px'] / 500.0))
     assert results['nominal_fov_rad'] == FOV
     assert drive['runs']['planar_vo_focal_fov']['odometry_pct'] > 90.0
+    bound = focal['causal_bound']
+    # The drive turns from its 4th metre: the first turning pair comes after a few frames.
+    assert 3 <= bound['first_pair_frame'] < 15, bound
+    assert 0 < bound['mean_deg'] < drive['runs']['planar_vo_focal']['yaw_change_error_deg']['mean']
     six = drive['focal']['six_point']
     assert six['pairs'] == 14 and six['vote'] == 'median of the per-pair focal lengths'
     assert len(six['per_pair_px']) == 14
@@ -304,10 +321,9 @@ def test_drive_folders_are_found_or_refused(data, tmp_path):
 @pytest.mark.parametrize('options, message', [
     (['--frames', '2'], '--frames: expected at least 3 frames, got 2'),
     (['--camera-height', '-1'], '--camera-height: expected a positive height in metres, got -1'),
-    (['--nominal-fov', '90'], '--nominal-fov: expected 0 (unknown) or a horizontal field of view '
-                              'of 0.4-2.2 rad (23-126 deg, the range the focal calibration '
-                              'searches; wider: a fisheye lens, distortion_model equidistant; in '
-                              'degrees? 90 deg is 1.5708 rad), got 90.0'),
+    (['--nominal-fov', '90'], '--nominal-fov: expected 0 (none) or a horizontal field of view of '
+                              '0.4-2.2 rad (the range the focal calibration searches through a '
+                              'rectilinear lens; in degrees? 90 deg is 1.5708 rad), got 90.0'),
     (['--nominal-fov', '1.5', '--skip-focal'],
      '--nominal-fov: it adds a self-calibrated run, which --skip-focal leaves out; give one of '
      'them'),

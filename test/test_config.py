@@ -9,6 +9,7 @@ import pytest
 from planar_vo.config import (
     PlanarVoConfig,
     VotingConfig,
+    build_config,
     describe,
     flatten,
     load_config,
@@ -152,8 +153,7 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
      r'self-calibration starts\), got 1.5708'),
     ({'camera': {'estimate_focal': True, 'nominal_fov': 0.3}},
      r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view of 0.4-2.2 rad '
-     r'\(23-126 deg, the range the focal calibration searches; wider: a fisheye lens, '
-     r'distortion_model equidistant\), got 0.3'),
+     r'\(23-126 deg, the range the focal calibration searches\), got 0.3'),
     # (a user test: degrees, and a 143-degree dashcam, got only 'a horizontal field of view')
     ({'camera': {'estimate_focal': True, 'nominal_fov': 90.0}},
      r'camera.nominal_fov: expected .* of 0.4-2.2 rad .*; in degrees\? 90 deg is 1.5708 rad\), '
@@ -279,3 +279,24 @@ def test_options_built_directly_check_their_types(changes, match):
     assert type(typed.kernel_bins) is float
     with pytest.raises(ConfigError, match='voting: expected VotingConfig, got dict'):
         PlanarVoConfig(voting={'bins': 360})
+
+
+def test_a_file_and_its_sets_are_validated_together_and_a_refusal_names_its_cause():
+    """`build_config`: the file's settings with the sets over them (a user test: a file that
+    needed a --set was refused on its own); a refusal names the file, the set, or both (a
+    review: every refusal named both)."""
+    fov = {'camera.nominal_fov': 1.5708}                      # needs estimate_focal
+    config = build_config(fov, {'camera.estimate_focal': True}, 'f.yaml')
+    assert config.camera.nominal_fov == 1.5708 and config.camera.estimate_focal
+    with pytest.raises(ConfigError, match=r'^f.yaml: camera.nominal_fov: expected 0 without'):
+        build_config(fov, {'voting.bins': 720}, 'f.yaml')    # the file's own fault
+    with pytest.raises(ConfigError, match=r'^set: voting.bins: expected in \[36'):
+        build_config({'mount.height': 1.6}, {'voting.bins': 1}, 'f.yaml')
+    with pytest.raises(ConfigError, match=r'^set: bins 1: voting.bins: expected in \[36'):
+        build_config(fov, {'camera.estimate_focal': True, 'voting.bins': 1}, 'f.yaml',
+                     label='bins 1')                         # the sets' fault, whatever the file
+    # The file alone fails on its blocks, the set fixes them and uncovers the field of view.
+    both = {'camera.nominal_fov': 1.5708, 'camera.focal_min_blocks': 40}
+    with pytest.raises(ConfigError, match=r'^f.yaml with --set: camera.nominal_fov: expected 0 '
+                                          r'without estimate_focal'):
+        build_config(both, {'camera.focal_max_blocks': 50}, 'f.yaml')

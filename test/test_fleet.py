@@ -603,9 +603,21 @@ def test_config_grid_validates_a_file_with_its_sets(tmp_path):
     assert config.build().camera.nominal_fov == 1.5708 and config.build().camera.estimate_focal
     with pytest.raises(ConfigError, match=rf'^{path}: camera.nominal_fov: expected 0 without '):
         config_grid(values, source=str(path))
-    with pytest.raises(ConfigError, match=rf'^{path} with --set: voting.bins=360: '
-                                          r'camera.nominal_fov: expected 0 without '):
+    # The cause named: the file alone (the set changes nothing about it), the set alone (the
+    # file is valid), or both (a review: every refusal named both).
+    with pytest.raises(ConfigError, match=rf'^{path}: camera.nominal_fov: expected 0 without '):
         config_grid(values, ['voting.bins=360'], source=str(path))
+    with pytest.raises(ConfigError, match=r'^set: camera.estimate_focal=true voting.bins=1: '
+                                          r'voting.bins: expected'):
+        config_grid(values, ['camera.estimate_focal=true', 'voting.bins=1'], source=str(path))
+    path.write_text('camera: {nominal_fov: 1.5708, fy: 500.0}\n')
+    with pytest.raises(ConfigError, match=rf'^{path}: camera.fy: expected 0 while fx is 0'):
+        config_grid(read_config(path), ['camera.estimate_focal=true'], source=str(path))
+    # A section whose settings are all commented out is empty, as load_config reads it.
+    path.write_text('camera:\n  # fx: 500\nmount:\n  height: 1.6\n')
+    assert read_config(path) == {'mount.height': 1.6}
+    (config,) = config_grid(read_config(path), ['mount.pitch=0.01'], source=str(path))
+    assert (config.build().mount.height, config.build().mount.pitch) == (1.6, 0.01)
 
 
 def test_manifest_and_jobs(tmp_path):

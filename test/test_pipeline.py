@@ -983,10 +983,30 @@ def test_implausible_configured_intrinsics_are_refused_like_a_camera_info(fx, fo
     results = [vo.process(image, float(t)) for t, image in zip(trajectory.stamps[:3], images)]
     assert all(r.reason is DropReason.NO_CAMERA_INFO for r in results)
     assert results[0].message == (
-        f'camera.fx/fy/cx/cy: horizontal field of view {fov:g} deg (fx {fx:g}, fy {fx:g} px on '
+        f'configured intrinsics (camera.fx, fy, cx, cy, distortion): horizontal field of view '
+        f'{fov:g} deg (fx {fx:g}, fy {fx:g} px on '
         f'640x480) is outside the 3-160 deg of real rectilinear lenses: is the focal length in '
         f'pixels of this resolution? (no camera model)')
     assert vo.counters == {'no_camera_info': 3}
+
+
+def test_a_real_fisheye_calibration_is_accepted_as_configured_intrinsics():
+    # (a review: one grid pixel whose undistortion Jacobian was singular refused the whole
+    # check: the TUM-VI camera, 512x512 equidistant, 154 deg)
+    K = np.array([[190.98, 0.0, 254.93], [0.0, 190.98, 256.9], [0.0, 0.0, 1.0]])
+    D = [0.00348, 0.000715, -0.00205, 0.000203]
+    camera = CameraModel(512, 512, K, 'equidistant', D)
+    camera.check_plausible()
+    grid = np.stack(np.meshgrid(np.linspace(0, 511, 9), np.linspace(0, 511, 9)), -1)
+    q, J = camera.pixel_to_normalized(grid.reshape(-1, 2))
+    ok = np.isfinite(q).all(axis=1)
+    assert 61 <= ok.sum() < 81 and np.isfinite(J[ok]).all() and np.isnan(J[~ok]).all()
+    config = PlanarVoConfig.from_dict({'camera': {
+        'fx': 190.98, 'cx': 254.93, 'cy': 256.9, 'distortion_model': 'equidistant',
+        'distortion': D}})
+    vo = VisualOdometry(config)
+    first = vo.process(np.random.default_rng(1).integers(0, 255, (512, 512), np.uint8), 0.0)
+    assert first.reason is DropReason.FIRST_FRAME, first.message
 
 
 def test_self_calibration_takes_no_camera_model(caplog):
@@ -999,13 +1019,14 @@ def test_self_calibration_takes_no_camera_model(caplog):
     vo = VisualOdometry(config)
     assert vo.focal_status() == ('focal length unknown (the self-calibration starts at the '
                                  'first image)')
+    # A camera model that arrives later (a CameraInfo) replaces the calibration, said once.
     with caplog.at_level('WARNING', logger='planar_vo.pipeline.odometry'):
-        for t, image in zip(trajectory.stamps[:3], images):
-            assert vo.process(image, float(t), CAMERA).reason in (DropReason.FIRST_FRAME, None)
-    warnings = [r.getMessage() for r in caplog.records if 'not used' in r.getMessage()]
-    assert warnings == ['camera model given to process() not used: camera.estimate_focal is on '
-                        '(the focal length is self-calibrated)']
-    assert vo.focal_length()[2] == 'provisional' and vo.camera.fx != CAMERA.fx
+        for k, (t, image) in enumerate(zip(trajectory.stamps[:4], images)):
+            vo.process(image, float(t), CAMERA if k >= 2 else None)
+            assert vo.focal_length()[2] == ('provisional' if k < 2 else 'camera_info')
+    warnings = [r.getMessage() for r in caplog.records if 'camera model' in r.getMessage()]
+    assert warnings == ['a camera model arrived: it replaces the focal self-calibration '
+                        '(camera.estimate_focal) from frame 2 on']
 
 
 def test_a_fisheye_field_of_view_gives_the_equidistant_focal_length():
@@ -1017,6 +1038,13 @@ def test_a_fisheye_field_of_view_gives_the_equidistant_focal_length():
     vo.process(images[0], float(trajectory.stamps[0]))
     assert vo.camera.fx == pytest.approx(320.0, rel=1e-12)
     assert vo.camera.field_of_view[0] == pytest.approx(2.0, rel=1e-3)   # through (cx, cy)
+    assert 'the stated 115-degree field of view' in vo.focal_status()
+    # Unstated, the focal length is the image's larger side: 1 rad through a fisheye lens.
+    unstated = {**camera, 'nominal_fov': 0.0}
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'camera': unstated}))
+    vo.process(images[0], float(trajectory.stamps[0]))
+    assert vo.camera.fx == pytest.approx(640.0)
+    assert 'an assumed 57-degree field of view' in vo.focal_status()
     camera.update(distortion_model='none', distortion=[])
     vo = VisualOdometry(PlanarVoConfig.from_dict({'camera': camera}))
     vo.process(images[0], float(trajectory.stamps[0]))

@@ -284,12 +284,24 @@ def test_replay_set_overrides_the_configuration(tmp_path, capsys, drive_bags):
     assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o2'), '--config',
                  str(config), '--set', 'camera.fx=450', '--no-progress']) == 0
     assert 'focal length 450.0 px (configured)' in capsys.readouterr().out
+    # A refusal names its cause: the file (whatever the sets), or the set (a valid file).
     assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--config',
                  str(config), '--set', 'mount.height=1.6']) == 1
     assert capsys.readouterr().err == (
-        f'planar_vo replay: error: {config} with --set: camera.fy: expected 0 while fx is 0 (fy '
-        f'is used with fx only; fx = 0 means the focal length comes from CameraInfo or '
-        f'estimate_focal), got 455.0\n')
+        f'planar_vo replay: error: {config}: camera.fy: expected 0 while fx is 0 (fy is used '
+        f'with fx only; fx = 0 means the focal length comes from CameraInfo or estimate_focal), '
+        f'got 455.0\n')
+    config.write_text('camera: {fx: 450}\n')
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--config',
+                 str(config), '--set', 'mount.height=-1']) == 1
+    assert capsys.readouterr().err.startswith('planar_vo replay: error: --set: mount.height: '
+                                              'expected a positive height')
+    # The file named as typed (a review: './x.yaml' was reported as 'x.yaml')
+    missing = f'./{tmp_path.name}_missing.yaml'
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--config', missing,
+                 '--set', 'mount.height=1.6']) == 1
+    assert capsys.readouterr().err == (f'planar_vo replay: error: {missing}: cannot read '
+                                       f'configuration (No such file or directory)\n')
 
 
 def test_replay_names_its_input_as_typed(tmp_path, capsys):

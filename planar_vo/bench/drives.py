@@ -61,8 +61,8 @@ from planar_vo.bench.odometry import (
     OdometryRun,
     PeerOdometry,
 )
-from planar_vo.config.sections import CameraConfig
-from planar_vo.errors import ConfigError, InputError
+from planar_vo.config.sections import NOMINAL_FOV_RANGE
+from planar_vo.errors import InputError
 
 __all__ = [
     'HELP',
@@ -126,10 +126,14 @@ def run(args: argparse.Namespace) -> int:
         if args.skip_focal:
             raise InputError('--nominal-fov: it adds a self-calibrated run, which --skip-focal '
                              'leaves out; give one of them')
-        try:                    # the drives' lenses are rectilinear (KITTI layout)
-            CameraConfig(estimate_focal=True, nominal_fov=args.nominal_fov)
-        except ConfigError as err:
-            raise InputError(f'--nominal-fov: {str(err).partition(": ")[2]}') from None
+        lo, hi = NOMINAL_FOV_RANGE['rectilinear']      # the KITTI layout's lenses
+        fov = args.nominal_fov
+        if not lo <= fov <= hi:
+            degrees = (f'; in degrees? {fov:g} deg is {math.radians(fov):.4f} rad'
+                       if fov > 2.0 * math.pi else '')
+            raise InputError(f'--nominal-fov: expected 0 (none) or a horizontal field of view of '
+                             f'{lo:g}-{hi:g} rad (the range the focal calibration searches '
+                             f'through a rectilinear lens{degrees}), got {fov}')
     drives = find_drives(args.data, args.drives)
     if not (args.skip_peers and args.skip_focal):
         require('poselib')
@@ -361,8 +365,9 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
                  for key, r in runs.items()},
     }
     ours = out['runs']['planar_vo'].pop('_yaw_abs_deg', {})
+    per_frame = {}
     for key, run in out['runs'].items():
-        theirs = run.pop('_yaw_abs_deg', {})
+        theirs = per_frame[key] = run.pop('_yaw_abs_deg', {})
         if key != 'planar_vo':
             run['yaw_paired_vs_planar_vo'] = paired_yaw(ours, theirs)
     if focal:
@@ -374,7 +379,28 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
         if self_cal_fov is not None:
             out['focal']['field_of_view_given'] = {
                 'settings': fov_settings, **self_cal_fov.summary(float(seq.P0[0, 0]))}
+        bound = causal_bound(ours, per_frame['planar_vo_focal'], self_cal.first_pair_ns)
+        bound['first_pair_frame'] = (None if self_cal.first_pair_ns is None else
+                                     int(np.searchsorted(stamps, self_cal.first_pair_ns)))
+        out['focal']['self_calibrated']['causal_bound'] = bound
     return out
+
+
+def causal_bound(calibrated: dict, self_calibrated: dict, first_pair_ns: int | None) -> dict:
+    """The least per-frame yaw-change error a causal self-calibration could have on this
+    drive: the self-calibrated run's own errors over the frames before its first turning pair
+    (no calibration can know the focal length before the car turns), the calibrated run's
+    after it (a calibration perfect at once). Both ``{(stamp_ns, next stamp_ns): |e| deg}``;
+    ``first_pair_ns`` the stamp of the frame that offered the first turning pair (None: the
+    whole drive is before it)."""
+    errors = []
+    for key, e in calibrated.items():
+        before = first_pair_ns is None or key[1] <= first_pair_ns
+        value = self_calibrated.get(key) if before else e
+        if value is not None and math.isfinite(value):
+            errors.append(value)
+    return {'first_pair_stamp_ns': first_pair_ns,
+            'mean_deg': float(np.mean(errors)) if errors else math.nan}
 
 
 def _bar(items, total: int, desc: str, progress: bool):
@@ -468,6 +494,7 @@ class FocalRun:
         self.vo = VisualOdometry(config)
         self.stamps: list[float] = []
         self.results: list = []
+        self.first_pair_ns: int | None = None        # the frame that offered the first pair
 
     def add(self, frame) -> None:
         """One `planar_vo.io.CameraFrame`; its CameraInfo is withheld (``camera=None``)."""
@@ -475,6 +502,10 @@ class FocalRun:
             return                                   # replay counts it as bad_image too
         self.results.append(self.vo.process(frame.image, frame.stamp, None))
         self.stamps.append(frame.stamp)
+        cal = self.vo.focal_calibrator
+        if self.first_pair_ns is None and cal is not None and \
+                cal.pairs + cal.pending + cal.rejected > 0:
+            self.first_pair_ns = int(frame.stamp_ns)
 
     @property
     def run(self) -> OdometryRun:
@@ -777,6 +808,17 @@ def targets(drive: dict) -> str:
                   _check('yaw-change error, self-calibrated (deg)',
                          _get(own, 'yaw_change_error_deg', 'mean'),
                          1.5 * _get(ours, 'yaw_change_error_deg', 'mean'), '1.5x calibrated')]
+        bound = f.get('causal_bound')
+        if bound is not None:
+            first = bound['first_pair_frame']
+            when = (f'until its first turning pair, at frame {first}' if first is not None else
+                    'over the whole drive: it has no turning pair')
+            lines.append(
+                f"  - the least a causal self-calibration could reach here (the self-calibrated "
+                f"run's per-frame errors {when}, the calibrated run's after it): "
+                f"{_fmt(bound['mean_deg'])} deg, "
+                f"{_fmt(bound['mean_deg'] / _get(ours, 'yaw_change_error_deg', 'mean'))}x "
+                f'calibrated')
     return '\n'.join(lines)
 
 

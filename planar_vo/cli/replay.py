@@ -124,11 +124,9 @@ def with_sets(path, sets):
         ConfigError: an unreadable file, a malformed item, an unknown key, several values, or a
             value the configuration refuses (named after the file, ``set:``, or both).
     """
-    from planar_vo.config import PlanarVoConfig, flatten, load_config, parse_set, read_config
+    from planar_vo.config import PlanarVoConfig, build_config, flatten, parse_set, read_config
     from planar_vo.errors import ConfigError
 
-    if not sets:
-        return load_config(path)
     keys = flatten(PlanarVoConfig())
     changes = {}
     for item in sets:
@@ -137,9 +135,4 @@ def with_sets(path, sets):
             raise ConfigError(f"set: '{item}': expected one value (one --set per key: a replay "
                               f'runs one configuration; planar_vo fleet run takes several)')
         changes[key] = found[0]
-    try:
-        return PlanarVoConfig.from_flat({**read_config(path), **changes})
-    except ConfigError as err:
-        if path is None or str(err).startswith(f'{path}: '):
-            raise ConfigError(f'set: {err}' if path is None else str(err)) from None
-        raise ConfigError(f'{path} with --set: {err}') from None
+    return build_config(read_config(path), changes, path)

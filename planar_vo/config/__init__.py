@@ -12,7 +12,13 @@ library takes the section it needs.
 from __future__ import annotations
 
 from planar_vo.config import files, keys, sections
-from planar_vo.config.files import load_config, parse_set, read_config, to_ros_yaml  # noqa: F401
+from planar_vo.config.files import (  # noqa: F401
+    build_config,
+    load_config,
+    parse_set,
+    read_config,
+    to_ros_yaml,
+)
 from planar_vo.config.keys import describe, flatten, ranges  # noqa: F401
 from planar_vo.config.sections import *  # noqa: F401,F403 - the sections in their __all__
 

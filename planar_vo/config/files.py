@@ -11,7 +11,7 @@ from planar_vo.config.sections import PlanarVoConfig
 from planar_vo.core.options import nest_dotted
 from planar_vo.errors import ConfigError, one_line
 
-__all__ = ['load_config', 'parse_set', 'read_config', 'to_ros_yaml']
+__all__ = ['build_config', 'load_config', 'parse_set', 'read_config', 'to_ros_yaml']
 
 
 def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
@@ -25,7 +25,7 @@ def load_config(path: str | Path | None = None, *, node_name: str = 'planar_vo'
     """
     if path is None:
         return PlanarVoConfig()
-    data = _read_data(Path(path), node_name)
+    data = _read_data(path, node_name)
     if data is None:
         return PlanarVoConfig()
     try:
@@ -47,10 +47,13 @@ def read_config(path: str | Path | None, *, node_name: str = 'planar_vo') -> dic
     """
     if path is None:
         return {}
-    data = _read_data(Path(path), node_name)
+    data = _read_data(path, node_name)
     if data is None:
         return {}
     nested = nest_dotted(data) if isinstance(data, dict) else data
+    if isinstance(nested, dict):
+        # A section whose settings are all commented out is empty (as `load_config` reads it).
+        nested = {k: {} if v is None else v for k, v in nested.items()}
     if not (isinstance(nested, dict) and all(isinstance(v, dict) for v in nested.values())):
         load_config(path, node_name=node_name)          # raises the specific error
         raise ConfigError(f'{path}: expected sections of settings')
@@ -58,13 +61,49 @@ def read_config(path: str | Path | None, *, node_name: str = 'planar_vo') -> dic
             for key, value in values.items()}
 
 
-def _read_data(path: Path, node_name: str) -> Any:
+def build_config(values: dict[str, Any], changes: dict[str, Any], source: str | Path | None = None,
+                 label: str = '') -> PlanarVoConfig:
+    """The configuration of a file's settings ``values`` (`read_config`) with ``changes``
+    (``--set`` items, dotted keys) over them, validated as a whole. A refusal names its cause:
+    the file ``source`` when the file alone is refused for the same reason, ``set:`` (with
+    ``label``, the combination's name) when the file alone is valid or the sets alone are
+    refused for the same reason, both otherwise.
+
+    Raises:
+        ConfigError: the combination is refused.
+    """
+    try:
+        return PlanarVoConfig.from_flat({**values, **changes})
+    except ConfigError as err:
+        combined = str(err)
+    setting = f'set: {label}: ' if label else 'set: '
+    if source is None:
+        raise ConfigError(setting + combined if changes else combined)
+    if not changes:
+        raise ConfigError(f'{source}: {combined}')
+
+    def refusal(flat: dict[str, Any]) -> str | None:
+        try:
+            PlanarVoConfig.from_flat(flat)
+        except ConfigError as err:
+            return str(err)
+        return None
+
+    alone = refusal(values)
+    if alone == combined:
+        raise ConfigError(f'{source}: {combined}')
+    if alone is None or refusal(changes) == combined:
+        raise ConfigError(setting + combined)
+    raise ConfigError(f'{source} with --{setting}{combined}')
+
+
+def _read_data(path: str | Path, node_name: str) -> Any:
     """The YAML data of a configuration file: the node's ``ros__parameters`` of a ROS parameter
-    file, else the whole document (None when empty)."""
+    file, else the whole document (None when empty). Errors name the file as given."""
     import yaml
 
     try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+        data = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
     except OSError as err:
         raise ConfigError(f'{path}: cannot read configuration ({err.strerror})') from err
     except UnicodeDecodeError as err:

@@ -69,11 +69,11 @@ class CameraConfig(Options):
             its focal length (``width / (2 tan(fov / 2))``; through an ``equidistant`` fisheye
             lens ``width / fov``) is the prior's centre (log-normal, sigma 0.45) and the
             odometry's focal length until turning pairs move it; 0 (unknown): the focal length
-            equals the image width (53 deg through a rectilinear lens). Within the range the
-            calibration searches: 0.40-2.20 rad (23-126 deg), with ``distortion_model:
-            equidistant`` 0.40-4.0 rad (23-229 deg). Only with ``estimate_focal``. (The
-            calibration profiles a fisheye's focal length to first order only: it rescales the
-            undistorted points as a pinhole's.)
+            equals the image's larger side (53 deg across it through a rectilinear lens).
+            Within the range the calibration searches: 0.40-2.20 rad (23-126 deg), with
+            ``distortion_model: equidistant`` 0.40-4.0 rad (23-229 deg). Only with
+            ``estimate_focal``. (The calibration profiles a fisheye's focal length to first
+            order only: it rescales the undistorted points as a pinhole's.)
         focal_tolerance: the calibration is adopted once its relative standard deviation
             (reported so that the error stays within 3 of them) is below this; until then a
             provisional focal length is used and its uncertainty enters the covariance.
@@ -143,7 +143,8 @@ class CameraConfig(Options):
                       f'({math.degrees(lo):.0f}-{math.degrees(hi):.0f} deg, the range the focal '
                       f'calibration searches'
                       + (' through a fisheye lens' if fisheye else
-                         '; wider: a fisheye lens, distortion_model equidistant')
+                         '; wider: a fisheye lens, distortion_model equidistant' if fov > hi
+                         else '')
                       + (f'; in degrees? {fov:g} deg is {math.radians(fov):.4f} rad'
                          if fov > 2.0 * math.pi else '')
                       + ')')

@@ -32,6 +32,7 @@ from planar_vo.errors import CameraModelError, one_line
 __all__ = [
     'DISTORTION_MODELS',
     'CameraModel',
+    'field_of_view_for_focal',
     'fits_distortion_model',
     'focal_for_field_of_view',
     'intrinsic_matrix',
@@ -65,6 +66,23 @@ def focal_for_field_of_view(width: float, fov: float, distortion_model: str = 'n
     if distortion_model == 'equidistant':
         return width / fov
     return 0.5 * width / math.tan(0.5 * fov)
+
+
+def field_of_view_for_focal(width: float, focal: float, distortion_model: str = 'none'
+                            ) -> float:
+    """The inverse of `focal_for_field_of_view`: the horizontal field of view (radians) of
+    ``focal`` pixels over ``width`` pixels, centred."""
+    if distortion_model == 'equidistant':
+        return width / focal
+    return 2.0 * math.atan(0.5 * width / focal)
+
+
+def _inverse_2x2(J: np.ndarray) -> np.ndarray:
+    """Inverses of ``(N, 2, 2)`` matrices by the adjugate, non-finite where one is singular
+    (instead of `numpy.linalg.LinAlgError` for the whole batch)."""
+    a, b, c, d = J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1]
+    det = a * d - b * c
+    return np.stack([np.stack([d, -b], -1), np.stack([-c, a], -1)], 1) / det[:, None, None]
 
 
 def fits_distortion_model(model: str, D) -> bool:
@@ -223,12 +241,9 @@ class CameraModel:
             # corners; absurd coefficients fail everywhere, and every frame would be lost).
             grid = np.stack(np.meshgrid(np.linspace(0.0, self.width - 1.0, 9),
                                         np.linspace(0.0, self.height - 1.0, 9)), -1)
-            try:
-                with np.errstate(all='ignore'):
-                    q, _ = self.pixel_to_normalized(grid.reshape(-1, 2))
-                inverted = int(np.count_nonzero(np.isfinite(q).all(axis=1)))
-            except np.linalg.LinAlgError:
-                inverted = 0
+            with np.errstate(all='ignore'):
+                q, _ = self.pixel_to_normalized(grid.reshape(-1, 2))
+            inverted = int(np.count_nonzero(np.isfinite(q).all(axis=1)))
             if inverted < 0.75 * 81:
                 raise CameraModelError(
                     f'camera_info: the {self.distortion_model} distortion {list(self.D)} cannot '
@@ -315,20 +330,24 @@ class CameraModel:
 
         Newton's method on `distort` (vectorised); the Jacobian is the inverse of the distortion
         Jacobian at the solution. Points where the iteration does not converge (far outside the
-        calibrated field of view) are NaN.
+        calibrated field of view, or where the distortion folds over: a singular Jacobian) are
+        NaN, each on its own (a review: one singular point of a batch raised for all of them).
         """
         xd = np.asarray(xd, dtype=np.float64)
         if not self.is_distorted:
             return xd.copy(), np.broadcast_to(np.eye(2), (xd.shape[0], 2, 2)).copy()
         x = xd.copy()
-        for _ in range(_UNDISTORT_ITERATIONS):
+        with np.errstate(all='ignore'):
+            for _ in range(_UNDISTORT_ITERATIONS):
+                f, J = self.distort(x)
+                x = x - (_inverse_2x2(J) @ (f - xd)[..., None])[..., 0]
             f, J = self.distort(x)
-            step = np.linalg.solve(J, (f - xd)[..., None])[..., 0]
-            x = x - step
-        f, J = self.distort(x)
-        bad = np.linalg.norm(f - xd, axis=1) > 1e-9 * (1.0 + np.linalg.norm(xd, axis=1))
+            good = np.linalg.norm(f - xd, axis=1) <= 1e-9 * (1.0 + np.linalg.norm(xd, axis=1))
+            J_inv = _inverse_2x2(J)
+        bad = ~(good & np.isfinite(J_inv).all(axis=(1, 2)))
         x[bad] = np.nan
-        return x, np.linalg.inv(J)
+        J_inv[bad] = np.nan
+        return x, J_inv
 
     # -- pixels ------------------------------------------------------------------------------
 

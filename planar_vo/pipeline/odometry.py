@@ -39,7 +39,11 @@ from collections import deque
 import numpy as np
 
 from planar_vo.config import PlanarVoConfig
-from planar_vo.core.camera import CameraModel, focal_for_field_of_view
+from planar_vo.core.camera import (
+    CameraModel,
+    field_of_view_for_focal,
+    focal_for_field_of_view,
+)
 from planar_vo.core.conventions import (
     adjoint,
     invert,
@@ -107,8 +111,9 @@ class VisualOdometry:
         config: the whole configuration (`PlanarVoConfig`); defaults if None.
         camera: the camera model, if known up front (else from `process` or the config's
             intrinsics; configured intrinsics get `CameraModel.check_plausible`, as a
-            CameraInfo does). With ``camera.estimate_focal`` none is used: one given here is a
-            `ConfigError`, one given to `process` is not used (a warning, once).
+            CameraInfo does). With ``camera.estimate_focal`` one given here is a
+            `ConfigError`; one given to `process` (a CameraInfo that arrived) replaces the
+            self-calibration from then on (a warning says so, once).
 
     Attributes:
         pose: ``T_odom_base`` after the last frame (4x4).
@@ -130,7 +135,7 @@ class VisualOdometry:
         self._camera = camera
         self._camera_from_config = False
         self._camera_problem: str | None = None     # why the configured intrinsics are refused
-        self._ignored_camera = False                # a camera given while self-calibrating
+        self._took_camera = False                   # a camera model replaced the calibration
         scale = self.config.scale
         self._speed = SpeedIntegrator(max_gap=scale.speed_max_gap)
         # Created at the first image (they need its size) when the focal length is unknown.
@@ -378,8 +383,8 @@ class VisualOdometry:
             c = self.config.camera
             if c.fx > 0 and self._camera_problem is not None:
                 return self._drop(stamp, DropReason.NO_CAMERA_INFO,
-                                  f'camera.fx/fy/cx/cy: {self._camera_problem} (no camera '
-                                  f'model)')
+                                  f'configured intrinsics (camera.fx, fy, cx, cy, distortion): '
+                                  f'{self._camera_problem} (no camera model)')
             if c.fx > 0 or c.estimate_focal:
                 return self._drop(stamp, DropReason.NO_CAMERA_INFO,
                                   f'camera.cx, camera.cy ({c.cx:g}, {c.cy:g}) lie outside the '
@@ -478,12 +483,12 @@ class VisualOdometry:
 
     def _resolve_camera(self, camera: CameraModel | None, shape: tuple[int, int]
                         ) -> CameraModel | None:
-        if camera is not None and self.config.camera.estimate_focal:
-            if not self._ignored_camera:
-                log.warning('camera model given to process() not used: camera.estimate_focal '
-                            'is on (the focal length is self-calibrated)')
-                self._ignored_camera = True
-            camera = None
+        if camera is not None and self.config.camera.estimate_focal and not self._took_camera:
+            # A camera model (a CameraInfo that arrived late) replaces the self-calibration;
+            # said once (a user test: it happened without a word).
+            log.warning('a camera model arrived: it replaces the focal self-calibration '
+                        '(camera.estimate_focal) from frame %d on', self._frames)
+            self._took_camera = True
         if camera is not None:
             if self._camera is not None and camera != self._camera:
                 shift = self._camera.pixel_shift(camera)
@@ -535,10 +540,11 @@ class VisualOdometry:
                             self._restart = 'a camera model change'
                     nominal = (focal_for_field_of_view(width, c.nominal_fov,
                                                        c.distortion_model)
-                               if c.nominal_fov > 0 else None)
+                               if c.nominal_fov > 0 else float(max(width, height)))
                     self._focal = OnlineFocalCalibrator(
                         width, height, nominal, pp_std=1.0 if c.cx and c.cy else None,
-                        stated_fov=c.nominal_fov or None,
+                        prior_fov=field_of_view_for_focal(width, nominal, c.distortion_model),
+                        stated=c.nominal_fov > 0,
                         tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
                         max_queue=c.focal_queue, block_frames=c.focal_block_frames,
                         min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,

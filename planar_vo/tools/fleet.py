@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from planar_vo.config import PlanarVoConfig, flatten, parse_set
+from planar_vo.config import PlanarVoConfig, build_config, flatten, parse_set
 from planar_vo.errors import ConfigError, DependencyError, InputError, PlanarVoError, one_line
 from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
 
@@ -147,20 +147,13 @@ def config_grid(base: PlanarVoConfig | Mapping[str, Any], sets: Sequence[str] = 
             raise ConfigError(f"set: '{key}' given twice; list its values once: {key}=V1,V2")
         axes.append((key, values))
     if not axes:
-        try:
-            return [FleetConfig('default', flatten(PlanarVoConfig.from_flat(base_values)))]
-        except ConfigError as err:
-            raise ConfigError(f'{source}: {err}' if source else str(err)) from None
+        return [FleetConfig('default', flatten(build_config(base_values, {}, source)))]
     grid = []
     for combo in itertools.product(*(values for _, values in axes)):
         changes = dict(zip((key for key, _ in axes), combo))
         name = ' '.join(f'{k}={_format_value(v)}' for k, v in changes.items())
-        try:
-            config = PlanarVoConfig.from_flat({**base_values, **changes})
-        except ConfigError as err:
-            where = f'{source} with --set' if source else 'set'
-            raise ConfigError(f'{where}: {name}: {err}') from None
-        grid.append(FleetConfig(name, flatten(config)))
+        grid.append(FleetConfig(name, flatten(build_config(base_values, changes, source,
+                                                           label=name))))
     return grid
 
 

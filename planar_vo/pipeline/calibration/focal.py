@@ -191,8 +191,9 @@ class OnlineFocalCalibrator:
         width, height: image size (pixels).
         nominal: provisional focal before any information (default ``max(width, height)``,
             a 53-deg field of view).
-        stated_fov: the field of view (rad) ``nominal`` was computed from, when the user
-            stated it (``camera.nominal_fov``; the status names it).
+        prior_fov: the horizontal field of view (rad) of ``nominal`` through the lens, for the
+            status (default: through a rectilinear lens).
+        stated: whether the user stated it (``camera.nominal_fov``), else it is assumed.
         pp_std: standard deviation (pixels) of the horizontal principal point the caller
             assumed (default 1 % of the width, for the image centre; about 1 when cx, cy are
             configured).
@@ -211,7 +212,8 @@ class OnlineFocalCalibrator:
     """
 
     def __init__(self, width: int, height: int, nominal: float | None = None,
-                 pp_std: float | None = None, *, stated_fov: float | None = None,
+                 pp_std: float | None = None, *, prior_fov: float | None = None,
+                 stated: bool = False,
                  tolerance: float = CameraConfig.focal_tolerance,
                  max_acs: int = CameraConfig.focal_max_acs,
                  max_queue: int = CameraConfig.focal_queue,
@@ -227,7 +229,9 @@ class OnlineFocalCalibrator:
                      focal_max_blocks=max_blocks)        # validates the options
         self.width, self.height = int(width), int(height)
         self.nominal = float(nominal) if nominal is not None else float(max(width, height))
-        self.stated_fov = stated_fov
+        self.prior_fov = (float(prior_fov) if prior_fov is not None
+                          else 2.0 * math.atan(0.5 * self.width / self.nominal))
+        self.stated = bool(stated)
         if not (math.isfinite(self.nominal) and self.nominal > 0):
             raise ConfigError(f'nominal: expected a positive focal length, got {nominal}')
         self.pp_std = _PP_STEP * width if pp_std is None else float(pp_std)
@@ -452,11 +456,8 @@ class OnlineFocalCalibrator:
         f = self.provisional
         blocks = len(self._blocks)
         if not blocks:
-            if self.stated_fov is not None:
-                prior = f'the stated {math.degrees(self.stated_fov):.0f}-degree field of view'
-            else:
-                fov = math.degrees(2.0 * math.atan(0.5 * self.width / self.nominal))
-                prior = f'an assumed {fov:.0f}-degree field of view'
+            prior = (f"{'the stated' if self.stated else 'an assumed'} "
+                     f'{math.degrees(self.prior_fov):.0f}-degree field of view')
             why = (f'no turn to calibrate from yet: {prior}, 0 of {self.min_blocks} '
                    f'blocks')
         elif blocks < self.min_blocks:
