@@ -811,11 +811,11 @@ def targets(drive: dict) -> str:
         bound = f.get('causal_bound')
         if bound is not None:
             first = bound['first_pair_frame']
-            when = (f'until its first turning pair, at frame {first}' if first is not None else
-                    'over the whole drive: it has no turning pair')
+            how = (f"the self-calibrated run's per-frame errors until its first turning pair, "
+                   f"at frame {first}, the calibrated run's after it" if first is not None else
+                   "no turning pair: the self-calibrated run's own errors")
             lines.append(
-                f"  - the least a causal self-calibration could reach here (the self-calibrated "
-                f"run's per-frame errors {when}, the calibrated run's after it): "
+                f"  - the least a causal self-calibration could reach here ({how}): "
                 f"{_fmt(bound['mean_deg'])} deg, "
                 f"{_fmt(bound['mean_deg'] / _get(ours, 'yaw_change_error_deg', 'mean'))}x "
                 f'calibrated')
