@@ -156,15 +156,15 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
      r'\(23-126 deg, the range the focal calibration searches\), got 0.3'),
     # (a user test: degrees, and a 143-degree dashcam, got only 'a horizontal field of view')
     ({'camera': {'estimate_focal': True, 'nominal_fov': 90.0}},
-     r'camera.nominal_fov: expected .* of 0.4-2.2 rad .*; in degrees\? 90 deg is 1.5708 rad\), '
-     r'got 90.0'),
+     r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view of at most 4 '
+     r'rad, 229 deg through a fisheye lens \(rad: 90 deg is 1.5708\), got 90.0'),
     ({'camera': {'estimate_focal': True, 'nominal_fov': 2.5}},
      r'camera.nominal_fov: .*wider: a fisheye lens, distortion_model equidistant\), got 2.5'),
-    ({'camera': {'estimate_focal': True, 'nominal_fov': 4.5, 'distortion_model': 'equidistant',
+    ({'camera': {'estimate_focal': True, 'nominal_fov': 0.3, 'distortion_model': 'equidistant',
                  'distortion': [0.0] * 4}},
      r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view of 0.4-4 rad '
      r'\(23-229 deg, the range the focal calibration searches through a fisheye lens\), '
-     r'got 4.5'),
+     r'got 0.3'),
     ({'camera': {'fy': 700.0}}, r'camera.fy: expected 0 while fx is 0 \(fy is used with fx '
                                 r'only'),
     ({'camera': {'cx': -10.0}}, r'camera.cx: expected cx, cy >= 0 \(0 = the image centre\), '
@@ -221,6 +221,7 @@ def test_ranges_are_declared_once_and_checked_by_the_config():
     assert str(declared['camera.focal_tolerance']) == 'in (0, 1)'
     assert str(declared['frontend.max_correspondences']) == 'in [1, 30000]'
     assert str(declared['ros.path_max_length']) == 'in [1, 1e+06]'
+    assert str(declared['camera.nominal_fov']) == 'in [0, 4]'   # a fisheye's widest
     assert 'ros.odom_frame' not in declared and 'scale.source' not in declared
     defaults = flatten(PlanarVoConfig())
     # Every declared range holds its default, and a value just outside it is refused with the

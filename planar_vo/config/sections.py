@@ -107,8 +107,12 @@ class CameraConfig(Options):
                                      'equidistant'] = 'none'
     distortion: tuple[float, ...] = ()
     estimate_focal: bool = False
-    nominal_fov: float = bounded(0.0, 0.0,
-                                 expected='0 (unknown) or a horizontal field of view (rad)')
+    # The declared range (ros2 param describe) is the fisheye's; `validate` narrows it for a
+    # rectilinear lens. Beyond it, most likely degrees: the text says how many radians 90 is.
+    nominal_fov: float = bounded(0.0, 0.0, NOMINAL_FOV_RANGE['equidistant'][1],
+                                 expected='0 (unknown) or a horizontal field of view of at most '
+                                          '4 rad, 229 deg through a fisheye lens (rad: 90 deg is '
+                                          '1.5708)')
     focal_tolerance: float = bounded(0.02, 0.0, 1.0, low_open=True, high_open=True)
     focal_steps: float = bounded(2.0, 0.0, 100.0, low_open=True,
                                  expected='work steps per frame in (0, 100]')
@@ -145,8 +149,6 @@ class CameraConfig(Options):
                       + (' through a fisheye lens' if fisheye else
                          '; wider: a fisheye lens, distortion_model equidistant' if fov > hi
                          else '')
-                      + (f'; in degrees? {fov:g} deg is {math.radians(fov):.4f} rad'
-                         if fov > 2.0 * math.pi else '')
                       + ')')
         self._require(self.nominal_fov == 0 or self.estimate_focal, 'nominal_fov',
                       '0 without estimate_focal (it is where the focal self-calibration starts)')
