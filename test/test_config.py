@@ -221,7 +221,8 @@ def test_ranges_are_declared_once_and_checked_by_the_config():
     assert str(declared['camera.focal_tolerance']) == 'in (0, 1)'
     assert str(declared['frontend.max_correspondences']) == 'in [1, 30000]'
     assert str(declared['ros.path_max_length']) == 'in [1, 1e+06]'
-    assert str(declared['camera.nominal_fov']) == 'in [0, 4]'   # a fisheye's widest
+    fov = declared['camera.nominal_fov']                    # up to a fisheye's widest
+    assert (fov.low, fov.high, fov.low_open, fov.high_open) == (0.0, 4.0, False, False)
     assert 'ros.odom_frame' not in declared and 'scale.source' not in declared
     defaults = flatten(PlanarVoConfig())
     # Every declared range holds its default, and a value just outside it is refused with the
