@@ -316,6 +316,11 @@ def test_drive_folders_are_found_or_refused(data, tmp_path):
     (tmp_path / 'no_truth' / 'calib.txt').write_text('0 ' * 12)
     with pytest.raises(InputError, match="no_truth' has no poses.txt"):
         find_drives(tmp_path)
+    (tmp_path / 'no_truth' / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n')
+    # (a user test: the importer's advice, a frame rate, is no option of the benchmark)
+    with pytest.raises(InputError, match=r"no_truth' has no times.txt \(the frames' times, "
+                                         r'which the evaluation needs\)'):
+        find_drives(tmp_path)
 
 
 @pytest.mark.parametrize('options, message', [

@@ -107,7 +107,10 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
     ({'votes': {}}, r'unknown configuration key\(s\) votes'),
     ({'voting': {'bins': 'x'}}, r"voting.bins: expected int, got str 'x'"),
     ({'voting': {'bins': 10}}, r'voting.bins: expected in \[36, 100000\], got 10'),
-    ({'mount': {'height': -1.0}}, r'mount.height: expected a positive height'),
+    ({'mount': {'height': -1.0}}, r'mount.height: expected a height above the ground of '
+                                  r'0.01-100 m, got -1.0'),
+    # (a user test: 1e-300 m ran into positions of 1e-299 m with a numpy warning)
+    ({'mount': {'height': 1e-300}}, r'mount.height: expected a height above the ground of '),
     ({'frontend': {'method': 'sift'}}, r"frontend.method: expected one of \['flow', 'klt', "
                                        r"'asift'\], got 'sift'"),
     ({'camera': {'distortion': [0.1, 'a']}}, r"camera.distortion\[1\]: expected float"),
@@ -216,8 +219,8 @@ def test_ranges_are_declared_once_and_checked_by_the_config():
     from planar_vo.core.options import Range
 
     declared = ranges()
-    assert declared['mount.height'] == Range(0.0, None, low_open=True,
-                                             expected='a positive height above the ground (m)')
+    assert declared['mount.height'] == Range(0.01, 100.0,
+                                             expected='a height above the ground of 0.01-100 m')
     assert str(declared['camera.focal_tolerance']) == 'in (0, 1)'
     assert str(declared['frontend.max_correspondences']) == 'in [1, 30000]'
     assert str(declared['ros.path_max_length']) == 'in [1, 1e+06]'

@@ -518,6 +518,16 @@ def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
          "error: --gt: '" + str(tmp_path / 'missing.tum') + "' does not exist"),
         (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'), '--segments',
           '0'], 'error: --segments: expected positive lengths in metres, got [0.0]'),
+        # (a user test: twice the same length counted its segments twice; a topic for a TUM
+        # file was ignored)
+        (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'), '--segments',
+          '5', '5'], 'error: --segments: expected different lengths, got [5.0, 5.0]'),
+        (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'), '--est-topic',
+          '/foo'], f"error: --est-topic: '{tmp_path / 'est.tum'}' is a TUM file, which has no "
+                   f'topics; give --est-topic only for a bag'),
+        (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'), '--gt-topic',
+          '/foo'], f"error: --gt-topic: '{tmp_path / 'est.tum'}' is a TUM file, which has no "
+                   f'topics; give --gt-topic only for a bag'),
     ]
     path, _, _ = _bag_with(tmp_path, rng, topics=('/odom',))
     cases.append((['eval', str(path)], "error: --gt-topic: '/ground_truth/odom' is not a topic of"))
@@ -530,7 +540,8 @@ def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
                                                                                    (5, 1, 1))))
     cases.append((['eval', str(tmp_path / 'parked.tum'), '--gt', str(tmp_path / 'est.tum')],
                   'error: EST: expected points that are not all identical (a trajectory that '
-                  'moves), got 5 identical points'))
+                  'moves), got 5 identical points; a trajectory that does not move cannot be '
+                  'aligned: give --align origin'))
     cases.append((['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'),
                    '--max-diff', '-1'],
                   'error: --max-diff: expected a non-negative number of seconds, got -1.0'))

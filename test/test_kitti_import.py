@@ -170,7 +170,12 @@ def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
      r'times\.txt line 3: expected increasing times, got 0\.1 after 0\.1'),
     (lambda d: (d / 'times.txt').write_text('0\n0.1\n'),
      r'times\.txt: expected one time per image \(4\), got 2'),
-    (lambda d: (d / 'times.txt').unlink(), r"has no times\.txt \(give a frame rate instead\)"),
+    (lambda d: (d / 'times.txt').unlink(),
+     r"has no times\.txt \(give a frame rate instead: rate_hz, --rate-hz\)"),
+    # (a user test: a missing image was blamed on times.txt's count)
+    (lambda d: (d / 'image_0' / '000002.png').unlink(),
+     r"images: '000002\.png' is missing from '.*image_0' \(frames are numbered from 0 without "
+     r"gaps; the next there is '000003\.png'\)"),
     (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n1 2 3\n'),
      r"poses\.txt line 2: expected a 3x4 pose as 12 numbers, got '1 2 3'"),
     (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n'),

@@ -529,12 +529,13 @@ def test_run_time_parameter_changes_are_validated_and_described(prefix, ros_env,
         assert height.read_only and height.type == ParameterType.PARAMETER_INTEGER
         assert height.description.startswith('camera position in base_link (metres)')
         assert (height.floating_point_range[0].from_value,
-                height.floating_point_range[0].to_value) == (0.0, math.inf)
-        # The range is closed in ROS; the open bound in words.
-        assert height.additional_constraints == 'expected a positive height above the ground (m)'
+                height.floating_point_range[0].to_value) == (0.01, 100.0)
+        assert height.additional_constraints == ''                # closed: the range says it
         assert described['frontend.max_correspondences'].additional_constraints == ''
         tolerance = described['camera.focal_tolerance'].floating_point_range[0]
         assert (tolerance.from_value, tolerance.to_value) == (0.0, 1.0)
+        # The range is closed in ROS; an open bound in words.
+        assert described['camera.focal_tolerance'].additional_constraints == 'expected in (0, 1)'
         cap = described['frontend.max_correspondences'].integer_range[0]
         assert (cap.from_value, cap.to_value, cap.step) == (1, 30000, 0)
         assert not described['ros.path_max_length'].read_only

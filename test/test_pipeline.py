@@ -133,6 +133,12 @@ def test_scale_sources(source, bound):
     assert all(r.ok for r in results[1:])
     assert {r.scale_source for r in results[1:]} == {source}
     pos, yaw, distance = _errors(trajectory, results)
+    if source == 'fixed':
+        # One assumed speed for all steps: its error (3 m/s of 8) is shared, so the position's
+        # standard deviation along the drive grows with the distance (a user test: as
+        # independent step noise it grew with its square root, overconfident).
+        along = math.sqrt(results[-1].pose_covariance[0, 0])
+        assert along == pytest.approx(3.0 / 8.0 * distance, rel=0.05), (along, distance)
     if bound is not None:
         assert pos < bound * distance
     else:
@@ -1007,6 +1013,15 @@ def test_a_real_fisheye_calibration_is_accepted_as_configured_intrinsics():
     vo = VisualOdometry(config)
     first = vo.process(np.random.default_rng(1).integers(0, 255, (512, 512), np.uint8), 0.0)
     assert first.reason is DropReason.FIRST_FRAME, first.message
+
+
+def test_wrong_types_for_the_odometry_are_config_errors():
+    # (a user test: a dict config was an AttributeError)
+    with pytest.raises(ConfigError, match=r'config: expected a PlanarVoConfig \(PlanarVoConfig'
+                                          r'.from_dict builds one from a dict\), got dict'):
+        VisualOdometry({'mount': {'height': -1}})
+    with pytest.raises(ConfigError, match=r'camera: expected a CameraModel or None, got str'):
+        VisualOdometry(None, 'camera')
 
 
 def test_self_calibration_takes_no_camera_model(caplog):

@@ -271,10 +271,12 @@ def test_replay_set_overrides_the_configuration(tmp_path, capsys, drive_bags):
             ('mount.height', "set: expected KEY=VALUE, got 'mount.height'"),
             ('mount.hieght=1.6', "set: unknown configuration key 'mount.hieght'; did you mean "
                                  'mount.height, mount.height_std, mount.pitch?'),
-            ('mount.height=-1', 'set: mount.height: expected a positive height above the ground '
-                                '(m), got -1')):
-        assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--set',
-                     item]) == 1
+            ('mount.height=-1', 'set: mount.height: expected a height above the ground of '
+                                '0.01-100 m, got -1'),
+            ('mount.height=1.6 --set mount.height=1.7',
+             "set: 'mount.height' given twice; give it once")):
+        sets = [arg for part in item.split(' --set ') for arg in ('--set', part)]
+        assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), *sets]) == 1
         err = capsys.readouterr().err
         assert err.startswith(f'planar_vo replay: error: --{message}') and err.count('\n') == 1, err
     assert not (tmp_path / 'x').exists()
@@ -295,7 +297,7 @@ def test_replay_set_overrides_the_configuration(tmp_path, capsys, drive_bags):
     assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--config',
                  str(config), '--set', 'mount.height=-1']) == 1
     assert capsys.readouterr().err.startswith('planar_vo replay: error: --set: mount.height: '
-                                              'expected a positive height')
+                                              'expected a height above the ground')
     # The file named as typed (a review: './x.yaml' was reported as 'x.yaml')
     missing = f'./{tmp_path.name}_missing.yaml'
     assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--config', missing,

@@ -191,6 +191,11 @@ def find_drives(data: Path, names: Sequence[str] | None = None) -> list[Path]:
         if not (folder / 'poses.txt').is_file():
             raise InputError(f"drives: '{folder}' has no poses.txt (no ground truth to compare "
                              f'with)')
+        if not (folder / 'times.txt').is_file():
+            # (a user test: the importer's advice to give a frame rate, an option the
+            # benchmark does not have)
+            raise InputError(f"drives: '{folder}' has no times.txt (the frames' times, which "
+                             f'the evaluation needs)')
     return drives
 
 

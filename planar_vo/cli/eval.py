@@ -97,6 +97,17 @@ def run(args: argparse.Namespace) -> int:
 
     if any(not (math.isfinite(s) and s > 0) for s in args.segments):
         raise InputError(f'--segments: expected positive lengths in metres, got {args.segments}')
+    if len(set(args.segments)) != len(args.segments):     # (a user test: counted twice)
+        raise InputError(f'--segments: expected different lengths, got {args.segments}')
+    # A topic option for a TUM file would be ignored (a user test): refused instead.
+    gt_file = args.gt if args.gt is not None else args.est
+    for option, value, default, path in (('--est-topic', args.est_topic, DEFAULT_EST_TOPIC,
+                                          args.est),
+                                         ('--gt-topic', args.gt_topic, DEFAULT_GT_TOPIC,
+                                          gt_file)):
+        if value != default and Path(path).is_file() and not is_bag_path(path):
+            raise InputError(f"{option}: '{path}' is a TUM file, which has no topics; give "
+                             f'{option} only for a bag')
     if args.out_dir is not None and not args.out_dir.strip():
         raise InputError('--out-dir: an empty path; expected the folder for the report')
     out = Path(args.out_dir) if args.out_dir else None
@@ -135,10 +146,18 @@ def run(args: argparse.Namespace) -> int:
             err.args = (f'{err}; EST has no ground truth: give it with --gt (a TUM file or a '
                         f'bag), and its topic with --gt-topic',)
         raise
-    evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
-                          segment_lengths=tuple(args.segments),
-                          names={'ref': '--gt-topic' if args.gt is None else '--gt', 'est': 'EST',
-                                 'max_diff': '--max-diff'}, covariances=covariances)
+    try:
+        evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
+                              segment_lengths=tuple(args.segments),
+                              names={'ref': '--gt-topic' if args.gt is None else '--gt',
+                                     'est': 'EST', 'max_diff': '--max-diff'},
+                              covariances=covariances)
+    except InputError as err:
+        if 'identical points' in str(err) and args.align != 'origin':
+            # (a user test: a drive standing still, with the default alignment)
+            err.args = (f'{err}; a trajectory that does not move cannot be aligned: give '
+                        f'--align origin',)
+        raise
     print(f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''))
     print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
     print(evaluation.format_table())

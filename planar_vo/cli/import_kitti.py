@@ -12,6 +12,7 @@ anyway). Stamps are times.txt (or --rate-hz) plus --start seconds.
 from __future__ import annotations
 
 import argparse
+import shlex
 
 STORAGES = ('mcap', 'sqlite3')       # planar_vo.io.writer.STORAGES (rosbags not imported here)
 
@@ -60,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
                            start=args.start, progress=show_progress(args))
     print(summary.format())
     # The height given here sets the ground truth's base_link; the replay's scale needs it too.
-    print(f'replay it with: planar_vo replay {args.out} --out {args.out}_vo --set '
-          f'mount.height={args.camera_height:g}')
+    # Quoted for the shell (a user test: a path with a space broke the suggested command).
+    out = str(args.out)
+    print(f'replay it with: planar_vo replay {shlex.quote(out)} --out '
+          f"{shlex.quote(out + '_vo')} --set mount.height={args.camera_height:g}")
     return 0

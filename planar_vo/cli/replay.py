@@ -131,6 +131,8 @@ def with_sets(path, sets):
     changes = {}
     for item in sets:
         key, found = parse_set(item, keys, several=False)
+        if key in changes:          # (a user test: the last one silently won)
+            raise ConfigError(f"set: '{key}' given twice; give it once")
         if len(found) != 1:
             raise ConfigError(f"set: '{item}': expected one value (one --set per key: a replay "
                               f'runs one configuration; planar_vo fleet run takes several)')

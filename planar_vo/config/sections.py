@@ -185,8 +185,10 @@ class MountConfig(Options):
 
     x: float = bounded(0.0, expected='a finite offset (m)')
     y: float = bounded(0.0, expected='a finite offset (m)')
-    height: float = bounded(1.5, 0.0, low_open=True,
-                            expected='a positive height above the ground (m)')
+    # 1 cm to 100 m: beyond, a slip of units (a user test: 1e-300 m ran, with a numpy warning,
+    # into positions of 1e-299 m).
+    height: float = bounded(1.5, 0.01, 100.0,
+                            expected='a height above the ground of 0.01-100 m')
     height_std: float = bounded(0.01, 0.0, expected='a non-negative distance (m)')
     roll: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
     pitch: float = bounded(0.0, -math.pi, math.pi, expected='an angle in [-pi, pi] rad')
@@ -317,7 +319,8 @@ class ScaleConfig(Options):
         speed_max_gap: longest interval (s) without speed samples that is bridged by
             interpolation; set it above the speed source's sample period (1.5 for 1 Hz).
         fixed_speed: metres per second for ``'fixed'``.
-        fixed_speed_std: its assumed standard deviation (m/s).
+        fixed_speed_std: its assumed standard deviation (m/s), an error shared by every step
+            (the position's grows with the distance).
         ground_min_correspondences: fewer road ACs give no ground scale.
         ground_max_depth: road points farther than this (m) are not used for the scale: their
             parallax (about h s / Z^2) is small against the rotation noise.

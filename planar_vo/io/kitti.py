@@ -148,6 +148,17 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
     if not images:
         raise InputError(f"sequence: '{image_dir}' contains no .png images")
     n = len(images)
+    # KITTI numbers its frames from 000000 without gaps: a missing one would shift every later
+    # frame's time and pose by one (a user test: it was blamed on times.txt's count, and with a
+    # frame rate imported without a word).
+    numbers = [int(p.stem) if p.stem.isdigit() else None for p in images]
+    if None not in numbers:
+        for i, number in enumerate(numbers):
+            if number != i:
+                width = len(images[i].stem)
+                raise InputError(f"images: '{i:0{width}d}.png' is missing from '{image_dir}' "
+                                 f"(frames are numbered from 0 without gaps; the next there is "
+                                 f"'{images[i].name}')")
 
     calib = folder / 'calib.txt'
     if not calib.is_file():
@@ -183,7 +194,8 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
             raise InputError(f'times.txt: expected one time per image ({n}), got {len(parsed)}')
         times = tuple(parsed)
     elif need_times:
-        raise InputError(f"sequence: '{folder}' has no times.txt (give a frame rate instead)")
+        raise InputError(f"sequence: '{folder}' has no times.txt (give a frame rate instead: "
+                         f'rate_hz, --rate-hz)')
 
     poses = None
     sought = [folder / 'poses.txt']

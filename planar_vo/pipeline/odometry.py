@@ -125,6 +125,12 @@ class VisualOdometry:
     def __init__(self, config: PlanarVoConfig | None = None,
                  camera: CameraModel | None = None) -> None:
         self.config = PlanarVoConfig() if config is None else config
+        if not isinstance(self.config, PlanarVoConfig):      # (a user test: AttributeError)
+            raise ConfigError(f'config: expected a PlanarVoConfig (PlanarVoConfig.from_dict '
+                              f'builds one from a dict), got {type(config).__name__}')
+        if camera is not None and not isinstance(camera, CameraModel):
+            raise ConfigError(f'camera: expected a CameraModel or None, got '
+                              f'{type(camera).__name__}')
         if camera is not None and self.config.camera.estimate_focal:
             # (a user test: the camera model was used and both options ignored without a word)
             raise ConfigError('camera: expected None with camera.estimate_focal (the focal '
@@ -843,7 +849,13 @@ class VisualOdometry:
                     shared = math.hypot(step[2], mount.height_std / mount.height)
                     return self._metric(step[0], step[1], shared, 'ground', stamp, dt)
             elif source == 'fixed':
-                return cfg.fixed_speed * dt, (cfg.fixed_speed_std * dt) ** 2, 'fixed', 0.0
+                if cfg.fixed_speed > 0:
+                    # One assumed speed for every step: its error is shared by all of them
+                    # (the position's grows with the distance, as the camera height's; a user
+                    # test: as independent step noise the covariance was overconfident).
+                    return (cfg.fixed_speed * dt, 0.0, 'fixed',
+                            cfg.fixed_speed_std / cfg.fixed_speed)
+                return 0.0, (cfg.fixed_speed_std * dt) ** 2, 'fixed', 0.0
             elif source == 'hold' and self._held is not None:
                 # The last metric speed, its uncertainty growing with the time since: a vehicle
                 # changes its speed by about hold_acceleration_std m/s every second.

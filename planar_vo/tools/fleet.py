@@ -433,7 +433,7 @@ class FleetRun:
                  f'there, {self.ran} run now)']
         if self.ran:
             where = self.address or f'local Ray, {self.workers} CPUs'
-            lines.append(f'  {self.tasks_s:.1f} s of tasks on {where} (Ray start '
+            lines.append(f'  {self.tasks_s:.1f} s (wall time) on {where} (Ray start '
                          f'{self.ray_start_s:.1f} s), {self.frames_per_s or 0:.1f} frames/s')
         names = bag_names([r['bag'] for r in rows])
         lines += [f'  failed: {names[r["bag"]]} [{r["config"]}]: {r["reason"]}' for r in failed]

@@ -166,7 +166,7 @@ def _report(summary: dict, plots: list[Path], names: dict[str, str],
     state = (f"**Interrupted**: {info['not_run']} of {info['jobs']} not run; rerun the same "
              'command to finish them.' if info['interrupted'] else 'Complete.')
     where = info['address'] or f"a local Ray instance with {info['workers']} CPUs"
-    ran = (f"{info['ran']} run now on {where} in {info['tasks_s']:.1f} s of tasks "
+    ran = (f"{info['ran']} run now on {where} in {info['tasks_s']:.1f} s (wall time) "
            f"(Ray start {info['ray_start_s']:.1f} s), {info['skipped']} already there"
            if info['ran'] else f"all {info['skipped']} already there (nothing run)")
     parts.append(f"{state} {totals['runs']} results ({totals['bags']} bags x {len(configs)} "
