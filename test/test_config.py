@@ -13,6 +13,7 @@ from planar_vo.config import (
     describe,
     flatten,
     load_config,
+    read_config,
     to_ros_yaml,
 )
 from planar_vo.errors import ConfigError
@@ -305,3 +306,16 @@ def test_a_file_and_its_sets_are_validated_together_and_a_refusal_names_its_caus
     with pytest.raises(ConfigError, match=r'^f.yaml with --set: camera.nominal_fov: expected 0 '
                                           r'without estimate_focal'):
         build_config(both, {'camera.focal_max_blocks': 50}, 'f.yaml')
+
+
+def test_a_key_given_twice_in_a_file_is_refused(tmp_path):
+    """PyYAML keeps the later of two equal keys without a word (a user test: a file with two
+    `height:` lines ran on the second); the file is refused instead, naming the line."""
+    path = tmp_path / 'dup.yaml'
+    path.write_text('mount:\n  height: 1.65\n  pitch: 0.01\n  height: 1.7\n')
+    for read in (load_config, read_config):
+        with pytest.raises(ConfigError, match=rf"^{path} line 4: 'height' given twice in one "
+                                              r'section \(the later would win without a word\)$'):
+            read(path)
+    path.write_text('mount: {height: 1.65}\ncamera: {fx: 500}\n')   # the same key, two sections
+    assert load_config(path).mount.height == 1.65

@@ -102,8 +102,23 @@ def _read_data(path: str | Path, node_name: str) -> Any:
     file, else the whole document (None when empty). Errors name the file as given."""
     import yaml
 
+    class UniqueKeyLoader(yaml.SafeLoader):
+        """YAML's safe loader, refusing a key given twice in one mapping (PyYAML keeps the
+        last without a word; a user test)."""
+
+    def mapping(loader, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = loader.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise ConfigError(f'{path} line {key_node.start_mark.line + 1}: {key!r} given '
+                                  f'twice in one section (the later would win without a word)')
+            seen.add(key)
+        return yaml.SafeLoader.construct_mapping(loader, node, deep)
+
+    UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
     try:
-        data = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
+        data = yaml.load(Path(path).read_text(encoding='utf-8'), Loader=UniqueKeyLoader)
     except OSError as err:
         raise ConfigError(f'{path}: cannot read configuration ({err.strerror})') from err
     except UnicodeDecodeError as err:
