@@ -16,6 +16,7 @@ from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import yaw_of
 from planar_vo.errors import BagError, InputError
 from planar_vo.io import import_kitti, iter_camera_frames, iter_messages, open_bag
+from planar_vo.io.kitti import read_kitti_sequence
 from planar_vo.io.outputs import stop_signals_interrupt
 from planar_vo.ros.messages import pose_from_message
 
@@ -174,8 +175,8 @@ def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
      r"has no times\.txt \(give a frame rate instead: rate_hz, --rate-hz\)"),
     # (a user test: a missing image was blamed on times.txt's count)
     (lambda d: (d / 'image_0' / '000002.png').unlink(),
-     r"images: '000002\.png' is missing from '.*image_0' \(frames are numbered from 0 without "
-     r"gaps; the next there is '000003\.png'\)"),
+     r"images: '000002\.png' is missing from '.*image_0' \(frames are numbered without gaps; "
+     r"the next there is '000003\.png'\)"),
     (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n1 2 3\n'),
      r"poses\.txt line 2: expected a 3x4 pose as 12 numbers, got '1 2 3'"),
     (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n'),
@@ -353,3 +354,17 @@ def test_import_on_a_full_disk_keeps_nothing_and_says_so(tmp_path, rng):
     assert run.stderr.endswith(f"nothing was kept at '{disk / 'bag'}' (cannot finish the bag: "
                                f'{reason})\n') and run.stderr.count('\n') == 1
     assert list((tmp_path / 'kept').iterdir()) == []
+
+
+def test_an_excerpt_may_keep_its_first_frame_number(tmp_path, rng):
+    """Frames are numbered without gaps; an excerpt that keeps the original numbers (000100...)
+    is a sequence like any other."""
+    _write_sequence(tmp_path / 'seq', rng)
+    images = sorted((tmp_path / 'seq' / 'image_0').glob('*.png'))
+    for i, path in reversed(list(enumerate(images))):
+        path.rename(path.with_name(f'{100 + i:06d}.png'))
+    summary = import_kitti(tmp_path / 'seq', tmp_path / 'bag')
+    assert summary.frames == len(images)
+    (tmp_path / 'seq' / 'image_0' / '000101.png').unlink()
+    with pytest.raises(InputError, match=r"images: '000101\.png' is missing"):
+        read_kitti_sequence(tmp_path / 'seq')

@@ -148,17 +148,17 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
     if not images:
         raise InputError(f"sequence: '{image_dir}' contains no .png images")
     n = len(images)
-    # KITTI numbers its frames from 000000 without gaps: a missing one would shift every later
-    # frame's time and pose by one (a user test: it was blamed on times.txt's count, and with a
-    # frame rate imported without a word).
+    # KITTI numbers its frames without gaps (from 000000; an excerpt may keep its first
+    # number): a missing one would shift every later frame's time and pose by one (a user
+    # test: it was blamed on times.txt's count, and with a frame rate imported without a word).
     numbers = [int(p.stem) if p.stem.isdigit() else None for p in images]
     if None not in numbers:
         for i, number in enumerate(numbers):
-            if number != i:
+            if number != numbers[0] + i:
                 width = len(images[i].stem)
-                raise InputError(f"images: '{i:0{width}d}.png' is missing from '{image_dir}' "
-                                 f"(frames are numbered from 0 without gaps; the next there is "
-                                 f"'{images[i].name}')")
+                raise InputError(f"images: '{numbers[0] + i:0{width}d}.png' is missing from "
+                                 f"'{image_dir}' (frames are numbered without gaps; the next "
+                                 f"there is '{images[i].name}')")
 
     calib = folder / 'calib.txt'
     if not calib.is_file():
