@@ -210,7 +210,10 @@ class CameraModel:
                                        f'without a distortion model')
             model, d = 'none', ()
         camera = cls(width, height, k, model, d)
-        camera.check_plausible()
+        try:
+            camera.check_plausible()
+        except CameraModelError as err:
+            raise CameraModelError(f'camera_info: {err}') from None
         return camera
 
     def check_plausible(self) -> None:
@@ -220,20 +223,20 @@ class CameraModel:
         principal point given for another resolution), a skew of at most a tenth of fx and a
         distortion that can be inverted over most of the image."""
         if not (0.0 <= self.cx <= self.width and 0.0 <= self.cy <= self.height):
-            raise CameraModelError(f'camera_info: principal point ({self.cx:g}, {self.cy:g}) '
+            raise CameraModelError(f'principal point ({self.cx:g}, {self.cy:g}) '
                                    f'lies outside the {self.width}x{self.height} image')
         widest = MAX_FIELD_OF_VIEW_DEG[self.distortion_model]
         kind = 'fisheye' if self.distortion_model == 'equidistant' else 'rectilinear'
         for axis, fov in zip(('horizontal', 'vertical'), np.degrees(self.field_of_view)):
             if not MIN_FIELD_OF_VIEW_DEG <= fov <= widest:
                 raise CameraModelError(
-                    f'camera_info: {axis} field of view {fov:.3g} deg (fx {self.fx:g}, fy '
+                    f'{axis} field of view {fov:.3g} deg (fx {self.fx:g}, fy '
                     f'{self.fy:g} px on {self.width}x{self.height}) is outside the '
                     f'{MIN_FIELD_OF_VIEW_DEG:g}-{widest:g} deg of real {kind} lenses: is the '
                     f'focal length in pixels of this resolution?')
         skew = float(self.K[0, 1])
         if abs(skew) > _MAX_SKEW * self.fx:
-            raise CameraModelError(f'camera_info: skew {skew:.6g} is more than {_MAX_SKEW:g} fx '
+            raise CameraModelError(f'skew {skew:.6g} is more than {_MAX_SKEW:g} fx '
                                    f'(fx {self.fx:g}): real pixels are not sheared that much')
         if self.is_distorted:
             # The distortion must be invertible over the image: Newton's undistortion converges
@@ -246,7 +249,7 @@ class CameraModel:
             inverted = int(np.count_nonzero(np.isfinite(q).all(axis=1)))
             if inverted < 0.75 * 81:
                 raise CameraModelError(
-                    f'camera_info: the {self.distortion_model} distortion {list(self.D)} cannot '
+                    f'the {self.distortion_model} distortion {list(self.D)} cannot '
                     f'be inverted over the image ({81 - inverted} of 81 grid pixels have no '
                     f'undistorted position)')
 

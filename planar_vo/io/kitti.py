@@ -300,8 +300,7 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
         # without a word, and every frame of the bag then refused).
         camera.check_plausible()
     except CameraModelError as err:
-        why = str(err).replace('camera_info: ', '', 1)
-        raise InputError(f'calib.txt: P0 does not hold valid intrinsics ({why})') from err
+        raise InputError(f'calib.txt: P0 does not hold valid intrinsics ({err})') from err
     if seq.poses is not None:
         gt_poses, gt_twists = kitti_ground_truth(seq.poses, stamps, camera_height)
         if not np.all(np.isfinite(gt_twists)):

@@ -524,7 +524,7 @@ class VisualOdometry:
                     # 'unreliable', 100000 px published NaN covariances).
                     model.check_plausible()
                 except CameraModelError as err:
-                    self._camera_problem = str(err).replace('camera_info: ', '', 1)
+                    self._camera_problem = str(err)
                     return None
                 self._camera, self._camera_problem = model, None
                 self._camera_from_config = True
