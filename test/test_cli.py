@@ -99,7 +99,8 @@ def test_every_help_page_prints(capsys):
     from planar_vo.cli.bench import BENCHES
 
     for argv in (['bench', '--help'], *(['bench', name, '--help'] for name in BENCHES),
-                 *([name, '--help'] for name in ('demo', 'replay', 'eval', 'import-kitti'))):
+                 *([name, '--help'] for name in ('demo', 'replay', 'eval', 'import-kitti',
+                                                 'import-video'))):
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 0, argv

@@ -25,11 +25,12 @@ from planar_vo.errors import PlanarVoError, one_line
 __all__ = ['CommandParser', 'build_parser', 'main', 'relabel', 'show_progress']
 
 # Subcommand modules, in --help order.
-COMMANDS = ('demo', 'replay', 'eval', 'import-kitti', 'fleet', 'bench')
+COMMANDS = ('demo', 'replay', 'eval', 'import-kitti', 'import-video', 'fleet', 'bench')
 
 EPILOG = """examples:
   planar_vo demo                                  render, replay and evaluate the demo drive
   planar_vo import-kitti ~/kitti/06 --out kitti06 a KITTI sequence folder into a bag
+  planar_vo import-video dashcam.mp4 --out dash   a video (or a folder of images) into a bag
   planar_vo replay kitti06 --out kitti06_vo       odometry over a bag into a new bag
   planar_vo eval kitti06_vo --out-dir kitti06_eval
   planar_vo fleet run --manifest bags.txt --out fleet_out   many bags on Ray, summary and report

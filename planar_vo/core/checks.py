@@ -6,13 +6,14 @@ a weight), never raised.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from planar_vo.errors import InputError
 
-__all__ = ['as_array', 'as_rotation', 'same_length', 'shape_str']
+__all__ = ['as_array', 'as_rotation', 'positive_number', 'same_length', 'shape_str']
 
 # Array kinds accepted as real numbers: bool, integers, floats, and objects (Python ints,
 # Decimals) converted one by one. Complex, strings, dates are refused, not silently cast.
@@ -23,6 +24,17 @@ def shape_str(shape: tuple[int | str | None, ...]) -> str:
     """Render a shape like ``(N, 2, 2)``; ``None`` and strings stand for free dimensions."""
     parts = ['N' if d is None else str(d) for d in shape]
     return '(' + ', '.join(parts) + (',)' if len(parts) == 1 else ')')
+
+
+def positive_number(name: str, value: Any, what: str) -> float:
+    """`value` as a finite positive float, or `InputError` naming `name` and `what`."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError, OverflowError):
+        number = float('nan')
+    if not (math.isfinite(number) and number > 0):
+        raise InputError(f'{name}: expected {what}, got {value!r}')
+    return number
 
 
 def as_array(

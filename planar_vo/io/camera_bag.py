@@ -46,14 +46,17 @@ class CameraBagWriter(BagWriter):
         path: bag directory to create.
         storage: ``'mcap'`` or ``'sqlite3'``.
         ground_truth: also register ``/ground_truth/odom``.
+        camera_info: register ``/camera/camera_info`` (False: frames are written without
+            intrinsics, ``camera=None``).
         speed: also register ``/speed``.
         camera_frame, odom_frame, base_frame: frame ids.
     """
 
     def __init__(self, path, *, storage: str = 'mcap', ground_truth: bool = False,
                  speed: bool = False, camera_frame: str = 'camera', odom_frame: str = 'odom',
-                 base_frame: str = 'base_link') -> None:
+                 base_frame: str = 'base_link', camera_info: bool = True) -> None:
         super().__init__(path, storage=storage)
+        self._camera_info = camera_info
         self._ground_truth = ground_truth
         self._speed = speed
         self.camera_frame, self.odom_frame, self.base_frame = camera_frame, odom_frame, base_frame
@@ -61,14 +64,30 @@ class CameraBagWriter(BagWriter):
 
     def open(self) -> None:
         super().open()
-        self.add_topic(CAMERA_INFO_TOPIC, CAMERA_INFO_TYPE)
+        if self._camera_info:
+            self.add_topic(CAMERA_INFO_TOPIC, CAMERA_INFO_TYPE)
         self.add_topic(IMAGE_TOPIC, IMAGE_TYPE)
         if self._ground_truth:
             self.add_topic(GROUND_TRUTH_TOPIC, ODOMETRY_TYPE)
         if self._speed:
             self.add_topic(SPEED_TOPIC, TWIST_STAMPED_TYPE)
 
-    def write_frame(self, stamp_ns: int, image: np.ndarray, camera: CameraModel, *,
+    @staticmethod
+    def _camera_info_message(header, size: tuple[int, int], camera: CameraModel,
+                             projection: np.ndarray | None):
+        t = TYPESTORE.types
+        height, width = size
+        P = np.column_stack([camera.K, np.zeros(3)]) if projection is None else projection
+        model = 'plumb_bob' if camera.distortion_model == 'none' else camera.distortion_model
+        d = np.zeros(5) if camera.distortion_model == 'none' else np.asarray(camera.D, float)
+        return t[CAMERA_INFO_TYPE](
+            header=header, height=height, width=width, distortion_model=model,
+            d=d, k=camera.K.reshape(9).copy(), r=np.eye(3).reshape(9),
+            p=np.asarray(P, float).reshape(12).copy(), binning_x=0, binning_y=0,
+            roi=t['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0,
+                                                      do_rectify=False))
+
+    def write_frame(self, stamp_ns: int, image: np.ndarray, camera: CameraModel | None, *,
                     projection: np.ndarray | None = None, pose: np.ndarray | None = None,
                     twist: np.ndarray | None = None) -> None:
         """Write one frame: camera info first (a reader then has it for the image), the image,
@@ -77,7 +96,8 @@ class CameraBagWriter(BagWriter):
         Args:
             stamp_ns: header stamp and log time in integer ns (`check_stamp_ns`: 1970 to 2038).
             image: 8-bit grey image ``(H, W)`` of the camera's size.
-            camera: its camera model (intrinsics and distortion).
+            camera: its camera model (intrinsics and distortion); None (only with
+                ``camera_info=False``) writes no CameraInfo.
             projection: the 3x4 ``P`` of CameraInfo (default ``[K | 0]``).
             pose: ground-truth ``T_odom_base`` (needs ``ground_truth=True``).
             twist: ground-truth body velocity ``(vx, vy, vz, wx, wy, wz)``; also written as the
@@ -89,19 +109,14 @@ class CameraBagWriter(BagWriter):
         sec, nanosec = ns_to_stamp_fields(stamp_ns)
         stamp = t['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
         header = t['std_msgs/msg/Header'](stamp=stamp, frame_id=self.camera_frame)
-        P = np.column_stack([camera.K, np.zeros(3)]) if projection is None else projection
-        model = 'plumb_bob' if camera.distortion_model == 'none' else camera.distortion_model
-        d = np.zeros(5) if camera.distortion_model == 'none' else np.asarray(camera.D, float)
-        info = t[CAMERA_INFO_TYPE](
-            header=header, height=height, width=width, distortion_model=model, d=d,
-            k=camera.K.reshape(9).copy(), r=np.eye(3).reshape(9),
-            p=np.asarray(P, float).reshape(12).copy(), binning_x=0, binning_y=0,
-            roi=t['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0,
-                                                      do_rectify=False))
+        if (camera is None) == self._camera_info:
+            raise ValueError('write_frame: a camera model exactly when the bag has CameraInfo')
+        if camera is not None:
+            self.write_message(CAMERA_INFO_TOPIC, int(stamp_ns),
+                               self._camera_info_message(header, image.shape, camera, projection))
         msg = t[IMAGE_TYPE](header=header, height=height, width=width, encoding='mono8',
                             is_bigendian=0, step=width,
                             data=np.ascontiguousarray(image).reshape(-1))
-        self.write_message(CAMERA_INFO_TOPIC, int(stamp_ns), info)
         self.write_message(IMAGE_TOPIC, int(stamp_ns), msg)
         if pose is not None and self._ground_truth:
             self.write_odometry(GROUND_TRUTH_TOPIC, int(stamp_ns), pose,

@@ -27,7 +27,6 @@ turn positive yaw.) The ground-truth twist is the finite difference over the pre
 from __future__ import annotations
 
 import logging
-import math
 import sys
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -36,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from planar_vo.core.camera import CameraModel
+from planar_vo.core.checks import positive_number
 from planar_vo.core.conventions import invert, mount_transform, quaternion_from_rotation
 from planar_vo.core.trajectory import rotation_defects
 from planar_vo.errors import CameraModelError, ImageError, InputError
@@ -282,9 +282,10 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
     """
     from tqdm import tqdm
 
-    camera_height = _positive('camera_height', camera_height, 'a positive height in metres')
+    camera_height = positive_number('camera_height', camera_height,
+                                    'a positive height in metres')
     if rate_hz is not None:
-        rate_hz = _positive('rate_hz', rate_hz, 'a positive frame rate')
+        rate_hz = positive_number('rate_hz', rate_hz, 'a positive frame rate')
     try:
         start_ns = seconds_to_ns(DEFAULT_START if start is None else start)
     except InputError:
@@ -335,17 +336,6 @@ def _read_png(path: Path) -> np.ndarray:
         return read_image(path)
     except ImageError as err:
         raise InputError(f'images: {err}') from err
-
-
-def _positive(name: str, value: float, what: str) -> float:
-    """`value` as a finite positive float, or `InputError` naming `name` and `what`."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError, OverflowError):
-        number = float('nan')
-    if not (math.isfinite(number) and number > 0):
-        raise InputError(f'{name}: expected {what}, got {value!r}')
-    return number
 
 
 def _seconds(ns: int) -> str:

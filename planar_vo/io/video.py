@@ -1,0 +1,314 @@
+"""A video file or a folder of images (a dashcam's, a phone's) as a ROS 2 bag.
+
+`import_video` writes ``/camera/image_raw`` (``sensor_msgs/Image``, mono8) at the video's frame
+rate (or ``rate_hz``) and, only when the intrinsics are given, ``/camera/camera_info``: a camera
+of unknown focal length is replayed with the focal self-calibration (``camera.estimate_focal``),
+and a CameraInfo made up here would be a wrong calibration the replay believed.
+
+Stamps are ``start`` plus the frame's index in the source over the frame rate (a constant rate:
+the container's nominal one for a video; a phone's variable rate is close to it), so a
+subsampled import (``every``) keeps the source's timing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import re
+import sys
+from collections.abc import Iterator
+from decimal import Decimal
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from planar_vo.core.camera import CameraModel
+from planar_vo.core.checks import positive_number
+from planar_vo.errors import CameraModelError, ImageError, InputError
+from planar_vo.frontend.images import read_image
+from planar_vo.io.camera_bag import (
+    CAMERA_INFO_TOPIC,
+    DEFAULT_START,
+    IMAGE_TOPIC,
+    CameraBagWriter,
+)
+from planar_vo.io.writer import MAX_STAMP_NS
+from planar_vo.ros.messages import seconds_to_ns
+
+__all__ = ['IMAGE_SUFFIXES', 'VideoImportSummary', 'frame_size', 'import_video']
+
+# Image files a folder source may hold (what `read_image` decodes), matched case-insensitively.
+IMAGE_SUFFIXES = ('.png', '.jpg', '.jpeg')
+# FFmpeg's own messages ('moov atom not found', a damaged packet) would come before and between
+# the command's lines; what they mean is said once (the file cannot be opened; fewer frames
+# decoded than the video states). OpenCV reads this when its first capture opens; a value the
+# user set wins (e.g. 24 for FFmpeg's warnings).
+os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')
+# A frame rate a container states beyond this is not believed (some write 1000 or 90000 for
+# "unknown").
+_MAX_PLAUSIBLE_FPS = 500.0
+
+
+@dataclasses.dataclass(frozen=True)
+class VideoImportSummary:
+    """What `import_video` wrote.
+
+    Attributes:
+        path: the bag; source: the video file or image folder; kind: ``'video'`` or
+        ``'images'``.
+        frames: frames written; read: frames read from the source (``every`` keeps one in so
+            many); stated_frames: the count the video's container states (None: not stated, or
+            a folder).
+        width, height: the written images' size; scale: written over source width.
+        rate_hz: the source's frame rate the stamps follow; rate_source: where it came from.
+        camera: the intrinsics written as CameraInfo (at the written size), or None.
+        first_stamp_ns, last_stamp_ns: the first and last stamps.
+    """
+
+    path: Path
+    source: Path
+    kind: str
+    frames: int
+    read: int
+    stated_frames: int | None
+    width: int
+    height: int
+    scale: float
+    rate_hz: float
+    rate_source: str
+    camera: CameraModel | None
+    first_stamp_ns: int
+    last_stamp_ns: int
+
+    def format(self) -> str:
+        duration = (self.last_stamp_ns - self.first_stamp_ns) / 1e9
+        size = f'{self.width}x{self.height}'
+        if self.scale != 1.0:
+            size += f', shrunk {self.scale:.4g}x'
+        kept = (f'{self.frames} of {self.read} frames' if self.read != self.frames
+                else f'{self.frames} frames')
+        lines = [f'wrote {kept} ({size}, {duration:.2f} s at the {self.rate_source} '
+                 f'{self.rate_hz:g} Hz) to {self.path}: {IMAGE_TOPIC}'
+                 + (f', {CAMERA_INFO_TOPIC} (fx {self.camera.fx:.2f})' if self.camera else
+                    ' (no CameraInfo: intrinsics not given)')]
+        if self.stated_frames is not None and self.stated_frames != self.read:
+            # Containers' counts are estimates; a large shortfall is a truncated file.
+            lines.append(f'note: the video states {self.stated_frames} frames; '
+                         f'{self.read} could be decoded')
+        return '\n'.join(lines)
+
+
+def _natural_key(path: Path) -> list:
+    """Sort key that orders ``frame2`` before ``frame10`` (digit runs compared as numbers)."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r'(\d+)', path.name)]
+
+
+def _folder_images(folder: Path) -> list[Path]:
+    images = sorted((p for p in folder.iterdir()
+                     if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=_natural_key)
+    if not images:
+        raise InputError(f"source: no image files ({', '.join(IMAGE_SUFFIXES)}) in folder "
+                         f"'{folder}'")
+    return images
+
+
+def _gray(frame: np.ndarray) -> np.ndarray:
+    """A decoded video frame (8-bit BGR) or image file (already grey) as 8-bit grey."""
+    if frame.ndim == 3:
+        frame = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    return frame
+
+
+class _Video:
+    """Frames of a video file through OpenCV's FFmpeg back-end."""
+
+    def __init__(self, path: Path) -> None:
+        self.capture = cv2.VideoCapture(str(path))
+        if not self.capture.isOpened():
+            raise InputError(f"source: cannot open '{path}' as a video (not a video file, or a "
+                             f'format this OpenCV build does not decode)')
+        fps = float(self.capture.get(cv2.CAP_PROP_FPS))
+        self.fps = fps if math.isfinite(fps) and 0 < fps <= _MAX_PLAUSIBLE_FPS else None
+        count = float(self.capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        self.stated = int(count) if math.isfinite(count) and count > 0 else None
+
+    def __iter__(self) -> Iterator[tuple[str, np.ndarray]]:
+        index = 0
+        try:
+            while True:
+                ok, frame = self.capture.read()
+                if not ok:
+                    return
+                yield f'frame {index}', frame
+                index += 1
+        finally:
+            self.capture.release()
+
+
+def _images(paths: list[Path]) -> Iterator[tuple[str, np.ndarray]]:
+    for path in paths:
+        try:
+            yield f"'{path.name}'", read_image(path)
+        except ImageError as err:
+            raise InputError(f'source: {err}') from err
+
+
+def frame_size(source: str | Path) -> tuple[int, int]:
+    """``(width, height)`` of the first frame of a video file or image folder (`import_video`'s
+    sources; the same errors)."""
+    source = Path(source)
+    if not source.exists():
+        raise InputError(f"source: '{source}' does not exist")
+    if source.is_dir():
+        height, width = next(_images(_folder_images(source)))[1].shape[:2]
+        return width, height
+    video = _Video(source)
+    for _, frame in video:
+        video.capture.release()
+        return frame.shape[1], frame.shape[0]
+    raise InputError(f"source: no frame could be decoded from '{source}'")
+
+
+def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mcap',
+                 rate_hz: float | None = None, every: int = 1, max_width: int | None = None,
+                 camera: CameraModel | None = None, start: float | str | Decimal | None = None,
+                 camera_frame: str = 'camera', progress: bool = False) -> VideoImportSummary:
+    """Write a video file or a folder of images as a ROS 2 bag of grey frames.
+
+    Args:
+        source: a video file (what OpenCV's FFmpeg decodes: MP4, MOV, AVI, MKV...) or a folder
+            of PNG/JPEG images, taken in natural name order (``2.png`` before ``10.png``).
+        out_path: bag directory to create (must not exist).
+        storage: ``'mcap'`` or ``'sqlite3'``.
+        rate_hz: the source's frame rate; required for a folder, overrides a video's own.
+        every: keep one frame in ``every`` (a 30 Hz dashcam at ``every=3`` is 10 Hz).
+        max_width: shrink wider frames to this width (area interpolation; the intrinsics
+            follow); None keeps the size.
+        camera: the source's intrinsics at its own size, written as CameraInfo; None writes
+            none (replay with ``camera.estimate_focal: true``, or ``camera.fx`` set).
+        start: seconds of the first frame's stamp (default 1.7e9 s).
+        camera_frame: the images' frame id.
+        progress: a progress bar on stderr.
+
+    Raises:
+        InputError: a missing or unreadable source, an empty folder, no frame rate, frames of
+            different sizes, bad arguments; a bad frame mid-way leaves nothing at `out_path`.
+        BagError: `out_path` exists (nothing touched) or cannot be written.
+    """
+    from tqdm import tqdm
+
+    source = Path(source)
+    if rate_hz is not None:
+        rate_hz = positive_number('rate_hz', rate_hz, 'a positive frame rate (Hz)')
+    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+        raise InputError(f'every: expected a whole number of frames >= 1, got {every!r}')
+    if max_width is not None and (isinstance(max_width, bool)
+                                  or not isinstance(max_width, (int, np.integer))
+                                  or max_width < 16):
+        raise InputError(f'max_width: expected a width of at least 16 pixels, got {max_width!r}')
+    try:
+        start_ns = seconds_to_ns(DEFAULT_START if start is None else start)
+    except InputError:
+        raise InputError(f'start: expected a number of seconds, got {start!r}') from None
+    if not source.exists():
+        raise InputError(f"source: '{source}' does not exist")
+    stated = None
+    if source.is_dir():
+        kind, paths = 'images', _folder_images(source)
+        if rate_hz is None:
+            raise InputError(f"rate_hz: a folder of images has no frame rate; give the rate "
+                             f"the {len(paths)} images were taken at")
+        frames, rate_source, total = _images(paths), 'given', len(paths)
+    else:
+        kind, video = 'video', _Video(source)
+        stated, total = video.stated, video.stated
+        if rate_hz is None and video.fps is None:
+            video.capture.release()
+            raise InputError(f"rate_hz: '{source.name}' states no plausible frame rate; give "
+                             f'the rate it was recorded at')
+        rate_source = 'given' if rate_hz is not None else "video's"
+        rate_hz = rate_hz if rate_hz is not None else video.fps
+        frames = iter(video)
+    period_ns = Decimal(1_000_000_000) / Decimal(repr(float(rate_hz)))
+    if period_ns < 1:
+        raise InputError(f'rate_hz: {rate_hz:g} Hz puts frames less than 1 ns apart')
+
+    written = read = 0
+    size = scale = None
+    scaled_camera = None
+    first_ns = last_ns = start_ns
+    bar = tqdm(total=total, desc='import', unit='frame', file=sys.stderr, disable=not progress,
+               leave=False)
+    try:
+        with CameraBagWriter(out_path, storage=storage, camera_frame=camera_frame,
+                             camera_info=camera is not None) as writer:
+            try:
+                for name, frame in frames:
+                    read += 1
+                    bar.update(1)
+                    if (read - 1) % every:
+                        continue
+                    image = _gray(frame)
+                    if size is None:
+                        size = image.shape
+                        scale, scaled_camera = _first_frame(image, max_width, camera)
+                    elif image.shape != size:
+                        raise InputError(f'source: expected every frame {size[1]}x{size[0]}, '
+                                         f'got {image.shape[1]}x{image.shape[0]} for {name}')
+                    if scale != 1.0:
+                        image = cv2.resize(image, _shrunk(size, scale),
+                                           interpolation=cv2.INTER_AREA)
+                    stamp = start_ns + int(((read - 1) * period_ns).to_integral_value())
+                    if stamp > MAX_STAMP_NS:
+                        raise InputError(f'start: frame {read - 1} would be stamped beyond what'
+                                         f' a ROS time stamp holds (2038); give an earlier '
+                                         f'--start')
+                    writer.write_frame(stamp, image, scaled_camera)
+                    written += 1
+                    last_ns = stamp
+                if written == 0:
+                    raise InputError(f"source: no frame could be decoded from '{source}'")
+            except InputError:
+                writer.discard(f'removed: {written} frames were written before the error')
+                raise
+    finally:
+        bar.close()
+    width, height = _shrunk(size, scale)
+    return VideoImportSummary(Path(out_path), source, kind, written, read, stated, width, height,
+                              scale, float(rate_hz), rate_source, scaled_camera, first_ns,
+                              last_ns)
+
+
+def _shrunk(size: tuple[int, ...], scale: float) -> tuple[int, int]:
+    """``(width, height)`` of a ``(height, width)`` frame shrunk by `scale`."""
+    if scale == 1.0:
+        return size[1], size[0]
+    return max(1, round(size[1] * scale)), max(1, round(size[0] * scale))
+
+
+def _first_frame(image: np.ndarray, max_width: int | None, camera: CameraModel | None
+                 ) -> tuple[float, CameraModel | None]:
+    """The shrink factor for the source's size and the intrinsics at the written size."""
+    height, width = image.shape
+    scale = 1.0 if max_width is None or width <= max_width else max_width / width
+    if camera is None:
+        return scale, None
+    if (camera.width, camera.height) != (width, height):
+        raise InputError(f'camera: the intrinsics are for {camera.width}x{camera.height} '
+                         f'images, the source is {width}x{height}')
+    if scale == 1.0:
+        return scale, camera
+    new_w, new_h = _shrunk(image.shape, scale)
+    sx, sy = new_w / width, new_h / height
+    K = camera.K.copy()
+    # Pixel centres: x' + 0.5 = s (x + 0.5).
+    K[0, 0] *= sx
+    K[0, 2] = sx * (K[0, 2] + 0.5) - 0.5
+    K[1, 1] *= sy
+    K[1, 2] = sy * (K[1, 2] + 0.5) - 0.5
+    try:
+        return scale, CameraModel(new_w, new_h, K, camera.distortion_model, camera.D)
+    except CameraModelError as err:
+        raise InputError(f'camera: {err}') from err
