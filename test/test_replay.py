@@ -15,7 +15,7 @@ from evo_tools import evo_ape_stats, run_evo
 from planar_vo.cli import main
 from planar_vo.config import MountConfig
 from planar_vo.core.camera import CameraModel
-from planar_vo.io import open_bag
+from planar_vo.io import iter_messages, open_bag
 from planar_vo.sim import straight, turn
 from planar_vo.tools.demo import run_demo
 from planar_vo.tools.evaluation import load_trajectory, read_tum
@@ -304,6 +304,19 @@ def test_replay_set_overrides_the_configuration(tmp_path, capsys, drive_bags):
                  '--set', 'mount.height=1.6']) == 1
     assert capsys.readouterr().err == (f'planar_vo replay: error: {missing}: cannot read '
                                        f'configuration (No such file or directory)\n')
+
+
+def test_replay_says_which_node_settings_it_does_not_use(tmp_path, caplog, drive_bags):
+    """--set ros.publish_tf (the node's) was dropped without a word; the frame ids are used."""
+    _, bags = drive_bags
+    with caplog.at_level('WARNING', logger='planar_vo'):
+        assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'o'), '--no-progress',
+                     '--set', 'ros.publish_tf=false', '--set', 'ros.odom_frame=map']) == 0
+    assert [r.getMessage() for r in caplog.records if '--set' in r.getMessage()] == [
+        '--set ros.publish_tf: a setting of the ROS node; replay does not use it (of ros.* only '
+        'ros.odom_frame and ros.base_frame)']
+    with open_bag(tmp_path / 'o') as bag:
+        assert next(iter_messages(bag, '/odom')).msg.header.frame_id == 'map'
 
 
 def test_replay_names_its_input_as_typed(tmp_path, capsys):

@@ -11,9 +11,12 @@ line says why; OUT is kept).
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 
 STORAGES = ('mcap', 'sqlite3')       # planar_vo.io.writer.STORAGES (rosbags not imported here)
+# The node's settings (ros.*) that replay uses: the frame ids of the odometry it writes.
+REPLAY_ROS_KEYS = ('ros.odom_frame', 'ros.base_frame')
 
 EXAMPLES = """examples:
   planar_vo replay drive.mcap --out drive_vo --set mount.height=1.65
@@ -59,6 +62,13 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.tools.replay import replay_bag
 
     config = speed_scale(with_sets(args.config, args.set), args.speed_topic, args.set)
+    for item in args.set:
+        key = item.partition('=')[0].strip()
+        if key.startswith('ros.') and key not in REPLAY_ROS_KEYS:
+            # The node's interface (a user's --set would otherwise be dropped without a word).
+            logging.getLogger('planar_vo').warning(
+                '--set %s: a setting of the ROS node; replay does not use it (of ros.* only %s)',
+                key, ' and '.join(REPLAY_ROS_KEYS))
     summary = replay_bag(
         args.bag, args.out, VisualOdometry(config), image_topic=args.image_topic,
         camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
