@@ -471,6 +471,12 @@ def test_signals_during_the_clean_up_do_not_interrupt_it(prefix, ros_env, tmp_pa
      "qos_overrides./image.subscription.reliability: 'bogus' is not a reliability policy"),
     ('qos_overrides./camera_info.subscription.depth:=-1',
      'qos_overrides./camera_info.subscription.depth: -1 is not a queue depth'),
+    # Periods bounded both ways (a user test: 1e10 s overflowed rclpy's timer with a
+    # traceback; 1e-6 s kept a core busy).
+    ('ros.image_timeout:=1e10', 'ros.image_timeout: expected a timeout of 0.1-86400 seconds '
+                                '(a day), got 10000000000.0'),
+    ('ros.diagnostics_period:=1e-6', 'ros.diagnostics_period: expected a period of 0.05-3600 '
+                                     'seconds, got 1e-06'),
 ])
 def test_invalid_parameter_is_one_fatal_line_and_exit_code_1(prefix, ros_env, tmp_path, arg,
                                                              message):
@@ -1056,7 +1062,18 @@ def test_diagnostics_warn_when_images_give_no_odometry(monkeypatch, local_node, 
     first, second = (d.status[0] for d in sent)
     assert first.level == DiagnosticStatus.OK, first.message
     assert second.level == DiagnosticStatus.WARN
-    assert second.message == 'tracking; no odometry from 5 images in the last 1 s (bad_image: 5)'
+    # Five undecodable images in a row lose tracking (they count as lost frames).
+    assert second.message == 'lost; no odometry from 5 images in the last 1 s (bad_image: 5)'
+    # Every other image undecodable: half without odometry is a warning too (a user test: OK).
+    for i, msg in enumerate(images[:8]):
+        msg.encoding = 'bayer_rggb8' if i % 2 else 'mono8'
+        msg.header.stamp.sec += 10
+        node._on_image(msg)
+    node._on_diagnostics_timer()
+    third = sent[-1].status[0]
+    assert third.level == DiagnosticStatus.WARN
+    assert re.fullmatch(r'\w+; odometry from [34] of 8 images in the last 1 s \(bad_image: 4\)',
+                        third.message), third.message
 
 
 @pytest.mark.timeout(60)
@@ -1300,6 +1317,39 @@ def test_a_latched_camera_info_is_received_with_the_durability_override(local_no
     finally:
         rclpy.shutdown(context=context)
     assert node._camera is not None and node._camera.fx == pytest.approx(CAMERA.fx)
+
+
+def test_a_latched_camera_info_without_the_override_is_named_in_the_reason(local_node):
+    """A user test: with a latched CameraInfo and the default QoS every frame was
+    no_camera_info with only "no camera intrinsics yet"; the reason now names the publisher
+    and the override (and says when the topic has no publisher at all)."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+    from sensor_msgs.msg import CameraInfo
+
+    node = local_node(MOUNT_PARAMS)
+    assert node._info_hint() == '; no publisher on /camera_info'
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        driver = rclpy.create_node('latched_camera_info', context=context)
+        driver.create_publisher(CameraInfo, '/camera_info', latched)
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        deadline = time.monotonic() + 20.0
+        while not node.get_publishers_info_by_topic('/camera_info') and \
+                time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        executor.remove_node(node)
+        hint = node._info_hint()
+    finally:
+        rclpy.shutdown(context=context)
+    assert hint == ('; 1 publisher(s) on /camera_info but no message arrived (it publishes '
+                    'latched: subscribe with -p qos_overrides./camera_info.subscription.'
+                    'durability:=transient_local and reliability:=reliable)')
 
 
 @pytest.mark.timeout(60)

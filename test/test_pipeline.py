@@ -946,6 +946,45 @@ def test_stamps_1_ns_apart_are_different_frames_as_integer_nanoseconds():
     assert duplicate.message == 'timestamp 1700000000.000000 repeats the previous frame'
 
 
+def test_a_frame_stamped_far_sooner_than_the_usual_interval_is_refused():
+    """A user test: frame 6 stamped 1 ns after frame 5 of a 10 Hz drive was odometry with a
+    speed of 1e9 m/s. Once the usual interval is known (3 intervals), a frame under a quarter
+    of it after the last is a counted duplicate_stamp; the next frame is odometry again at a
+    sane speed."""
+    _, images, _ = _drive('straight')                 # 8 m/s, 10 Hz
+    t0 = 1_700_000_000 * 10**9
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    for i in range(5):
+        assert vo.process(images[i], Stamp(t0 + i * 100_000_000)).reason in (
+            None, DropReason.FIRST_FRAME)
+    close = vo.process(images[5], Stamp(t0 + 4 * 100_000_000 + 1))
+    assert close.reason is DropReason.DUPLICATE_STAMP
+    assert close.message == ('timestamp 1700000000.400000001 is 1e-06 ms after the previous '
+                             'frame, under a quarter of the usual 100 ms: a duplicated or '
+                             'mis-stamped frame')
+    after = vo.process(images[5], Stamp(t0 + 5 * 100_000_000))
+    assert after.ok and np.linalg.norm(after.twist[:3]) < 16.0
+
+
+def test_undecodable_frames_count_towards_lost_tracking():
+    """As blank ones do (a user test: after five undecodable frames the stale keyframe cost five
+    good frames more): odometry.max_lost_frames of them in a row, and the next good frame
+    starts a new keyframe chain; one with an old stamp does not count."""
+    _, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    for i in range(3):
+        vo.process(images[i], 0.1 * i)
+    bad = np.zeros((480, 640), np.float32)
+    assert vo.process(bad, 0.05).reason is DropReason.BAD_IMAGE       # old stamp: not lost
+    assert vo.tracking.value == 'tracking'
+    for i in range(3, 8):
+        result = vo.process(bad, 0.1 * i)
+        assert result.reason is DropReason.BAD_IMAGE and vo.tracking.value == 'lost'
+    assert 'tracking lost: the next usable frame starts a new keyframe chain' in result.message
+    assert vo.process(images[8], 0.8).reason is DropReason.REINITIALISED
+    assert vo.process(images[9], 0.9).ok
+
+
 def test_the_scale_status_names_the_source_and_the_camera_height():
     def status(**scale):
         return VisualOdometry(PlanarVoConfig.from_dict(scale)).scale_status()

@@ -380,6 +380,27 @@ def test_replay_tells_apart_frames_stamped_1_ns_apart(tmp_path, drive_bags):
         [t0 + i for i in range(6)]
 
 
+def test_replay_of_rectified_images_uses_the_projection(tmp_path, capsys, drive_bags):
+    """camera.rectified: CameraInfo's P is the model (the drive's frames, rendered through K,
+    written with a P of another focal length: only the switch makes the replay use it)."""
+    from planar_vo.io import iter_camera_frames
+    from planar_vo.io.camera_bag import CameraBagWriter
+
+    _, bags = drive_bags
+    with open_bag(bags['mcap']) as bag:
+        frames = list(iter_camera_frames(bag))[:4]
+    camera = frames[0].camera
+    P = np.hstack([camera.K, np.zeros((3, 1))])
+    P[0, 0] = P[1, 1] = 1.25 * camera.fx
+    with CameraBagWriter(tmp_path / 'rect') as writer:
+        for frame in frames:
+            writer.write_frame(frame.stamp_ns, frame.image, camera, projection=P)
+    for rectified, fx in (('false', camera.fx), ('true', 1.25 * camera.fx)):
+        assert main(['replay', str(tmp_path / 'rect'), '--out', str(tmp_path / rectified),
+                     '--set', f'camera.rectified={rectified}', '--no-progress']) == 0
+        assert f'focal length {fx:.1f} px (CameraInfo)' in capsys.readouterr().out
+
+
 def test_replay_checks_the_tum_path_before_replaying(tmp_path, capsys, drive_bags):
     _, bags = drive_bags
     out = tmp_path / 'o'

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from planar_vo import __version__
 from planar_vo.errors import PlanarVoError, one_line
 
-__all__ = ['CommandParser', 'build_parser', 'main', 'relabel', 'show_progress']
+__all__ = ['CommandParser', 'Once', 'build_parser', 'main', 'relabel', 'show_progress']
 
 # Subcommand modules, in --help order.
 COMMANDS = ('demo', 'replay', 'eval', 'import-kitti', 'import-video', 'fleet', 'bench')
@@ -78,6 +78,16 @@ class CommandParser(argparse.ArgumentParser):
         if not hasattr(namespace, 'parser'):
             namespace.parser = self
         return namespace, extras
+
+
+class Once(argparse.Action):
+    """An option that takes one value and refuses a second (argparse keeps the last without a
+    word: a user test ran on the second of two --config files)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if getattr(namespace, self.dest, None) is not None:
+            parser.error(f'{option_string}: given twice; give it once')
+        setattr(namespace, self.dest, values)
 
 
 def show_progress(args: argparse.Namespace) -> bool:

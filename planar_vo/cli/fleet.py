@@ -7,14 +7,20 @@ cluster (``--address``). DIR gets per bag and configuration the odometry bag, a 
 the metrics, then summary.json (one row per bag and configuration), report.md and plots.
 Rerunning the same command skips what is complete in DIR; Ctrl-C stops cleanly.
 
-Needs Ray: pip install 'planar_vo[fleet]'.
+Needs Ray (pip install 'planar_vo[fleet]'), except with --local: the jobs then run in this
+process, one after the other, with the same results.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
+
+from planar_vo.cli import Once
+
+log = logging.getLogger('planar_vo')
 
 EXAMPLES = """examples:
   planar_vo fleet run drives/*.mcap --out fleet_out               one task per bag, all CPUs
@@ -22,6 +28,7 @@ EXAMPLES = """examples:
   planar_vo fleet run kitti/* --out sweep --set voting.bins=360,720 --set keyframe.min_parallax=2,4
   ray start --head && planar_vo fleet run --manifest bags.txt --out fleet_out --address auto
   planar_vo fleet run --manifest bags.txt --out fleet_out --address ray://head:10001
+  planar_vo fleet run drives/*.mcap --out fleet_out --local         no Ray, one bag at a time
 With a cluster, the bags and DIR must be on a file system every node sees.
 """
 
@@ -42,7 +49,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     run_parser.add_argument('--manifest', metavar='FILE',
                             help='text file of bag paths, one a line (# comments; relative '
                                  'paths are relative to the file)')
-    run_parser.add_argument('--config', metavar='YAML',
+    run_parser.add_argument('--config', metavar='YAML', action=Once,
                             help='configuration file (default: built-in defaults)')
     run_parser.add_argument('--set', action='append', default=[], metavar='KEY=V1[,V2...]',
                             help='configuration values by dotted key (voting.bins=360,720); '
@@ -56,6 +63,14 @@ def register(subparsers) -> argparse.ArgumentParser:
     run_parser.add_argument('--retries', type=int, default=2, metavar='N',
                             help='reruns of a task whose worker died (killed, out of memory) '
                                  '(default: 2)')
+    run_parser.add_argument('--local', action='store_true',
+                            help='run in this process, one bag after the other, without Ray '
+                                 '(the same results; no --address, --workers, --retries)')
+    run_parser.add_argument('--image-topic', metavar='TOPIC',
+                            help="every bag's image topic, as replay's (default: the only one)")
+    run_parser.add_argument('--camera-info-topic', metavar='TOPIC',
+                            help="every bag's CameraInfo topic, as replay's (default: the only "
+                                 'one, if any)')
     run_parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     run_parser.set_defaults(run=run)
     return parser
@@ -67,13 +82,15 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError
     from planar_vo.tools.fleet import (
         config_grid,
-        import_ray,
         plan_jobs,
         read_manifest,
         run_fleet,
     )
 
-    import_ray()                     # without the fleet extra: one line with the install command
+    if args.local:
+        given = [f'--{n}' for n in ('address', 'workers') if getattr(args, n) is not None]
+        if given:
+            raise InputError(f'{given[0]}: --local runs in this process, without Ray')
     if args.address and args.workers is not None:
         raise InputError('--workers: --workers sizes the local Ray instance; with --address the '
                          "cluster's CPUs are used")
@@ -89,7 +106,13 @@ def run(args: argparse.Namespace) -> int:
         # Found before Ray starts; with some bags present the missing ones are failed rows.
         raise InputError(f"BAG: '{missing[0]}' does not exist" if len(missing) == 1 else
                          f"BAG: none of the {len(missing)} bags exists ('{missing[0]}', ...)")
-    configs = config_grid(read_config(args.config), args.set, source=args.config)
+    file_values = read_config(args.config)
+    configs = config_grid(file_values, args.set, source=args.config)
+    if 'mount.height' not in file_values and not any(
+            item.partition('=')[0].strip() == 'mount.height' for item in args.set):
+        # As replay's summary says it (a user test: KITTI ran at the default without a word).
+        log.warning("mount.height: the default %g m sets every metric scale; give the car's "
+                    '(--set mount.height=M, or in --config)', configs[0].values['mount.height'])
     speed = [c.name for c in configs if c.values['scale.source'] == 'speed']
     if speed:
         # A fleet run feeds no speed topic: every step would be a fallback (as replay refuses
@@ -98,17 +121,27 @@ def run(args: argparse.Namespace) -> int:
                          f"feed (configuration '{speed[0]}'); use planar_vo replay "
                          f'--speed-topic per bag, or another scale.source')
     command = ['planar_vo', 'fleet', 'run', *args.bags, '--out', args.out]
-    for flag in ('manifest', 'config', 'address', 'workers'):
+    for flag in ('manifest', 'config', 'address', 'workers', 'image_topic',
+                 'camera_info_topic'):
         if getattr(args, flag) is not None:
-            command += [f'--{flag}', str(getattr(args, flag))]
+            command += [f'--{flag.replace("_", "-")}', str(getattr(args, flag))]
+    if args.local:
+        command.append('--local')
     for item in args.set:
         command += ['--set', item]
-    result = run_fleet(plan_jobs(bags, configs), args.out, address=args.address,
-                       workers=args.workers, retries=args.retries,
-                       progress=show_progress(args), command=command)
+    jobs = plan_jobs(bags, configs, image_topic=args.image_topic,
+                     camera_info_topic=args.camera_info_topic)
+    result = run_fleet(jobs, args.out, address=args.address, workers=args.workers,
+                       retries=args.retries, progress=show_progress(args), command=command,
+                       local=args.local)
     print(result.format())
     if result.interrupted:
-        return 130
+        # The line every command ends an interruption with (a user test: only stdout said it;
+        # and SIGTERM returned Ctrl-C's code).
+        print(f'{args.parser.prog}: interrupted by {result.stop_signal.name}; kept '
+              f'{len(result.rows)} of {result.jobs} results in {args.out} (rerun the same '
+              f'command to finish)', file=sys.stderr)
+        return 128 + result.stop_signal.value
     if result.rows and all(row['status'] == 'failed' for row in result.rows):
         # Nothing usable came out (every row names its reason above): a script must see it.
         print(f'{args.parser.prog}: error: all {len(result.rows)} runs failed', file=sys.stderr)

@@ -14,6 +14,8 @@ import argparse
 import logging
 import sys
 
+from planar_vo.cli import Once
+
 STORAGES = ('mcap', 'sqlite3')       # planar_vo.io.writer.STORAGES (rosbags not imported here)
 # The node's settings (ros.*) that replay uses: the frame ids of the odometry it writes.
 REPLAY_ROS_KEYS = ('ros.odom_frame', 'ros.base_frame')
@@ -43,7 +45,7 @@ def register(subparsers) -> argparse.ArgumentParser:
                         help='TwistStamped or Odometry topic giving the speed for metric scale '
                              '(sets scale.source: speed; required with scale.source: speed)')
     parser.add_argument('--tum', metavar='FILE', help='also write the odometry as a TUM file')
-    parser.add_argument('--config', metavar='YAML',
+    parser.add_argument('--config', metavar='YAML', action=Once,
                         help='configuration file (default: built-in defaults, as in '
                              'config/planar_vo.yaml)')
     parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
@@ -75,15 +77,14 @@ def run(args: argparse.Namespace) -> int:
         tum_path=args.tum, storage=args.storage, odom_frame=config.ros.odom_frame,
         base_frame=config.ros.base_frame, progress=show_progress(args))
     print(summary.format())
-    if summary.frames_in and not summary.motion_out:
+    if summary.no_motion:
         # The output bag is complete (the summary above says what it holds), but a script that
         # chains `replay && eval` must not go on as if there were motion in it.
-        why = summary.why_none or 'every frame was the first of a keyframe chain'
         holds = ('the copied topics only' if not summary.origins else
                  f'the copied topics and {summary.origins} odometry message(s) at the origin')
         tum = '; no TUM file was written' if args.tum else ''
-        print(f'{args.parser.prog}: error: no motion estimated from {summary.frames_in} '
-              f'frame(s) ({why}); {args.out} holds {holds}{tum}', file=sys.stderr)
+        print(f'{args.parser.prog}: error: {summary.no_motion}; {args.out} holds {holds}{tum}',
+              file=sys.stderr)
         return 1
     return 0
 

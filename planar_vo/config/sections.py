@@ -97,6 +97,9 @@ class CameraConfig(Options):
             PNG): 16 for values filling the 16 bits, 12 for a 12-bit sensor whose values are
             stored as 0-4095 (10 likewise); they are shifted down by ``mono16_bits - 8`` to 8
             bits, a fixed mapping, so that brightness stays comparable between frames.
+        rectified: the images are rectified (``image_rect``, image_proc's output): the camera
+            model is CameraInfo's projection ``P`` (its fx, fy, cx, cy) without distortion, as
+            image_geometry uses it for rectified images. False (raw images): ``K`` and ``D``.
     """
 
     fx: float = bounded(0.0, 0.0, expected='fx, fy >= 0 (0 = from CameraInfo)')
@@ -122,6 +125,7 @@ class CameraConfig(Options):
     focal_min_blocks: int = bounded(4, 2)
     focal_max_blocks: int = bounded(32, 2)
     mono16_bits: int = bounded(16, 8, 16, expected='an integer number of bits in 8..16')
+    rectified: bool = False
 
     def validate(self) -> None:
         self._require(finite(*self.distortion), 'distortion', 'finite coefficients')
@@ -460,10 +464,12 @@ class RosConfig(Options):
     path_spacing: float = bounded(1.0, 0.0, expected='a non-negative distance (m)')
     path_period: float = bounded(1.0, 0.0, expected='a non-negative number of seconds')
     warn_period: float = bounded(5.0, 0.0, expected='a non-negative number of seconds')
-    diagnostics_period: float = bounded(1.0, 0.0, low_open=True,
-                                        expected='a positive number of seconds')
-    image_timeout: float = bounded(5.0, 0.0, low_open=True,
-                                   expected='a positive number of seconds')
+    # Bounded both ways (a user test: 1e-6 s kept a core busy; 1e10 s overflowed rclpy's
+    # timer, which crashed the node on a run-time change).
+    diagnostics_period: float = bounded(1.0, 0.05, 3600.0,
+                                        expected='a period of 0.05-3600 seconds')
+    image_timeout: float = bounded(5.0, 0.1, 86400.0,
+                                   expected='a timeout of 0.1-86400 seconds (a day)')
 
     def validate(self) -> None:
         # tf2 refuses frame ids with a leading slash; whitespace makes ids that look equal

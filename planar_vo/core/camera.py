@@ -165,8 +165,12 @@ class CameraModel:
         return cls(width, height, K)
 
     @classmethod
-    def from_camera_info(cls, msg: Any) -> CameraModel:
+    def from_camera_info(cls, msg: Any, *, rectified: bool = False) -> CameraModel:
         """From a ``sensor_msgs/CameraInfo`` (rclpy or rosbags message; duck-typed).
+
+        ``rectified``: the images are rectified (``image_rect``): the model is ``P``'s left 3x3
+        (fx', fy', cx', cy') without distortion, as ``image_geometry`` projects rectified
+        images; otherwise ``K`` and ``D`` (raw images).
 
         The models of `DISTORTION_MODELS` are read (``plumb_bob``, ``rational_polynomial``,
         ``equidistant``; a coefficient list padded with zeros as the shorter model, all zeros
@@ -184,6 +188,9 @@ class CameraModel:
             k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
             d = tuple(float(v) for v in msg.d)
             model = str(msg.distortion_model or '').strip()
+            if rectified:
+                k = np.asarray(msg.p, dtype=np.float64).reshape(3, 4)[:, :3].copy()
+                d, model = (), ''
             width, height = int(msg.width), int(msg.height)
             bx, by = (max(int(getattr(msg, f'binning_{a}', 0) or 0), 1) for a in 'xy')
             roi = getattr(msg, 'roi', None)
@@ -192,6 +199,10 @@ class CameraModel:
         except (AttributeError, TypeError, ValueError) as err:
             raise CameraModelError(f'camera_info: not a CameraInfo message ({err})') from err
         if not np.any(k):
+            if rectified:
+                raise CameraModelError('camera_info: P is all zeros, and camera.rectified uses '
+                                       "it (a raw camera's CameraInfo: set camera.rectified "
+                                       'false)')
             raise CameraModelError('camera_info: K is all zeros (uncalibrated camera); set the '
                                    'camera.fx/fy/cx/cy parameters or enable camera.estimate_focal')
         if roi_w == 0 or roi_h == 0:                      # REP-104: the full image

@@ -73,13 +73,15 @@ class CameraFrameDecoder:
 
     Used by `iter_camera_frames` and by replay (which interleaves other topics in one pass).
     ``mono16_shift``: the right shift of 16-bit grey images to 8 bits (``camera.mono16_bits -
-    8``).
+    8``); ``rectified``: rectified images, whose model is CameraInfo's ``P``
+    (`CameraModel.from_camera_info`, ``camera.rectified``).
     """
 
     def __init__(self, bag: BagReader, image_topic: str, camera_info_topic: str | None,
-                 mono16_shift: int = 8) -> None:
+                 mono16_shift: int = 8, rectified: bool = False) -> None:
         self.bag = bag
         self.mono16_shift = mono16_shift
+        self.rectified = rectified
         self.image_topic = image_topic
         self.camera_info_topic = camera_info_topic
         self.camera: CameraModel | None = None
@@ -94,10 +96,14 @@ class CameraFrameDecoder:
             return
         for message in self.bag.messages([self.camera_info_topic]):
             try:
-                self.camera = CameraModel.from_camera_info(self.bag.deserialize(message))
+                self.camera = self._model(message)
                 return
             except (BagError, CameraModelError):
                 continue
+
+    def _model(self, message: BagMessage) -> CameraModel:
+        return CameraModel.from_camera_info(self.bag.deserialize(message),
+                                            rectified=self.rectified)
 
     def feed(self, message: BagMessage) -> CameraFrame | None:
         """A frame for an image message; None for a CameraInfo (which updates the camera)."""
@@ -110,7 +116,7 @@ class CameraFrameDecoder:
 
     def _update_camera(self, message: BagMessage) -> None:
         try:
-            self.camera = CameraModel.from_camera_info(self.bag.deserialize(message))
+            self.camera = self._model(message)
         except (BagError, CameraModelError) as err:
             self.camera_errors += 1
             self._pending_camera_error = f'camera_info at {message.log_time_ns} ns: {err}'

@@ -46,10 +46,15 @@ class _Deferral:
 
     depth = 0
     pending: signal.Signals | None = None
+    # The last stop signal handled: a library that turns our KeyboardInterrupt into its own
+    # (Ray's ray.wait raises a bare one) loses the name, which `interrupt_signal` then finds
+    # here.
+    last: signal.Signals | None = None
 
 
 def _on_stop_signal(signum: int, frame: Any) -> None:
     name = signal.Signals(signum)
+    _Deferral.last = name
     if _Deferral.depth:
         _Deferral.pending = name
         return
@@ -76,7 +81,7 @@ def stop_signals_interrupt() -> Iterator[None]:
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-        _Deferral.pending = None
+        _Deferral.pending = _Deferral.last = None
 
 
 @contextmanager
@@ -97,9 +102,12 @@ def deferred_interrupts() -> Iterator[None]:
 
 
 def interrupt_signal(err: KeyboardInterrupt) -> signal.Signals:
-    """The signal behind a ``KeyboardInterrupt`` (SIGINT unless it names another)."""
+    """The signal behind a ``KeyboardInterrupt``: the one it names, else the last one handled
+    by `stop_signals_interrupt` (a library re-raised it without the name), else SIGINT."""
     name = str(err)
-    return signal.Signals[name] if name in signal.Signals.__members__ else signal.SIGINT
+    if name in signal.Signals.__members__:
+        return signal.Signals[name]
+    return _Deferral.last or signal.SIGINT
 
 
 @contextmanager

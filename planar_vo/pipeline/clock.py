@@ -19,7 +19,9 @@ duplicate).
 
 from __future__ import annotations
 
+import collections
 import enum
+import statistics
 
 __all__ = ['FrameClock', 'Stamp', 'StampCheck', 'format_stamp', 'seconds_between']
 
@@ -62,6 +64,7 @@ class StampCheck(str, enum.Enum):
 
     OK = 'ok'
     DUPLICATE = 'duplicate'              # the same stamp as the last accepted frame
+    TOO_CLOSE = 'too_close'              # far sooner after it than the frames' usual interval
     OUT_OF_ORDER = 'out_of_order'        # slightly older than the last accepted frame
     JUMP_AHEAD = 'jump_ahead'            # far in the future: refused, time base kept
     NEW_TIME_BASE = 'new_time_base'      # the second frame after a forward jump: accepted
@@ -71,22 +74,39 @@ class StampCheck(str, enum.Enum):
 class FrameClock:
     """The last accepted stamp and the rules above.
 
+    A frame stamped less than `TOO_CLOSE_SHARE` of the usual interval (the median of the last
+    `INTERVALS` accepted ones, once there are 3) after the last one is a duplicated or
+    mis-stamped frame: the motion between two images divided by a 1 ns interval published a
+    speed of 1e9 m/s (a user test).
+
     Args:
         max_gap: the longest plausible interval between consecutive frames (seconds).
         max_jump_back: a step back longer than this (seconds) is a new time base, not a frame
             out of order.
     """
 
+    TOO_CLOSE_SHARE = 0.25
+    INTERVALS = 9
+
     def __init__(self, max_gap: float, max_jump_back: float) -> None:
         self.max_gap = float(max_gap)
         self.max_jump_back = float(max_jump_back)
         self.last: float | None = None
         self._ahead: float | None = None
+        self._intervals: collections.deque[float] = collections.deque(maxlen=self.INTERVALS)
 
     def reset(self) -> None:
         """Forget the time base (the next stamp is accepted as is)."""
         self.last = None
         self._ahead = None
+        self._intervals.clear()
+
+    @property
+    def usual_interval(self) -> float | None:
+        """The median of the recent accepted intervals (seconds), once there are 3."""
+        if len(self._intervals) < 3:
+            return None
+        return statistics.median(self._intervals)
 
     def check(self, stamp: float) -> StampCheck:
         """Judge ``stamp`` (seconds, or a `Stamp`) and, when it is accepted, make it the last
@@ -107,8 +127,13 @@ class FrameClock:
             ahead = self._ahead
             if ahead is not None and 0.0 < seconds_between(stamp, ahead) <= self.max_gap:
                 self.last, self._ahead = stamp, None
+                self._intervals.clear()
                 return StampCheck.NEW_TIME_BASE
             self._ahead = stamp
             return StampCheck.JUMP_AHEAD
+        usual = self.usual_interval
+        if usual is not None and step < self.TOO_CLOSE_SHARE * usual:
+            return StampCheck.TOO_CLOSE
         self.last, self._ahead = stamp, None
+        self._intervals.append(step)
         return StampCheck.OK

@@ -312,7 +312,9 @@ class VisualOdometry:
 
         Args:
             image: 8-bit grey ``(H, W)`` or ``(H, W, 1)``, BGR ``(H, W, 3)`` or BGRA ``(H, W, 4)``
-                image.
+                image; or the `ImageError` its decoding raised (a driver's message the caller
+                could not read): a ``bad_image`` frame like an unreadable array, which counts
+                towards lost tracking when its stamp is new.
             stamp: its timestamp in seconds; a `Stamp` (integer nanoseconds, e.g.
                 ``CameraFrame.stamp``) is judged exactly: 1 ns later is not a duplicate.
             camera: the camera model for this frame (e.g. from ``CameraInfo``); None keeps the
@@ -358,12 +360,25 @@ class VisualOdometry:
         try:
             gray = _gray(image)
         except ImageError as err:
+            last = self._clock.last
+            if last is not None and seconds_between(stamp, last) > 0:
+                # Time went by without an image: it counts towards lost tracking, as a blank
+                # one does (a user test: after five undecodable frames the stale keyframe cost
+                # five good ones more).
+                return self._lost_frame(stamp, DropReason.BAD_IMAGE, str(err), 0)
             return self._drop(stamp, DropReason.BAD_IMAGE, str(err))
         last = self._clock.last
         check = self._clock.check(stamp)
         if check is StampCheck.DUPLICATE:
             return self._drop(stamp, DropReason.DUPLICATE_STAMP,
                               f'timestamp {format_stamp(stamp)} repeats the previous frame')
+        if check is StampCheck.TOO_CLOSE:
+            usual = self._clock.usual_interval
+            return self._drop(stamp, DropReason.DUPLICATE_STAMP,
+                              f'timestamp {format_stamp(stamp)} is '
+                              f'{1e3 * seconds_between(stamp, last):.3g} ms after the previous '
+                              f'frame, under a quarter of the usual {1e3 * usual:.3g} ms: a '
+                              f'duplicated or mis-stamped frame')
         if check is StampCheck.OUT_OF_ORDER:
             return self._drop(stamp, DropReason.OUT_OF_ORDER,
                               f'timestamp {format_stamp(stamp)} is older than the previous '
@@ -1378,7 +1393,10 @@ def _short(value, limit: int = 40) -> str:
 
 
 def _gray(image) -> np.ndarray:
-    """8-bit grey image from grey or BGR input, or `ImageError`."""
+    """8-bit grey image from grey or BGR input, or `ImageError` (the one given, see
+    `VisualOdometry.process`)."""
+    if isinstance(image, ImageError):
+        raise image
     return as_gray('image', image)
 
 

@@ -33,7 +33,8 @@ class DropReason(str, enum.Enum):
     BAD_IMAGE = 'bad_image'                # undecodable, unsupported encoding, wrong size
     BLANK_IMAGE = 'blank_image'            # black, saturated or textureless
     SIZE_CHANGED = 'size_changed'          # image size differs from the camera model
-    DUPLICATE_STAMP = 'duplicate_stamp'    # same timestamp as the previous frame
+    DUPLICATE_STAMP = 'duplicate_stamp'    # same timestamp as the previous frame, or far sooner
+    #                                        after it than the usual interval (mis-stamped)
     OUT_OF_ORDER = 'out_of_order'          # older than the previous frame
     TOO_FEW_CORRESPONDENCES = 'too_few_correspondences'
     UNRELIABLE = 'unreliable'              # estimator flagged the motion (ambiguous, few inliers)

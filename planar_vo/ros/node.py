@@ -36,6 +36,7 @@ rejected. `LIVE_PARAMETERS` may change at run time; the others are read at start
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import functools
 import logging
@@ -91,7 +92,7 @@ from std_srvs.srv import Trigger
 
 from planar_vo.config import PlanarVoConfig, describe, flatten, ranges
 from planar_vo.core.camera import CameraModel
-from planar_vo.errors import CameraModelError, ConfigError, ImageError, InputError
+from planar_vo.errors import CameraModelError, ConfigError, ImageError, InputError, one_line
 from planar_vo.pipeline import DropReason, FrameResult, TrackingState, VisualOdometry
 from planar_vo.pipeline.clock import FrameClock, Stamp, StampCheck
 from planar_vo.pipeline.threads import limit_blas_threads
@@ -509,8 +510,14 @@ class PlanarVoNode(Node):
         if ros.publish_tf != self.config.ros.publish_tf:
             self._set_tf(ros.publish_tf)
         if ros.image_timeout != self.config.ros.image_timeout:
+            # The new timer first: if it cannot be made, the old one still watches.
+            try:
+                watch = self._watch_timer(ros.image_timeout)
+            except Exception as err:      # noqa: BLE001 - rclpy's own (TypeError, RCLError)
+                return SetParametersResult(successful=False, reason=f'ros.image_timeout: '
+                                                                    f'{one_line(err)}')
             self.destroy_timer(self._image_watch)
-            self._image_watch = self._watch_timer(ros.image_timeout)
+            self._image_watch = watch
         self.config = config
         return SetParametersResult(successful=True)
 
@@ -604,7 +611,8 @@ class PlanarVoNode(Node):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            camera = CameraModel.from_camera_info(msg)   # plausible intrinsics only
+            # Plausible intrinsics only; rectified images: P.
+            camera = CameraModel.from_camera_info(msg, rectified=self.config.camera.rectified)
         except CameraModelError as err:
             self._counters['camera_info_errors'] += 1
             kept = 'keeping the last valid one' if self._camera is not None else \
@@ -619,9 +627,12 @@ class PlanarVoNode(Node):
         if camera != self._camera and self._camera is not None:
             # Rate-limited: two drivers publishing on one topic change it every message.
             self._counters['camera_changes'] += 1
+            old = self._camera
+            change = (f'the image moves up to {old.pixel_shift(camera):.3g} px'
+                      if old.size == camera.size else
+                      f'size {old.width}x{old.height} -> {camera.width}x{camera.height}')
             self._warn('camera_model', f'camera model changed to {camera.width}x'
-                                       f'{camera.height}, fx {camera.fx:.1f}: the image moves up '
-                                       f'to {self._camera.pixel_shift(camera):.3g} px')
+                                       f'{camera.height}, fx {camera.fx:.1f}: {change}')
         self._camera = camera
         self.flush_pending()
 
@@ -656,7 +667,13 @@ class PlanarVoNode(Node):
         self._note_gap(stamp_ns)
         odom = None
         try:
-            result = self._vo.process(decode(msg), Stamp(stamp_ns), self._camera)
+            try:
+                image = decode(msg)
+            except ImageError as err:
+                # To the pipeline all the same: it counts towards lost tracking (a user test:
+                # after five undecodable frames the stale keyframe cost five good ones).
+                image = err
+            result = self._vo.process(image, Stamp(stamp_ns), self._camera)
             if result.has_odometry:                          # a motion, or the origin
                 odom = self._odometry(msg.header, result)    # InputError if the pose is not finite
         except ImageError as err:
@@ -664,6 +681,8 @@ class PlanarVoNode(Node):
         except Exception as err:  # noqa: BLE001 - a bug in the pipeline must not stop the node
             result = self._dropped(stamp_ns, DropReason.PIPELINE_ERROR,
                                    f'{type(err).__name__}: {err}')
+        if result.reason is DropReason.NO_CAMERA_INFO and self._camera is None:
+            result = dataclasses.replace(result, message=result.message + self._info_hint())
         key = 'ok' if result.ok else result.reason.value
         self.outcomes[key] += 1
         self._period[key] += 1
@@ -681,6 +700,26 @@ class PlanarVoNode(Node):
         self._last_result = result
         focal = self._note_focal()
         self._publish_status(msg.header, result, node_time, path_time, focal)
+
+    def _info_hint(self) -> str:
+        """Why no CameraInfo came, as far as the graph tells (a user test: a latched CameraInfo
+        the default QoS does not receive left only "no camera intrinsics yet")."""
+        sub = self._camera_info_sub
+        if sub is None:
+            return ''
+        topic = sub.topic_name
+        publishers = self.get_publishers_info_by_topic(topic)
+        if not publishers:
+            return f'; no publisher on {topic}'
+        if self._counters['camera_info_errors']:
+            return f'; every CameraInfo on {topic} so far was refused (see the warning)'
+        latched = any(p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                      for p in publishers)
+        hint = (f'; {len(publishers)} publisher(s) on {topic} but no message arrived')
+        if latched:
+            hint += (f' (it publishes latched: subscribe with -p qos_overrides.{topic}.'
+                     f'subscription.durability:=transient_local and reliability:=reliable)')
+        return hint
 
     def _note_focal(self) -> str:
         """Log the focal length when its source changes (a self-calibration says at the first
@@ -717,7 +756,7 @@ class PlanarVoNode(Node):
         if check is StampCheck.JUMP_AHEAD:
             self._glitched += 1
             return
-        if check in (StampCheck.DUPLICATE, StampCheck.OUT_OF_ORDER):
+        if check in (StampCheck.DUPLICATE, StampCheck.TOO_CLOSE, StampCheck.OUT_OF_ORDER):
             return
         last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
         glitched, self._glitched = self._glitched, 0
@@ -993,6 +1032,14 @@ class PlanarVoNode(Node):
             status.level = DiagnosticStatus.WARN
             status.message = (f'{state.value}; no odometry from {frames} images in the last '
                               f'{period:g} s ({reason}: {count})')
+        elif frames >= 4 and 2 * _with_odometry(self._period) <= frames:
+            # Half the images or more give none (a user test: every other frame undecodable
+            # was OK, 'tracking; 10.0 images/s').
+            reason, count = max(_drops(self._period).items(), key=lambda kv: kv[1])
+            status.level = DiagnosticStatus.WARN
+            status.message = (f'{state.value}; odometry from {_with_odometry(self._period)} '
+                              f'of {frames} images in the last {period:g} s ({reason}: '
+                              f'{count})')
         elif (unscaled := self._unscaled_period()) is not None:
             status.level = DiagnosticStatus.WARN
             status.message = f'{state.value}; {unscaled}'

@@ -27,21 +27,25 @@ with the default threads gives last bits that depend on the number of cores (and
 waiting BLAS threads cost a second core). One BLAS thread set at load time
 (``OMP_NUM_THREADS=1``, ``OPENBLAS_NUM_THREADS=1``) or at run time gives the same numbers.
 
-Failures: a `PlanarVoError` of a bag (missing, corrupt, truncated, no image topic, too few poses
-to evaluate) makes a ``failed`` row with its one-line message, kept in ``result.json`` (a rerun
-does not repeat it unless the bag's files change). A worker that dies (killed, out of memory)
-is retried by Ray up to ``retries`` times; then the row is ``failed`` and not kept, so a rerun
-tries again. Any other exception is a bug: a ``failed`` row naming it, not kept.
+Failures: a `PlanarVoError` of a bag (missing, corrupt, truncated, no image topic, no motion
+estimated, too few poses to evaluate) makes a ``failed`` row with its one-line message, kept in
+``result.json`` (a rerun does not repeat it unless the bag's files change); a failure of the
+job's own outputs (a full disk) is a ``failed`` row too, but a rerun tries again. A worker that
+dies (killed, out of memory) is retried by Ray up to ``retries`` times; then the row is
+``failed`` and not kept, so a rerun tries again. Any other exception is a bug: a ``failed`` row
+naming it, not kept.
 
 Resuming: a job whose ``result.json`` matches it (same bag path, same bag files by size and
-modification time, same configuration) is skipped; anything else in its folder is a partial
-result and is deleted before the job runs again. Ctrl-C stops the running tasks and writes
+modification time, same configuration and topics, same planar_vo code) is skipped; anything
+else in its folder is a partial result and is deleted before the job runs again. One run at a
+time uses a folder. Ctrl-C stops the running tasks and writes
 the summary of the complete results.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import itertools
 import json
@@ -50,6 +54,7 @@ import math
 import os
 import re
 import shutil
+import signal
 import socket
 import sys
 import time
@@ -59,14 +64,25 @@ from pathlib import Path
 from typing import Any
 
 from planar_vo.config import PlanarVoConfig, build_config, flatten, parse_set
-from planar_vo.errors import ConfigError, DependencyError, InputError, PlanarVoError, one_line
-from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
+from planar_vo.errors import (
+    ConfigError,
+    DependencyError,
+    InputError,
+    OutputError,
+    PlanarVoError,
+    one_line,
+)
+from planar_vo.io.outputs import interrupt_signal
+from planar_vo.tools.fleet_report import bag_names, plural, write_json, write_summary
 
 __all__ = [
     'FLEET_EXTRA',
     'FleetConfig',
     'FleetJob',
     'FleetRun',
+    'bag_identity',
+    'check_out_dir',
+    'code_digest',
     'config_grid',
     'default_workers',
     'import_ray',
@@ -147,7 +163,9 @@ def config_grid(base: PlanarVoConfig | Mapping[str, Any], sets: Sequence[str] = 
             raise ConfigError(f"set: '{key}' given twice; list its values once: {key}=V1,V2")
         axes.append((key, values))
     if not axes:
-        return [FleetConfig('default', flatten(build_config(base_values, {}, source)))]
+        # Named after its file: runs of several files into one folder stay apart in the rows.
+        name = Path(source).name if source else 'default'
+        return [FleetConfig(name, flatten(build_config(base_values, {}, source)))]
     grid = []
     for combo in itertools.product(*(values for _, values in axes)):
         changes = dict(zip((key for key, _ in axes), combo))
@@ -158,8 +176,9 @@ def config_grid(base: PlanarVoConfig | Mapping[str, Any], sets: Sequence[str] = 
 
 
 def read_manifest(path: str | Path) -> list[Path]:
-    """Bag paths of a manifest: one a line; blank lines and ``#`` comments are skipped; relative
-    paths are relative to the manifest's folder.
+    """Bag paths of a manifest: one a line; blank lines and ``#`` comments (a whole line, or
+    after a blank at the end of a line) are skipped; relative paths are relative to the
+    manifest's folder.
 
     Raises:
         InputError: unreadable manifest, or no bags in it.
@@ -172,8 +191,9 @@ def read_manifest(path: str | Path) -> list[Path]:
         raise InputError(f"manifest: cannot read '{path}' ({detail})") from err
     bags = []
     for line in text.splitlines():
-        entry = line.strip()
-        if entry and not entry.startswith('#'):
+        # 'bag   # the main drive' (a user test: the comment became part of the path).
+        entry = re.split(r'(?:^|\s)#', line, maxsplit=1)[0].strip()
+        if entry:
             bag = Path(entry).expanduser()
             bags.append(bag if bag.is_absolute() else path.parent / bag)
     if not bags:
@@ -204,14 +224,17 @@ class FleetJob:
         bag: absolute path of the input bag.
         config: the configuration.
         run_dir: the job's folder, relative to the output folder.
-        key: digest of the inputs (bag path, its files' sizes and times, configuration): a
-            ``result.json`` with another key is stale.
+        key: digest of the inputs (bag path, its files' sizes and times, configuration,
+            topics, planar_vo's code): a ``result.json`` with another key is stale.
+        image_topic, camera_info_topic: as ``planar_vo replay``'s (None: the only one).
     """
 
     bag: str
     config: FleetConfig
     run_dir: str
     key: str
+    image_topic: str | None = None
+    camera_info_topic: str | None = None
 
     @property
     def label(self) -> str:
@@ -219,18 +242,56 @@ class FleetJob:
         return f'{Path(self.bag).name}:{_slug(self.config.name)}'
 
 
-def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig]) -> list[FleetJob]:
-    """Every bag (duplicates removed, order kept) under every configuration, bag-major."""
-    paths = dict.fromkeys(os.path.normpath(Path(bag).expanduser().absolute()) for bag in bags)
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """Digest of planar_vo's own source files (as installed): results computed by other code
+    are stale (a user test: a rerun after an upgrade reported the old numbers)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha1()
+    for path in sorted(root.rglob('*.py')):
+        h.update(str(path.relative_to(root)).encode() + b'\0' + path.read_bytes() + b'\0')
+    return h.hexdigest()
+
+
+def bag_identity(path: str | Path) -> str:
+    """The bag a path names, for finding the same bag under two spellings: symbolic links
+    resolved, and a bag folder's own storage file (``bag/bag.mcap`` beside ``metadata.yaml``)
+    taken as the folder."""
+    real = Path(os.path.realpath(Path(path).expanduser()))
+    if real.is_file() and (real.parent / 'metadata.yaml').is_file():
+        return str(real.parent)
+    return str(real)
+
+
+def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig], *,
+              image_topic: str | None = None, camera_info_topic: str | None = None
+              ) -> list[FleetJob]:
+    """Every bag under every configuration, bag-major. The same bag given twice (another
+    spelling, a symbolic link, its folder and its storage file) runs once, as first given, and
+    a warning names the repeat."""
+    paths: dict[str, str] = {}
+    seen: dict[str, str] = {}
+    for given in bags:
+        bag = os.path.normpath(Path(given).expanduser().absolute())
+        identity = bag_identity(bag)
+        if identity in seen:
+            if bag != seen[identity]:
+                log.warning("BAG: '%s' is the bag '%s' again; it runs once", given,
+                            seen[identity])
+            continue
+        seen[identity] = bag
+        paths[bag] = identity
     jobs = []
+    topics = {'image': image_topic, 'camera_info': camera_info_topic}
     for bag in paths:
         stem = Path(bag).name.removesuffix('.mcap').removesuffix('.db3')
         bag_dir = f'runs/{_slug(stem)}-{_digest(bag)[:8]}'
         files = bag_fingerprint(bag)
         for config in configs:
             run_dir = f'{bag_dir}/{_slug(config.name)}-{_digest(config.values)[:8]}'
-            key = _digest({'bag': bag, 'files': files, 'config': config.values})
-            jobs.append(FleetJob(bag, config, run_dir, key))
+            key = _digest({'bag': bag, 'files': files, 'config': config.values,
+                           'topics': topics, 'code': code_digest()})
+            jobs.append(FleetJob(bag, config, run_dir, key, image_topic, camera_info_topic))
     return jobs
 
 
@@ -298,11 +359,18 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
     config = job.config.build()
     odometry = work / ODOMETRY
     summary = replay_bag(job.bag, odometry, VisualOdometry(config), tum_path=work / TUM,
+                         image_topic=job.image_topic, camera_info_topic=job.camera_info_topic,
                          odom_frame=config.ros.odom_frame, base_frame=config.ros.base_frame,
                          progress=False)
     row.update(frames_in=summary.frames_in, odom_out=summary.odometry_out,
-               drops=dict(sorted(summary.dropped.items())),
-               odometry=f'{job.run_dir}/{ODOMETRY}', tum=f'{job.run_dir}/{TUM}')
+               drops=dict(sorted(summary.dropped.items())))
+    _kept_outputs(job, work, row)
+    if not summary.frames_in:
+        raise InputError(f'bag: no frames on {summary.image_topic}')
+    if summary.no_motion:
+        # As planar_vo replay's exit code 1 (a user test: the row was 'ok' with no odometry,
+        # or failed for a missing /odom of the evaluation instead of the cause).
+        raise InputError(summary.no_motion)
     if not summary.copied.get(GROUND_TRUTH_TOPIC):
         return None
     est, covariances = read_bag_odometry(odometry, EST_TOPIC, role='est-topic')
@@ -317,6 +385,18 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
     return _thumbnail(evaluation)
 
 
+def _kept_outputs(job: FleetJob, work: Path, row: dict) -> None:
+    """Name in `row` the odometry bag and TUM file that replay left complete in `work`."""
+    row.update(odometry=f'{job.run_dir}/{ODOMETRY}' if (work / ODOMETRY).is_dir() else None,
+               tum=f'{job.run_dir}/{TUM}' if (work / TUM).is_file() else None)
+
+
+def _output_failure(err: PlanarVoError) -> bool:
+    """An error of the job's own outputs (a full disk, a file system that went away): not the
+    bag's fault, so a rerun tries again."""
+    return isinstance(err, OutputError) or str(err).startswith(('out:', 'tum:'))
+
+
 def run_job(job: FleetJob, out_dir: str | Path) -> dict:
     """Replay and evaluate one job into ``out_dir/job.run_dir``; returns its result record.
 
@@ -324,8 +404,10 @@ def run_job(job: FleetJob, out_dir: str | Path) -> dict:
     an earlier, unfinished attempt left in the job's folder, runs `single_threaded`, and writes
     ``result.json`` last: ``{'key': job.key, 'row': {...}, 'thumbnail': {...} or None}``.
 
-    A `PlanarVoError` (bad bag, no poses to evaluate) makes a ``failed`` row, with the outputs
-    that replay kept; any other exception propagates (a bug; no ``result.json`` is written).
+    A `PlanarVoError` (bad bag, no motion, no poses to evaluate) makes a ``failed`` row, with
+    the outputs that replay kept; one of the job's outputs (`_output_failure`) is marked
+    ``final: False``, so that a rerun repeats it (`load_result`). Any other exception
+    propagates (a bug; no ``result.json`` is written).
     """
     start = time.perf_counter()
     work = Path(out_dir) / job.run_dir
@@ -334,25 +416,29 @@ def run_job(job: FleetJob, out_dir: str | Path) -> dict:
     work.mkdir(parents=True)
     row = _new_row(job, node=socket.gethostname(), pid=os.getpid())
     thumbnail = None
+    final = True
     with single_threaded():
         try:
             thumbnail = _replay_and_evaluate(job, work, row)
         except PlanarVoError as err:
             row.update(status='failed', reason=one_line(err))
+            _kept_outputs(job, work, row)
+            final = not _output_failure(err)
     wall = time.perf_counter() - start
     row.update(wall_s=wall, frames_per_s=row['frames_in'] / wall)
-    record = {'key': job.key, 'row': row, 'thumbnail': thumbnail}
+    record = {'key': job.key, 'row': row, 'thumbnail': thumbnail, 'final': final}
     write_json(work / RESULT, record)
     return record
 
 
 def load_result(out_dir: str | Path, job: FleetJob) -> dict | None:
-    """The complete result record of `job` in `out_dir`, or None (absent, partial or stale)."""
+    """The complete result record of `job` in `out_dir`, or None (absent, partial, stale, or a
+    failure of the outputs that a rerun repeats)."""
     out_dir = Path(out_dir)
     try:
         record = json.loads((out_dir / job.run_dir / RESULT).read_text(encoding='utf-8'))
         row = record['row']
-        if record['key'] != job.key:
+        if record['key'] != job.key or record.get('final') is False:
             return None
         outputs = [row[name] for name in ('odometry', 'tum')] if row['status'] == 'ok' else []
     except (OSError, ValueError, KeyError, TypeError):
@@ -385,11 +471,13 @@ class FleetRun:
         jobs: number of jobs asked for.
         skipped: jobs whose complete result was already in ``out_dir``.
         ran: jobs finished by this run (ok or failed).
-        interrupted: Ctrl-C stopped the run; ``jobs - skipped - ran`` jobs did not run.
+        stop_signal: the signal that stopped the run (SIGINT: Ctrl-C, or SIGTERM), or None;
+            then ``jobs - skipped - ran`` jobs did not run.
         ray_start_s: seconds to start (or connect to) Ray; 0 when nothing had to run.
         tasks_s: seconds from submitting the tasks to the last result.
         wall_s: seconds of the whole call.
         address, workers: where it ran (``None``: a local instance with ``workers`` CPUs).
+        local: run in this process, one job after the other, without Ray.
         files: summary.json, report.md and the plots.
     """
 
@@ -398,12 +486,13 @@ class FleetRun:
     jobs: int
     skipped: int = 0
     ran: int = 0
-    interrupted: bool = False
+    stop_signal: signal.Signals | None = None
     ray_start_s: float = 0.0
     tasks_s: float = 0.0
     wall_s: float = 0.0
     address: str | None = None
     workers: int | None = None
+    local: bool = False
     files: list[Path] = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
@@ -412,7 +501,11 @@ class FleetRun:
                 'not_run': self.jobs - len(self.records), 'interrupted': self.interrupted,
                 'wall_s': self.wall_s, 'ray_start_s': self.ray_start_s, 'tasks_s': self.tasks_s,
                 'frames_per_s': self.frames_per_s, 'address': self.address,
-                'workers': self.workers}
+                'workers': self.workers, 'local': self.local}
+
+    @property
+    def interrupted(self) -> bool:
+        return self.stop_signal is not None
 
     @property
     def rows(self) -> list[dict]:
@@ -428,13 +521,15 @@ class FleetRun:
         """A few lines for the terminal."""
         rows = self.rows
         failed = [r for r in rows if r['status'] != 'ok']
-        lines = [f'fleet: {len(rows)} of {self.jobs} results in {self.out_dir} '
+        lines = [f'fleet: {len(rows)} of {plural(self.jobs, "result")} in {self.out_dir} '
                  f'({len(rows) - len(failed)} ok, {len(failed)} failed; {self.skipped} already '
                  f'there, {self.ran} run now)']
         if self.ran:
-            where = self.address or f'local Ray, {self.workers} CPUs'
-            lines.append(f'  {self.tasks_s:.1f} s (wall time) on {where} (Ray start '
-                         f'{self.ray_start_s:.1f} s), {self.frames_per_s or 0:.1f} frames/s')
+            where = ('this process, no Ray' if self.local else
+                     (self.address or f'local Ray, {plural(self.workers, "CPU")}')
+                     + f' (Ray start {self.ray_start_s:.1f} s)')
+            lines.append(f'  {self.tasks_s:.1f} s (wall time) on {where}, '
+                         f'{self.frames_per_s or 0:.1f} frames/s')
         names = bag_names([r['bag'] for r in rows])
         lines += [f'  failed: {names[r["bag"]]} [{r["config"]}]: {r["reason"]}' for r in failed]
         if self.interrupted:
@@ -468,6 +563,9 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
     common = {'log_to_driver': False, 'logging_level': logging.ERROR}
     if address:
         _check_reachable(address)
+    # Ray's core worker installs its own SIGTERM handler (a crash dump, exit code 1: a user
+    # test); the command's handler (SIGTERM stops like Ctrl-C) is put back after the start.
+    sigterm = signal.getsignal(signal.SIGTERM) if _main_thread() else None
     try:
         if address:
             for attempt in range(1, CLIENT_ATTEMPTS + 1):
@@ -484,14 +582,23 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
         else:
             ray.init(num_cpus=workers, include_dashboard=False,
                      _system_config={'task_oom_retries': retries}, **common)
-    except (ConnectionError, RuntimeError, ValueError) as err:
-        where = f"'{address}'" if address else f'a local instance ({workers} CPUs)'
+    except Exception as err:       # noqa: BLE001 - Ray raises bare Exception on a start timeout
+        where = f"'{address}'" if address else f'a local instance ({plural(workers, "CPU")})'
         raise InputError(f'address: cannot start or reach Ray at {where} '
                          f'({one_line(err)})') from err
+    finally:
+        if callable(sigterm):
+            signal.signal(signal.SIGTERM, sigterm)
     try:
         yield ray
     finally:
         ray.shutdown()
+
+
+def _main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
 
 
 def _check_reachable(address: str) -> None:
@@ -517,7 +624,7 @@ def default_workers() -> int:
     """The CPUs this process may use."""
     if hasattr(os, 'sched_getaffinity'):
         return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
+    return os.cpuplural() or 1
 
 
 def _failure(ray, err: Exception, job: FleetJob, retries: int) -> dict | None:
@@ -538,8 +645,9 @@ def _failure(ray, err: Exception, job: FleetJob, retries: int) -> dict | None:
 
 
 def _execute(ray, jobs: Sequence[FleetJob], todo: list[int], out_dir: Path, retries: int,
-             records: dict[int, dict], bar, cancel: bool) -> bool:
-    """Submit the jobs `todo`, collect their records; True if interrupted by Ctrl-C.
+             records: dict[int, dict], bar, cancel: bool) -> signal.Signals | None:
+    """Submit the jobs `todo`, collect their records; the stop signal if interrupted (Ctrl-C,
+    SIGTERM).
 
     On Ctrl-C the tasks still running are cancelled only with ``cancel`` (a Ray the caller
     started, which outlives the run). Otherwise ending the session stops them: Ray ends the
@@ -568,17 +676,66 @@ def _execute(ray, jobs: Sequence[FleetJob], todo: list[int], out_dir: Path, retr
                 bar.update(1)
                 elapsed = time.perf_counter() - start
                 bar.set_postfix_str(f'{frames / elapsed:.0f} frames/s, {failed} failed')
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:
         if cancel:
             for ref in pending:
                 ray.cancel(ref, force=True)
-        return True
-    return False
+        return interrupt_signal(err)
+    return None
+
+
+def _run_local(jobs: Sequence[FleetJob], todo: list[int], out_dir: Path,
+               records: dict[int, dict], bar) -> signal.Signals | None:
+    """The jobs `todo` one after the other in this process; the stop signal if interrupted
+    (Ctrl-C, SIGTERM: the job running then leaves no ``result.json``, a rerun repeats it)."""
+    try:
+        for i in todo:
+            records[i] = run_job(jobs[i], out_dir)
+            bar.update(1)
+    except KeyboardInterrupt as err:
+        return interrupt_signal(err)
+    return None
+
+
+def check_out_dir(out_dir: str | Path, bags: Iterable[str | Path]) -> None:
+    """`out_dir` must not be a bag, nor hold or sit inside one of the input bags (a user test:
+    the results went into the input bag's folder, whose changed files then made every run
+    stale).
+
+    Raises:
+        InputError: naming the bag.
+    """
+    out = Path(os.path.realpath(Path(out_dir).expanduser()))
+    if (out / 'metadata.yaml').is_file():
+        raise InputError(f"out: '{out_dir}' is a bag; give a folder for the fleet's results")
+    for bag in bags:
+        identity = Path(bag_identity(bag))
+        if out == identity or identity in out.parents or out in identity.parents:
+            raise InputError(f"out: '{out_dir}' overlaps the input bag '{bag}'; give a folder "
+                             f'outside it')
+
+
+@contextlib.contextmanager
+def _locked(out_dir: Path) -> Iterator[None]:
+    """One fleet run at a time in `out_dir` (a user test: two at once deleted each other's
+    partial results and kept the failures)."""
+    import fcntl
+
+    handle = open(out_dir / '.fleet.lock', 'a')
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise InputError(f"out: another fleet run is using '{out_dir}'; wait for it or "
+                             f'give another folder') from None
+        yield
+    finally:
+        handle.close()
 
 
 def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | None = None,
               workers: int | None = None, retries: int = 2, progress: bool = False,
-              command: Sequence[str] | None = None) -> FleetRun:
+              command: Sequence[str] | None = None, local: bool = False) -> FleetRun:
     """Run the jobs not yet complete in `out_dir` as Ray tasks; write the summary and report.
 
     Args:
@@ -593,36 +750,67 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
         retries: how many times Ray reruns a task whose worker died (killed, out of memory).
         progress: progress bar on stderr (jobs done/total, aggregate frames/s, failures).
         command: the command line, recorded in the report.
+        local: run the jobs in this process, one after the other, without Ray (the same
+            results; ``address``, ``workers`` and ``retries`` do not apply).
 
     Returns:
         A `FleetRun`. Ctrl-C (KeyboardInterrupt) stops the tasks still running (ending the
         session, or cancelling them in a Ray the caller started) and returns with
-        ``interrupted`` set, after writing the summary of the complete results.
+        ``stop_signal`` set (SIGINT or SIGTERM, which stops alike), after writing the summary
+        of the complete results.
 
     Raises:
         DependencyError: Ray is missing (only checked when a job must run).
-        InputError: Ray cannot be started or reached.
+        InputError: Ray cannot be started or reached, `out_dir` overlaps a bag
+            (`check_out_dir`) or another run is using it.
     """
-    from tqdm import tqdm
-
-    start = time.perf_counter()
+    workers = default_workers() if workers is None else workers
+    if workers < 1 or retries < 0:
+        raise InputError(f'workers, retries: expected at least 1 and 0, got {workers}, {retries}')
+    check_out_dir(out_dir, [job.bag for job in jobs])
     out_dir = Path(out_dir)
+    created = not out_dir.exists()
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(f"out: cannot create '{out_dir}' ({err.strerror})") from err
-    workers = default_workers() if workers is None else workers
-    if workers < 1 or retries < 0:
-        raise InputError(f'workers, retries: expected at least 1 and 0, got {workers}, {retries}')
+    try:
+        with _locked(out_dir):
+            return _run_fleet(jobs, out_dir, address, workers, retries, progress, command, local)
+    except BaseException:
+        if created:
+            # Nothing run (Ray could not start, another error): no empty folder left behind
+            # (a user test).
+            with contextlib.suppress(OSError):
+                (out_dir / '.fleet.lock').unlink()
+                out_dir.rmdir()
+        raise
+
+
+def _run_fleet(jobs: Sequence[FleetJob], out_dir: Path, address: str | None, workers: int,
+               retries: int, progress: bool, command: Sequence[str] | None,
+               local: bool) -> FleetRun:
+    from tqdm import tqdm
+
+    start = time.perf_counter()
     records: dict[int, dict] = {}
     for i, job in enumerate(jobs):
         record = load_result(out_dir, job)
         if record is not None:
             records[i] = {**record, 'skipped': True}
     run = FleetRun(out_dir, [], len(jobs), skipped=len(records), address=address,
-                   workers=None if address else workers)
+                   workers=None if address or local else workers, local=local)
     todo = [i for i in range(len(jobs)) if i not in records]
-    if todo:
+    if todo and local:
+        bar = tqdm(total=len(jobs), initial=len(records), desc='fleet', unit='bag',
+                   file=sys.stderr, disable=not progress, leave=False)
+        t0 = time.perf_counter()
+        try:
+            run.stop_signal = _run_local(jobs, todo, out_dir, records, bar)
+        finally:
+            run.tasks_s = time.perf_counter() - t0
+            bar.close()
+    elif todo:
         t0 = time.perf_counter()
         ray_module = sys.modules.get('ray')
         callers_ray = ray_module is not None and ray_module.is_initialized()
@@ -632,7 +820,7 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
                        file=sys.stderr, disable=not progress, leave=False)
             t0 = time.perf_counter()
             try:
-                run.interrupted = _execute(ray, jobs, todo, out_dir, retries, records, bar,
+                run.stop_signal = _execute(ray, jobs, todo, out_dir, retries, records, bar,
                                            cancel=callers_ray)
             finally:
                 run.tasks_s = time.perf_counter() - t0

@@ -24,11 +24,16 @@ from planar_vo.io.outputs import write_file
 from planar_vo.tools.evaluation.report import json_ready
 from planar_vo.tools.markdown import format_cell, markdown_table
 
-__all__ = ['aggregate', 'bag_names', 'plot_drift', 'plot_thumbnails', 'write_json',
+__all__ = ['aggregate', 'bag_names', 'plot_drift', 'plot_thumbnails', 'plural', 'write_json',
            'write_summary']
 
 MAX_BARS = 80            # bags in the drift plot (the largest drifts beyond that)
 MAX_THUMBNAILS = 48
+
+
+def plural(n: int, noun: str) -> str:
+    """``1 CPU``, ``2 CPUs``."""
+    return f'{n} {noun}' if n == 1 else f'{n} {noun}s'
 
 
 def write_json(path: Path, value: Any) -> None:
@@ -165,12 +170,17 @@ def _report(summary: dict, plots: list[Path], names: dict[str, str],
         parts.append('```sh\n' + shlex.join(command) + '\n```')
     state = (f"**Interrupted**: {info['not_run']} of {info['jobs']} not run; rerun the same "
              'command to finish them.' if info['interrupted'] else 'Complete.')
-    where = info['address'] or f"a local Ray instance with {info['workers']} CPUs"
-    ran = (f"{info['ran']} run now on {where} in {info['tasks_s']:.1f} s (wall time) "
-           f"(Ray start {info['ray_start_s']:.1f} s), {info['skipped']} already there"
+    if info.get('local'):
+        where, start = 'this process (no Ray)', ''
+    else:
+        where = info['address'] or f"a local Ray instance with {plural(info['workers'], 'CPU')}"
+        start = f" (Ray start {info['ray_start_s']:.1f} s)"
+    ran = (f"{info['ran']} run now on {where} in {info['tasks_s']:.1f} s (wall time)"
+           f"{start}, {info['skipped']} already there"
            if info['ran'] else f"all {info['skipped']} already there (nothing run)")
-    parts.append(f"{state} {totals['runs']} results ({totals['bags']} bags x {len(configs)} "
-                 f"configurations): {totals['ok']} ok, {totals['failed']} failed; {ran}.")
+    parts.append(f"{state} {plural(totals['runs'], 'result')} ({plural(totals['bags'], 'bag')} "
+                 f"x {plural(len(configs), 'configuration')}): {totals['ok']} ok, "
+                 f"{totals['failed']} failed; {ran}.")
     throughput = info['frames_per_s']
     parts.append('## Totals\n\n' + markdown_table(
         ['frames', 'odometry', 'km (ground truth)', 'task time (s)', 'frames/s per task',

@@ -130,6 +130,15 @@ class ReplaySummary:
         return self.odometry_out - self.origins
 
     @property
+    def no_motion(self) -> str | None:
+        """Why the replay gave no motion (``no motion estimated from N frame(s) (...)``), or
+        None when it did (or read no frame)."""
+        if not self.frames_in or self.motion_out:
+            return None
+        why = self.why_none or 'every frame was the first of a keyframe chain'
+        return f'no motion estimated from {self.frames_in} frame(s) ({why})'
+
+    @property
     def throughput(self) -> float:
         """Frames per second of wall time."""
         return self.frames_in / self.wall_time if self.wall_time > 0 else float('nan')
@@ -321,7 +330,9 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         poses = _Poses()
         # 16-bit grey images as the processor's configuration reads them (camera.mono16_bits).
         shift = config.camera.mono16_bits - 8 if isinstance(config, PlanarVoConfig) else 8
-        decoder = CameraFrameDecoder(bag, image_topic, info_topic, mono16_shift=shift)
+        rectified = isinstance(config, PlanarVoConfig) and config.camera.rectified
+        decoder = CameraFrameDecoder(bag, image_topic, info_topic, mono16_shift=shift,
+                                     rectified=rectified)
         decoder.prime()
         bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
                    disable=not progress, leave=False)
