@@ -985,6 +985,24 @@ def test_undecodable_frames_count_towards_lost_tracking():
     assert vo.process(images[9], 0.9).ok
 
 
+def test_a_dim_keyframe_that_nothing_matches_falls_back_to_the_one_before():
+    """A user test: one dim frame (an exposure glitch) matched the keyframe before it and
+    became the keyframe, offered no texture to the next frames, and cost six frames and a new
+    chain. After two misses tracking goes back to the keyframe before it, and the pose stays
+    on the drive."""
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    results = [vo.process(images[i] // 16 if i == 6 else images[i], 0.1 * i) for i in range(14)]
+    assert results[6].ok and results[6].keyframe                 # the dim frame: a keyframe
+    assert [r.reason for r in results[7:9]] == [DropReason.TOO_FEW_CORRESPONDENCES] * 2
+    assert results[8].message.endswith('; the newest keyframe, far dimmer than the one before '
+                                       'it, matched nothing: tracking goes on against the one '
+                                       'before it')
+    assert all(r.ok for r in results[9:])
+    truth = invert(trajectory.poses[0]) @ trajectory.poses[13]
+    assert np.linalg.norm(results[13].pose[:2, 3] - truth[:2, 3]) < 0.1
+
+
 def test_the_scale_status_names_the_source_and_the_camera_height():
     def status(**scale):
         return VisualOdometry(PlanarVoConfig.from_dict(scale)).scale_status()

@@ -36,10 +36,12 @@ class Keyframe:
         focal_sums: ``(9, 3)`` sums along the chain (world frame) that give the pose error a
             self-calibrated focal length made (`VisualOdometry._focal_covariance`).
         age: frames tracked against it so far.
-        matched: a later frame found correspondences with it, or it was itself tracked (a
-            keyframe of a running chain); False for a chain's first keyframe until a frame
-            matches it.
+        matched: a later frame found correspondences with it; False until one does (a
+            keyframe that two frames in a row cannot match is dropped: see
+            `VisualOdometry._lost_frame`).
         misses: frames since it that found too few correspondences with it.
+        contrast: its grey-level standard deviation (subsampled): a keyframe far dimmer than
+            the one before it (an exposure glitch) is why frames cannot match it.
     """
 
     image: np.ndarray
@@ -53,6 +55,7 @@ class Keyframe:
     age: int = 0
     matched: bool = True
     misses: int = 0
+    contrast: float = 0.0
 
 
 class KeyframeChain:
@@ -85,6 +88,7 @@ class KeyframeChain:
                          np.array(tilt_gain, dtype=np.float64),
                          np.zeros((9, 3)) if focal_sums is None else
                          np.array(focal_sums, dtype=np.float64))
+        frame.contrast = float(image[::8, ::8].std())
         self._count += 1
         self._frames.append(frame)
         return frame
@@ -100,6 +104,17 @@ class KeyframeChain:
             if frame.index == index:
                 return frame
         return None
+
+    @property
+    def previous(self) -> Keyframe | None:
+        """The keyframe before the current one, if kept."""
+        return self._frames[-2] if len(self._frames) >= 2 else None
+
+    def drop_current(self) -> None:
+        """Go back to the keyframe before the current one (`previous`, which must exist)."""
+        if len(self._frames) < 2:
+            raise ValueError('drop_current: no keyframe before the current one')
+        self._frames.pop()
 
     def clear(self) -> None:
         """Drop every keyframe (the next usable frame starts a new chain)."""

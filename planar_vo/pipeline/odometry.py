@@ -486,7 +486,7 @@ class VisualOdometry:
                 self._windowed(keyframe, gray, camera, est)
                 timings['window'] = time.perf_counter() - t
             self._keyframes.add(gray, stamp, self.camera_pose, self._camera_cov, self._bias,
-                                self._tilt_gain, self._focal_sums)
+                                self._tilt_gain, self._focal_sums).matched = False
         else:
             keyframe.age += 1
         self._lost = 0
@@ -1032,11 +1032,23 @@ class VisualOdometry:
         self._state = TrackingState.LOST
         if keyframe is not None and reason is DropReason.TOO_FEW_CORRESPONDENCES:
             keyframe.misses += 1
-        if (keyframe is not None and not keyframe.matched
-                and keyframe.misses >= _UNMATCHED_MISSES and not self._restart):
-            # A chain's first keyframe that two frames in a row found no correspondences with
-            # is the garbled one (noise is not blank), not they: no later frame would match it
-            # either. (One such frame may be the garbled one itself: the keyframe is kept.)
+        # A keyframe that two frames in a row found no correspondences with is the garbled
+        # one, not they (noise is not blank; a dim frame, an exposure glitch, matched the
+        # keyframe before it but offers no texture to the next): no later frame would match it
+        # either. (One such frame may be the garbled one itself: it is kept.) A chain's first
+        # keyframe then starts a new chain; mid-chain, one far dimmer than the keyframe before
+        # it gives way to that one (a user test: one dim frame cost six frames and a new
+        # chain); any other is judged by lost tracking below.
+        unmatched = (keyframe is not None and not keyframe.matched
+                     and keyframe.misses >= _UNMATCHED_MISSES and not self._restart)
+        previous = self._keyframes.previous
+        if unmatched and previous is not None and \
+                keyframe.contrast < _DIM_KEYFRAME * previous.contrast:
+            self._keyframes.drop_current()
+            self._lost = 0
+            message += ('; the newest keyframe, far dimmer than the one before it, matched '
+                        'nothing: tracking goes on against the one before it')
+        elif unmatched and previous is None:
             self._keyframes.clear()
             self._restart = 'a first keyframe that no frame matched'
             message += ('; the new chain\'s first keyframe matched nothing: the next usable '
@@ -1361,6 +1373,9 @@ _UNKNOWN = 1e6
 # it, that drop it (`_lost_frame`): one may be a garbled frame itself, two in a row implicate the
 # keyframe.
 _UNMATCHED_MISSES = 2
+# A keyframe whose contrast is below this share of the one before it is a dim one (see
+# `VisualOdometry._lost_frame`).
+_DIM_KEYFRAME = 0.5
 # ACs whose ray is within this sine (about 3 deg) of the epipole carry no depth for
 # `_heading_nominal`.
 _EPIPOLE_SIN = 0.05
