@@ -1025,6 +1025,17 @@ def test_a_new_frame_rate_is_learned_not_counted_as_lost_frames(local_node):
     assert (node._counters['gaps'], node._counters['missing_frames']) == (1, 2)
 
 
+def test_frames_lost_right_after_the_start_are_counted(local_node):
+    """A user test: frames 3-5 lost (stamps 0, 1, 2, 6, 7, ...) gave no gap, the period not
+    known yet; the first three intervals judge each other once there are three."""
+    node = local_node(MOUNT_PARAMS)
+    for i in (0, 1, 2, 6, 7, 8, 9, 10):
+        node._note_gap(100_000_000 * i)
+    assert (node._counters['gaps'], node._counters['missing_frames']) == (1, 3)
+    node._note_gap(100_000_000 * 13)                       # two more lost: the period holds
+    assert (node._counters['gaps'], node._counters['missing_frames']) == (2, 5)
+
+
 def test_a_frame_stamped_far_ahead_in_place_of_the_next_is_not_a_lost_frame(local_node):
     """10 Hz; one frame's stamp jumps 1000 s ahead (a clock glitch) where the next frame was
     due: the frame after it comes 200 ms after the last accepted one, but nothing was lost
