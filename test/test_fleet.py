@@ -490,7 +490,7 @@ def test_without_ray_one_line_and_exit_1(drives, tmp_path, capsys, monkeypatch):
     assert main(['fleet', 'run', str(drives['drive_a']), '--out', str(tmp_path / 'o')]) == 1
     err = capsys.readouterr().err.strip()
     assert err == ("planar_vo fleet run: error: ray is not installed; fleet runs need the fleet "
-                   "extra: pip install 'planar_vo[fleet]'")
+                   "extra: pip install 'planar_vo[fleet]' (or run without Ray: --local)")
     assert not (tmp_path / 'o').exists()
 
 
@@ -766,9 +766,10 @@ def test_local_runs_equal_rays_and_a_bag_without_motion_is_a_failed_row(
         assert local_row[key] == ray_row[key], key
     assert not ray.is_initialized()
     # --local with Ray's options is a contradiction.
-    assert main(args + ['--workers', '2']) == 1
-    assert capsys.readouterr().err == ('planar_vo fleet run: error: --workers: --local runs in '
-                                       'this process, without Ray\n')
+    for option in (['--workers', '2'], ['--retries', '1']):
+        assert main(args + option) == 1
+        assert capsys.readouterr().err == (f'planar_vo fleet run: error: {option[0]}: --local '
+                                           f'runs in this process, without Ray\n')
 
 
 def test_the_same_bag_twice_runs_once_and_the_repeat_is_said(drives, tmp_path, caplog):
@@ -782,6 +783,14 @@ def test_the_same_bag_twice_runs_once_and_the_repeat_is_said(drives, tmp_path, c
     said = [r.getMessage() for r in caplog.records]
     assert said == [f"BAG: '{tmp_path / 'link'}' is the bag '{bag}' again; it runs once",
                     f"BAG: '{storage}' is the bag '{bag}' again; it runs once"]
+    # The files of a split recording are different data (a review: only the first ran).
+    split = tmp_path / 'split'
+    split.mkdir()
+    (split / 'metadata.yaml').write_text('')
+    parts = [split / 'drive_0.mcap', split / 'drive_1.mcap']
+    for part in parts:
+        part.write_bytes(b'')
+    assert [j.bag for j in plan_jobs(parts, configs)] == [str(p) for p in parts]
 
 
 def test_the_output_folder_may_not_overlap_a_bag_nor_be_used_twice(drives, tmp_path, capsys):
@@ -794,11 +803,18 @@ def test_the_output_folder_may_not_overlap_a_bag_nor_be_used_twice(drives, tmp_p
     assert not (bag / 'fleet').exists() and not (bag / 'runs').exists()
     out = tmp_path / 'busy'
     out.mkdir()
-    with open(out / '.fleet.lock', 'a') as held:
+    held = os.open(out, os.O_RDONLY)              # the lock is on the folder itself
+    try:
         fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
         assert main(['fleet', 'run', str(bag), '--out', str(out), '--local']) == 1
+    finally:
+        os.close(held)
     assert capsys.readouterr().err == (f"planar_vo fleet run: error: --out: another fleet run "
                                        f"is using '{out}'; wait for it or give another folder\n")
+    assert list(out.iterdir()) == []              # no lock file left in the results
+    # A folder that holds the bags is fine (a review: refused).
+    from planar_vo.tools.fleet import check_out_dir
+    check_out_dir(bag.parent, [bag])
 
 
 def test_a_failure_of_the_outputs_is_retried_by_the_rerun(drives, tmp_path, monkeypatch):
@@ -835,3 +851,25 @@ def test_config_given_twice_and_manifest_comments(drives, tmp_path, capsys):
     manifest = tmp_path / 'm.txt'
     manifest.write_text('a   # the main drive\nb#2\n  # c\n')
     assert read_manifest(manifest) == [tmp_path / 'a', tmp_path / 'b#2']
+
+
+def test_a_job_that_raises_in_a_local_run_is_a_failed_row_and_the_rest_run(
+        drives, tmp_path, monkeypatch):
+    """As on Ray (a review: --local stopped the whole fleet, with a traceback and no summary)."""
+    import planar_vo.tools.fleet as fleet
+
+    real = fleet._replay_and_evaluate
+
+    def buggy(job, work, row):
+        if Path(job.bag).name == 'drive_b':
+            raise RuntimeError('boom')
+        return real(job, work, row)
+
+    monkeypatch.setattr(fleet, '_replay_and_evaluate', buggy)
+    jobs = plan_jobs([drives['drive_b'], drives['drive_c']], config_grid(PlanarVoConfig()))
+    run = run_fleet(jobs, tmp_path / 'o', local=True)
+    rows = {Path(r['bag']).name: r for r in run.rows}
+    assert rows['drive_b']['status'] == 'failed'
+    assert rows['drive_b']['reason'] == 'internal error: RuntimeError: boom'
+    assert rows['drive_c']['status'] == 'ok' and (tmp_path / 'o' / 'summary.json').exists()
+    assert load_result(tmp_path / 'o', jobs[0]) is None          # not kept: a rerun repeats it

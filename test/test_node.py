@@ -1360,7 +1360,8 @@ def test_a_latched_camera_info_without_the_override_is_named_in_the_reason(local
         rclpy.shutdown(context=context)
     assert hint == ('; 1 publisher(s) on /camera_info but no message arrived (it publishes '
                     'latched: subscribe with -p qos_overrides./camera_info.subscription.'
-                    'durability:=transient_local and reliability:=reliable)')
+                    'durability:=transient_local -p qos_overrides./camera_info.subscription.'
+                    'reliability:=reliable)')
 
 
 @pytest.mark.timeout(60)

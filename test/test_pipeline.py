@@ -960,10 +960,18 @@ def test_a_frame_stamped_far_sooner_than_the_usual_interval_is_refused():
     close = vo.process(images[5], Stamp(t0 + 4 * 100_000_000 + 1))
     assert close.reason is DropReason.DUPLICATE_STAMP
     assert close.message == ('timestamp 1700000000.400000001 is 1e-06 ms after the previous '
-                             'frame, under a quarter of the usual 100 ms: a duplicated or '
-                             'mis-stamped frame')
+                             'frame, under 5 ms and a quarter of the usual 100 ms: a '
+                             'duplicated or mis-stamped frame')
     after = vo.process(images[5], Stamp(t0 + 5 * 100_000_000))
     assert after.ok and np.linalg.norm(after.twist[:3]) < 16.0
+    # A camera switching from 1 Hz to 30 Hz loses no frame (a review: a quarter of the usual
+    # interval alone refused 44 of the first 90).
+    from planar_vo.pipeline.clock import FrameClock, StampCheck
+
+    clock = FrameClock(10.0, 1.0)
+    stamps = [float(i) for i in range(6)] + [5.0 + k / 30.0 for k in range(1, 91)]
+    assert {clock.check(t) for t in stamps} == {StampCheck.OK}
+    assert clock.check(stamps[-1] + 0.001) is StampCheck.TOO_CLOSE
 
 
 def test_undecodable_frames_count_towards_lost_tracking():

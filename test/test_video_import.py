@@ -53,6 +53,7 @@ def test_a_folder_is_imported_exactly_in_natural_order_without_camera_info(tmp_p
     names = ['f2.png', 'f10.png', 'f1.png', 'f3.jpg', 'f20.png']     # natural order: 1,2,3,10,20
     images = _folder(tmp_path / 'imgs', rng, names=names)
     (tmp_path / 'imgs' / 'notes.txt').write_text('not an image')
+    (tmp_path / 'imgs' / '._f1.png').write_bytes(b'\0\5\x16\x07')     # macOS metadata
     summary = import_video(tmp_path / 'imgs', tmp_path / 'bag', rate_hz=4.0)
     assert (summary.frames, summary.read, summary.camera) == (5, 5, None)
     topics, frames = _read(tmp_path / 'bag')
@@ -150,6 +151,7 @@ def test_a_frame_of_another_size_mid_way_leaves_no_bag(tmp_path, rng):
     (['--rate-hz', '10', '--cx', '3'], '--cx: given without --fx (the intrinsics are written '
                                        'only with a focal length)'),
     (['--rate-hz', '10', '--fx', '0.5'], '--fx: '),
+    (['--rate-hz', '10', '--fx', '50', '--cx', '-5'], '--fx, --cx: '),
     ([], "--rate-hz: a folder of images has no frame rate; give the rate the 2 images were "
          "taken at"),
 ])

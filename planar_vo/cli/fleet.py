@@ -60,7 +60,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     run_parser.add_argument('--workers', type=int, metavar='N',
                             help='CPUs of the local instance, one task per CPU (default: all '
                                  'this process may use)')
-    run_parser.add_argument('--retries', type=int, default=2, metavar='N',
+    run_parser.add_argument('--retries', type=int, metavar='N',
                             help='reruns of a task whose worker died (killed, out of memory) '
                                  '(default: 2)')
     run_parser.add_argument('--local', action='store_true',
@@ -88,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     )
 
     if args.local:
-        given = [f'--{n}' for n in ('address', 'workers') if getattr(args, n) is not None]
+        given = [f'--{n}' for n in ('address', 'workers', 'retries')
+                 if getattr(args, n) is not None]
         if given:
             raise InputError(f'{given[0]}: --local runs in this process, without Ray')
     if args.address and args.workers is not None:
@@ -96,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
                          "cluster's CPUs are used")
     if args.workers is not None and args.workers < 1:
         raise InputError(f'--workers: expected at least 1, got {args.workers}')
-    if args.retries < 0:
+    retries = 2 if args.retries is None else args.retries
+    if retries < 0:
         raise InputError(f'--retries: expected 0 or more, got {args.retries}')
     bags = list(args.bags) + (read_manifest(args.manifest) if args.manifest else [])
     if not bags:
@@ -132,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     jobs = plan_jobs(bags, configs, image_topic=args.image_topic,
                      camera_info_topic=args.camera_info_topic)
     result = run_fleet(jobs, args.out, address=args.address, workers=args.workers,
-                       retries=args.retries, progress=show_progress(args), command=command,
+                       retries=retries, progress=show_progress(args), command=command,
                        local=args.local)
     print(result.format())
     if result.interrupted:

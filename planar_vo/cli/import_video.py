@@ -5,7 +5,9 @@ stamped at the video's frame rate (or --rate-hz, which a folder of images needs)
 /camera/camera_info only when --fx is given. Without intrinsics, replay it with the focal
 self-calibration (camera.estimate_focal=true): it starts from the field of view the camera's
 specification states (camera.nominal_fov, radians) when you give one, and needs turns to
-calibrate. Stamps are --start seconds plus each frame's index over the frame rate.
+calibrate. Stamps are --start seconds plus each frame's time in the video (or its index over
+--rate-hz, which a folder of images needs). A video that cannot be decoded to its end ends the
+import there: the summary says how many of the frames the video states were decoded.
 """
 
 from __future__ import annotations
@@ -75,7 +77,10 @@ def run(args: argparse.Namespace) -> int:
             camera = CameraModel.pinhole(width, height, args.fx, args.fy, args.cx, args.cy)
             camera.check_plausible()
         except CameraModelError as err:
-            raise InputError(f'--fx: {err}') from err
+            # Named by what was given (a review: --cx's error said --fx).
+            given = ', '.join(f'--{n}' for n in ('fx', 'fy', 'cx', 'cy')
+                              if getattr(args, n) is not None)
+            raise InputError(f'{given}: {err}') from err
     summary = import_video(args.source, args.out, storage=args.storage, rate_hz=args.rate_hz,
                            every=args.every, max_width=args.max_width, camera=camera,
                            start=args.start, progress=show_progress(args))

@@ -5,8 +5,8 @@ rate (or ``rate_hz``) and, only when the intrinsics are given, ``/camera/camera_
 of unknown focal length is replayed with the focal self-calibration (``camera.estimate_focal``),
 and a CameraInfo made up here would be a wrong calibration the replay believed.
 
-Stamps are ``start`` plus the frame's index in the source over the frame rate (a constant rate:
-the container's nominal one for a video; a phone's variable rate is close to it), so a
+Stamps are ``start`` plus each frame's presentation time in a video (a phone records at a
+variable rate), or its index over the frame rate for a folder of images or a given rate; a
 subsampled import (``every``) keeps the source's timing.
 """
 
@@ -106,8 +106,9 @@ def _natural_key(path: Path) -> list:
 
 
 def _folder_images(folder: Path) -> list[Path]:
-    images = sorted((p for p in folder.iterdir()
-                     if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=_natural_key)
+    # Hidden files are not frames (macOS leaves '._0001.jpg' beside each image on an SD card).
+    images = sorted((p for p in folder.iterdir() if p.is_file() and not p.name.startswith('.')
+                     and p.suffix.lower() in IMAGE_SUFFIXES), key=_natural_key)
     if not images:
         raise InputError(f"source: no image files ({', '.join(IMAGE_SUFFIXES)}) in folder "
                          f"'{folder}'")
@@ -134,23 +135,25 @@ class _Video:
         count = float(self.capture.get(cv2.CAP_PROP_FRAME_COUNT))
         self.stated = int(count) if math.isfinite(count) and count > 0 else None
 
-    def __iter__(self) -> Iterator[tuple[str, np.ndarray]]:
+    def __iter__(self) -> Iterator[tuple[str, np.ndarray, float | None]]:
+        """``(name, frame, presentation time in ms or None)`` of every frame decoded."""
         index = 0
         try:
             while True:
                 ok, frame = self.capture.read()
                 if not ok:
                     return
-                yield f'frame {index}', frame
+                ms = float(self.capture.get(cv2.CAP_PROP_POS_MSEC))
+                yield f'frame {index}', frame, ms if math.isfinite(ms) else None
                 index += 1
         finally:
             self.capture.release()
 
 
-def _images(paths: list[Path]) -> Iterator[tuple[str, np.ndarray]]:
+def _images(paths: list[Path]) -> Iterator[tuple[str, np.ndarray, None]]:
     for path in paths:
         try:
-            yield f"'{path.name}'", read_image(path)
+            yield f"'{path.name}'", read_image(path), None
         except ImageError as err:
             raise InputError(f'source: {err}') from err
 
@@ -165,7 +168,7 @@ def frame_size(source: str | Path) -> tuple[int, int]:
         height, width = next(_images(_folder_images(source)))[1].shape[:2]
         return width, height
     video = _Video(source)
-    for _, frame in video:
+    for _, frame, _ in video:
         video.capture.release()
         return frame.shape[1], frame.shape[0]
     raise InputError(f"source: no frame could be decoded from '{source}'")
@@ -236,6 +239,7 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
         raise InputError(f'rate_hz: {rate_hz:g} Hz puts frames less than 1 ns apart')
 
     written = read = 0
+    offset_ns: int | None = None
     size = scale = None
     scaled_camera = None
     first_ns = last_ns = start_ns
@@ -245,9 +249,19 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
         with CameraBagWriter(out_path, storage=storage, camera_frame=camera_frame,
                              camera_info=camera is not None) as writer:
             try:
-                for name, frame in frames:
+                for name, frame, ms in frames:
                     read += 1
                     bar.update(1)
+                    # The frame's own time where the video has one (a phone's variable rate
+                    # drops to 15-24 Hz in the dark while stating 30), else its index.
+                    nominal = int(((read - 1) * period_ns).to_integral_value())
+                    if ms is None or rate_source == 'given':
+                        offset = nominal
+                    else:
+                        offset = round(ms * 1e6)
+                        if offset_ns is not None and offset <= offset_ns:
+                            offset = offset_ns + int(period_ns.to_integral_value())
+                    offset_ns = offset
                     if (read - 1) % every:
                         continue
                     image = _gray(frame)
@@ -260,7 +274,7 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
                     if scale != 1.0:
                         image = cv2.resize(image, _shrunk(size, scale),
                                            interpolation=cv2.INTER_AREA)
-                    stamp = start_ns + int(((read - 1) * period_ns).to_integral_value())
+                    stamp = start_ns + offset
                     if stamp > MAX_STAMP_NS:
                         raise InputError(f'start: frame {read - 1} would be stamped beyond what'
                                          f' a ROS time stamp holds (2038); give an earlier '

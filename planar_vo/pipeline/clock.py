@@ -75,9 +75,11 @@ class FrameClock:
     """The last accepted stamp and the rules above.
 
     A frame stamped less than `TOO_CLOSE_SHARE` of the usual interval (the median of the last
-    `INTERVALS` accepted ones, once there are 3) after the last one is a duplicated or
-    mis-stamped frame: the motion between two images divided by a 1 ns interval published a
-    speed of 1e9 m/s (a user test).
+    `INTERVALS` accepted ones, once there are 3) and less than `TOO_CLOSE_S` after the last one
+    is a duplicated or mis-stamped frame: the motion between two images divided by a 1 ns
+    interval published a speed of 1e9 m/s (a user test). The absolute bound lets a camera
+    switch to a higher frame rate (up to 200 Hz) without losing frames while the usual interval
+    catches up.
 
     Args:
         max_gap: the longest plausible interval between consecutive frames (seconds).
@@ -86,6 +88,7 @@ class FrameClock:
     """
 
     TOO_CLOSE_SHARE = 0.25
+    TOO_CLOSE_S = 0.005
     INTERVALS = 9
 
     def __init__(self, max_gap: float, max_jump_back: float) -> None:
@@ -132,7 +135,7 @@ class FrameClock:
             self._ahead = stamp
             return StampCheck.JUMP_AHEAD
         usual = self.usual_interval
-        if usual is not None and step < self.TOO_CLOSE_SHARE * usual:
+        if usual is not None and step < min(self.TOO_CLOSE_SHARE * usual, self.TOO_CLOSE_S):
             return StampCheck.TOO_CLOSE
         self.last, self._ahead = stamp, None
         self._intervals.append(step)

@@ -377,8 +377,8 @@ class VisualOdometry:
             return self._drop(stamp, DropReason.DUPLICATE_STAMP,
                               f'timestamp {format_stamp(stamp)} is '
                               f'{1e3 * seconds_between(stamp, last):.3g} ms after the previous '
-                              f'frame, under a quarter of the usual {1e3 * usual:.3g} ms: a '
-                              f'duplicated or mis-stamped frame')
+                              f'frame, under 5 ms and a quarter of the usual {1e3 * usual:.3g} '
+                              f'ms: a duplicated or mis-stamped frame')
         if check is StampCheck.OUT_OF_ORDER:
             return self._drop(stamp, DropReason.OUT_OF_ORDER,
                               f'timestamp {format_stamp(stamp)} is older than the previous '
@@ -1085,7 +1085,9 @@ class VisualOdometry:
         self._lost = 0
         if self._last_out is None:
             self._last_out = (stamp, self.camera_pose.copy())
-        return self._drop(stamp, reason, message)
+        # The frame is the chain's keyframe (a user test: the status said keyframe false
+        # beside 'reference keyframe set').
+        return self._result(stamp, False, reason=reason, message=message, keyframe=True)
 
     def _extrapolate(self, stamp: float, hold: bool = False) -> None:
         """The pose across a gap in tracking: the last velocity carried on, its turn rate

@@ -504,18 +504,21 @@ class PlanarVoNode(Node):
         except ConfigError as err:
             return SetParametersResult(successful=False, reason=str(err))
         ros = config.ros
-        if ros.path_max_length != self.config.ros.path_max_length:
-            self._path = deque(self._path, maxlen=ros.path_max_length)
-        self._throttle.period = ros.warn_period
-        if ros.publish_tf != self.config.ros.publish_tf:
-            self._set_tf(ros.publish_tf)
+        watch = None
         if ros.image_timeout != self.config.ros.image_timeout:
-            # The new timer first: if it cannot be made, the old one still watches.
+            # The new timer first: if it cannot be made, nothing changes (a review: the other
+            # live values were applied before the refusal).
             try:
                 watch = self._watch_timer(ros.image_timeout)
             except Exception as err:      # noqa: BLE001 - rclpy's own (TypeError, RCLError)
                 return SetParametersResult(successful=False, reason=f'ros.image_timeout: '
                                                                     f'{one_line(err)}')
+        if ros.path_max_length != self.config.ros.path_max_length:
+            self._path = deque(self._path, maxlen=ros.path_max_length)
+        self._throttle.period = ros.warn_period
+        if ros.publish_tf != self.config.ros.publish_tf:
+            self._set_tf(ros.publish_tf)
+        if watch is not None:
             self.destroy_timer(self._image_watch)
             self._image_watch = watch
         self.config = config
@@ -718,7 +721,8 @@ class PlanarVoNode(Node):
         hint = (f'; {len(publishers)} publisher(s) on {topic} but no message arrived')
         if latched:
             hint += (f' (it publishes latched: subscribe with -p qos_overrides.{topic}.'
-                     f'subscription.durability:=transient_local and reliability:=reliable)')
+                     f'subscription.durability:=transient_local -p qos_overrides.{topic}.'
+                     f'subscription.reliability:=reliable)')
         return hint
 
     def _note_focal(self) -> str:

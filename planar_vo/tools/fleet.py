@@ -255,11 +255,14 @@ def code_digest() -> str:
 
 def bag_identity(path: str | Path) -> str:
     """The bag a path names, for finding the same bag under two spellings: symbolic links
-    resolved, and a bag folder's own storage file (``bag/bag.mcap`` beside ``metadata.yaml``)
-    taken as the folder."""
+    resolved, and a bag folder's only storage file (``bag/bag.mcap`` beside ``metadata.yaml``)
+    taken as the folder. The files of a split recording (``drive_0.mcap``, ``drive_1.mcap``)
+    are different data: each is itself."""
     real = Path(os.path.realpath(Path(path).expanduser()))
     if real.is_file() and (real.parent / 'metadata.yaml').is_file():
-        return str(real.parent)
+        storage = [p for p in real.parent.iterdir() if p.suffix in ('.mcap', '.db3')]
+        if storage == [real]:
+            return str(real.parent)
     return str(real)
 
 
@@ -456,7 +459,7 @@ def import_ray():
         import ray
     except ImportError as err:
         raise DependencyError(f'{err.name or "ray"} is not installed; fleet runs need the fleet '
-                              f'extra: {FLEET_EXTRA}') from err
+                              f'extra: {FLEET_EXTRA} (or run without Ray: --local)') from err
     return ray
 
 
@@ -624,7 +627,15 @@ def default_workers() -> int:
     """The CPUs this process may use."""
     if hasattr(os, 'sched_getaffinity'):
         return len(os.sched_getaffinity(0))
-    return os.cpuplural() or 1
+    return os.cpu_count() or 1
+
+
+def _bug_record(job: FleetJob, cause: BaseException) -> dict:
+    """The record of a job that raised (a bug, an OS error): a failed row, not kept (no
+    ``result.json``: a rerun tries again)."""
+    return {'key': job.key, 'row': _new_row(job, status='failed', reason=f'internal error: '
+                                            f'{type(cause).__name__}: {one_line(cause)}'),
+            'thumbnail': None}
 
 
 def _failure(ray, err: Exception, job: FleetJob, retries: int) -> dict | None:
@@ -636,10 +647,9 @@ def _failure(ray, err: Exception, job: FleetJob, retries: int) -> dict | None:
         if isinstance(cause, KeyboardInterrupt):
             return None
         log.error('fleet task %s raised:\n%s', job.label, err)
-        reason = f'internal error: {type(cause).__name__}: {one_line(cause)}'
-    else:
-        reason = (f'worker died on each of {retries + 1} attempts ({type(err).__name__}: '
-                  f'{one_line(err)[:200]})')
+        return _bug_record(job, cause)
+    reason = (f'worker died on each of {retries + 1} attempts ({type(err).__name__}: '
+              f'{one_line(err)[:200]})')
     return {'key': job.key, 'row': _new_row(job, status='failed', reason=reason),
             'thumbnail': None}
 
@@ -690,7 +700,11 @@ def _run_local(jobs: Sequence[FleetJob], todo: list[int], out_dir: Path,
     (Ctrl-C, SIGTERM: the job running then leaves no ``result.json``, a rerun repeats it)."""
     try:
         for i in todo:
-            records[i] = run_job(jobs[i], out_dir)
+            try:
+                records[i] = run_job(jobs[i], out_dir)
+            except Exception as err:      # noqa: BLE001 - a bug or an OS error: as on Ray
+                log.error('fleet job %s raised', jobs[i].label, exc_info=True)
+                records[i] = _bug_record(jobs[i], err)
             bar.update(1)
     except KeyboardInterrupt as err:
         return interrupt_signal(err)
@@ -698,9 +712,8 @@ def _run_local(jobs: Sequence[FleetJob], todo: list[int], out_dir: Path,
 
 
 def check_out_dir(out_dir: str | Path, bags: Iterable[str | Path]) -> None:
-    """`out_dir` must not be a bag, nor hold or sit inside one of the input bags (a user test:
-    the results went into the input bag's folder, whose changed files then made every run
-    stale).
+    """`out_dir` must not be a bag, nor sit inside one of the input bags (a user test: the
+    results went into the input bag's folder, whose changed files then made every run stale).
 
     Raises:
         InputError: naming the bag.
@@ -710,7 +723,7 @@ def check_out_dir(out_dir: str | Path, bags: Iterable[str | Path]) -> None:
         raise InputError(f"out: '{out_dir}' is a bag; give a folder for the fleet's results")
     for bag in bags:
         identity = Path(bag_identity(bag))
-        if out == identity or identity in out.parents or out in identity.parents:
+        if out == identity or identity in out.parents:
             raise InputError(f"out: '{out_dir}' overlaps the input bag '{bag}'; give a folder "
                              f'outside it')
 
@@ -718,19 +731,24 @@ def check_out_dir(out_dir: str | Path, bags: Iterable[str | Path]) -> None:
 @contextlib.contextmanager
 def _locked(out_dir: Path) -> Iterator[None]:
     """One fleet run at a time in `out_dir` (a user test: two at once deleted each other's
-    partial results and kept the failures)."""
+    partial results and kept the failures): an exclusive ``flock`` on the folder itself (no
+    lock file). A file system without ``flock`` (some network mounts) runs unlocked, with a
+    warning."""
     import fcntl
 
-    handle = open(out_dir / '.fleet.lock', 'a')
+    fd = os.open(out_dir, os.O_RDONLY)
     try:
         try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
             raise InputError(f"out: another fleet run is using '{out_dir}'; wait for it or "
                              f'give another folder') from None
+        except OSError as err:
+            log.warning("out: '%s' cannot be locked (%s); make sure no other fleet run uses it",
+                        out_dir, err.strerror or err)
         yield
     finally:
-        handle.close()
+        os.close(fd)
 
 
 def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | None = None,
@@ -780,9 +798,8 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
     except BaseException:
         if created:
             # Nothing run (Ray could not start, another error): no empty folder left behind
-            # (a user test).
+            # (a user test); one that holds results stays.
             with contextlib.suppress(OSError):
-                (out_dir / '.fleet.lock').unlink()
                 out_dir.rmdir()
         raise
 

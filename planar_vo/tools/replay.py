@@ -34,7 +34,7 @@ import numpy as np
 
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
-from planar_vo.errors import BagError, ConfigError, InputError, OutputError
+from planar_vo.errors import BagError, ConfigError, ImageError, InputError, OutputError
 from planar_vo.io.images import CameraFrame, CameraFrameDecoder, resolve_camera_topics
 from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
@@ -333,6 +333,9 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         rectified = isinstance(config, PlanarVoConfig) and config.camera.rectified
         decoder = CameraFrameDecoder(bag, image_topic, info_topic, mono16_shift=shift,
                                      rectified=rectified)
+        # VisualOdometry takes an undecodable image's error (`VisualOdometry.process`).
+        from planar_vo.pipeline import VisualOdometry
+        takes_errors = isinstance(processor, VisualOdometry)
         decoder.prime()
         bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
                    disable=not progress, leave=False)
@@ -350,15 +353,19 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                         continue
                     summary.frames_in += 1
                     bar.update(1)
-                    if frame.image is None:
-                        _count_drop(dropped, BAD_IMAGE, frame, frame.error, first)
-                        continue
+                    image = frame.image
+                    if image is None:
+                        if not takes_errors:
+                            _count_drop(dropped, BAD_IMAGE, frame, frame.error, first)
+                            continue
+                        # The pipeline counts it towards lost tracking, as the node's does.
+                        image = ImageError(frame.error)
                     end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
                     for k in range(next_speed, end):
                         processor.add_speed(stamps_ns[k] / 1_000_000_000, speeds[k])
                     summary.speed_messages += max(0, end - next_speed)
                     next_speed = max(next_speed, end)
-                    result = processor.process(frame.image, frame.stamp, frame.camera)
+                    result = processor.process(image, frame.stamp, frame.camera)
                     reason = None if result.ok else getattr(result.reason, 'value',
                                                             str(result.reason))
                     if result.has_odometry:
