@@ -16,8 +16,14 @@ __all__ = [
     'InputError',
     'OutputError',
     'PlanarVoError',
+    'plural',
     'one_line',
 ]
+
+
+def plural(n: int, noun: str) -> str:
+    """``1 frame``, ``2 frames`` (for messages)."""
+    return f'{n} {noun}' if n == 1 else f'{n} {noun}s'
 
 
 def one_line(err: BaseException | str) -> str:

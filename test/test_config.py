@@ -319,3 +319,18 @@ def test_a_key_given_twice_in_a_file_is_refused(tmp_path):
             read(path)
     path.write_text('mount: {height: 1.65}\ncamera: {fx: 500}\n')   # the same key, two sections
     assert load_config(path).mount.height == 1.65
+
+
+def test_an_empty_distortion_means_none_for_any_model():
+    """A user test: a fisheye's field of view needs distortion_model equidistant, which then
+    refused the empty coefficient list; empty now means no distortion, for the camera model
+    too."""
+    from planar_vo.config import CameraConfig
+
+    camera = PlanarVoConfig.from_dict({'camera': {
+        'distortion_model': 'equidistant', 'estimate_focal': True, 'nominal_fov': 3.0}}).camera
+    assert camera.distortion == () and camera.coefficients == (0.0,) * 4
+    assert CameraConfig(distortion_model='plumb_bob').coefficients == (0.0,) * 5
+    with pytest.raises(ConfigError, match=r'camera.distortion: expected 4 coefficients'):
+        PlanarVoConfig.from_dict({'camera': {'distortion_model': 'equidistant',
+                                             'distortion': [0.1]}})

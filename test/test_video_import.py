@@ -111,7 +111,7 @@ def test_a_video_is_imported_at_its_own_frame_rate_or_the_given_one(tmp_path):
      r"source: no image files \(\.png, \.jpg, \.jpeg\) in folder '.*nothing'"),
     (lambda p: _folder(p, np.random.default_rng(1), n=2), {},
      r'rate_hz: a folder of images has no frame rate; give the rate the 2 images were taken at'),
-    (lambda p: p.write_bytes(b'not a video' * 50), {},
+    (lambda p: p.write_bytes(bytes(range(256)) * 4), {},
      r"source: cannot open '.*nothing' as a video"),
     (lambda p: _folder(p, np.random.default_rng(1), n=2), {'rate_hz': 10, 'every': 0},
      r'every: expected a whole number of frames >= 1, got 0'),
@@ -152,6 +152,8 @@ def test_a_frame_of_another_size_mid_way_leaves_no_bag(tmp_path, rng):
                                        'only with a focal length)'),
     (['--rate-hz', '10', '--fx', '0.5'], '--fx: '),
     (['--rate-hz', '10', '--fx', '50', '--cx', '-5'], '--fx, --cx: '),
+    (['--rate-hz', '10', '--fx', '700', '--fy', '0'], '--fy: expected a positive focal length '
+                                                      'in pixels, got 0.0\n'),
     ([], "--rate-hz: a folder of images has no frame rate; give the rate the 2 images were "
          "taken at"),
 ])
@@ -254,9 +256,9 @@ def test_import_stopped_by_sigterm_keeps_the_frames_written(tmp_path, rng, monke
     assert [f.stamp_ns for f in frames] == [START_NS, START_NS + 10**8]
 
 
-def test_a_damaged_video_is_one_line_and_a_truncated_one_says_what_was_decoded(tmp_path, capfd):
+def test_a_damaged_or_truncated_video_is_one_line_and_leaves_nothing(tmp_path, capfd):
     """FFmpeg's own messages stay quiet (they came before the command's line)."""
-    (tmp_path / 'bad.mp4').write_bytes(b'xx' * 100)
+    (tmp_path / 'bad.mp4').write_bytes(bytes(range(256)))
     assert main(['import-video', str(tmp_path / 'bad.mp4'), '--out', str(tmp_path / 'b')]) == 1
     assert capfd.readouterr().err == (f"planar_vo import-video: error: SOURCE: cannot open "
                                       f"'{tmp_path / 'bad.mp4'}' as a video (not a video file, or"
@@ -266,8 +268,47 @@ def test_a_damaged_video_is_one_line_and_a_truncated_one_says_what_was_decoded(t
                                 for k in range(10)], 10.0)
     data = (tmp_path / 'v.avi').read_bytes()
     (tmp_path / 'cut.avi').write_bytes(data[:len(data) * 6 // 10])
-    assert main(['import-video', str(tmp_path / 'cut.avi'), '--out', str(tmp_path / 'c')]) == 0
-    out, err = capfd.readouterr()
-    _, frames = _read(tmp_path / 'c')
-    assert 0 < len(frames) < 10 and err == ''
-    assert f'note: the video states 10 frames; {len(frames)} could be decoded' in out
+    assert main(['import-video', str(tmp_path / 'cut.avi'), '--out', str(tmp_path / 'c')]) == 1
+    err = capfd.readouterr().err
+    assert err.startswith('planar_vo import-video: error: SOURCE: decoded ') and \
+        "of the 10 frames 'cut.avi' states: a damaged or truncated video" in err
+    assert err.count('\n') == 1 and not (tmp_path / 'c').exists()
+
+
+def test_text_images_single_frames_damaged_videos_and_bad_starts_are_refused(tmp_path, rng):
+    """From a user test: FFmpeg opened a .txt file as a video (its 'tty' format), a single image
+    gave a one-frame bag, a video damaged mid-way was imported with later frames stamped early,
+    and a negative --start left an empty bag."""
+    (tmp_path / 'script.txt').write_text('line one\nline two\n' * 20)
+    with pytest.raises(InputError, match=r"source: '.*script.txt' is a text file, not a video"):
+        import_video(tmp_path / 'script.txt', tmp_path / 'b1')
+    _folder(tmp_path / 'imgs', rng, n=3)
+    with pytest.raises(InputError, match=r"source: '.*0.png' is an image; give the folder of "
+                                         r'the images \(with --rate-hz\)'):
+        import_video(tmp_path / 'imgs' / '0.png', tmp_path / 'b2')
+    with pytest.raises(InputError, match=r"source: one frame written from '.*imgs'; odometry "
+                                         r'needs two at least \(check --every 3\)'):
+        import_video(tmp_path / 'imgs', tmp_path / 'b3', rate_hz=10, every=3)
+    with pytest.raises(InputError, match=r'start: expected seconds within what a ROS time stamp '
+                                         r'holds \(0 to 2147483647: 1970 to 2038\), got -5'):
+        import_video(tmp_path / 'imgs', tmp_path / 'b4', rate_hz=10, start=-5)
+    y, x = np.mgrid[0:48, 0:64]
+    _video(tmp_path / 'v.avi', [((x * 3 + y * 2 + k) % 256).astype(np.uint8)
+                                for k in range(60)], 10.0)
+    data = bytearray((tmp_path / 'v.avi').read_bytes())
+    data[len(data) // 3:2 * len(data) // 3] = bytes(2 * len(data) // 3 - len(data) // 3)
+    (tmp_path / 'holes.avi').write_bytes(bytes(data))
+    with pytest.raises(InputError, match=r"source: decoded \d+ of the 60 frames 'holes.avi' "
+                                         r'states: a damaged or truncated video'):
+        import_video(tmp_path / 'holes.avi', tmp_path / 'b5')
+    assert not any((tmp_path / f'b{i}').exists() for i in range(1, 6))
+    assert partial_leftovers(tmp_path) == []
+
+
+def test_the_suggested_replay_writes_beside_the_bag(tmp_path, rng, capsys):
+    """A user test: --out 'dash/' suggested 'replay dash/ --out dash/_vo', a bag inside a bag."""
+    _folder(tmp_path / 'imgs', rng, n=2)
+    assert main(['import-video', str(tmp_path / 'imgs'), '--out', f'{tmp_path / "dash"}/',
+                 '--rate-hz', '10']) == 0
+    assert (f'replay it with: planar_vo replay {tmp_path / "dash"} --out {tmp_path / "dash_vo"} '
+            f'--set mount.height=H --set camera.estimate_focal=true') in capsys.readouterr().out

@@ -12,6 +12,7 @@ anyway). Stamps are times.txt (or --rate-hz) plus --start seconds.
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 
 STORAGES = ('mcap', 'sqlite3')       # planar_vo.io.writer.STORAGES (rosbags not imported here)
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     print(summary.format())
     # The height given here sets the ground truth's base_link; the replay's scale needs it too.
     # Quoted for the shell (a user test: a path with a space broke the suggested command).
-    out = str(args.out)
+    out = os.path.normpath(args.out)           # 'k06/' replays into 'k06_vo', not 'k06/_vo'
     print(f'replay it with: planar_vo replay {shlex.quote(out)} --out '
           f"{shlex.quote(out + '_vo')} --set mount.height={args.camera_height:g}")
     return 0

@@ -6,13 +6,14 @@ stamped at the video's frame rate (or --rate-hz, which a folder of images needs)
 self-calibration (camera.estimate_focal=true): it starts from the field of view the camera's
 specification states (camera.nominal_fov, radians) when you give one, and needs turns to
 calibrate. Stamps are --start seconds plus each frame's time in the video (or its index over
---rate-hz, which a folder of images needs). A video that cannot be decoded to its end ends the
-import there: the summary says how many of the frames the video states were decoded.
+--rate-hz, which a folder of images needs). A video that decodes to fewer than 98 % of the
+frames it states (damaged or truncated) is refused: nothing is kept.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 
 from planar_vo.cli.import_kitti import STORAGES
@@ -63,6 +64,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from planar_vo.cli import show_progress
     from planar_vo.core.camera import CameraModel
+    from planar_vo.core.checks import positive_number
     from planar_vo.errors import CameraModelError, InputError
     from planar_vo.io.video import frame_size, import_video
 
@@ -72,6 +74,10 @@ def run(args: argparse.Namespace) -> int:
                          f"with a focal length)")
     camera = None
     if args.fx is not None:
+        for name in ('fx', 'fy'):
+            if getattr(args, name) is not None:
+                positive_number(f'--{name}', getattr(args, name),
+                                'a positive focal length in pixels')
         width, height = frame_size(args.source)
         try:
             camera = CameraModel.pinhole(width, height, args.fx, args.fy, args.cx, args.cy)
@@ -85,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
                            every=args.every, max_width=args.max_width, camera=camera,
                            start=args.start, progress=show_progress(args))
     print(summary.format())
-    out = str(args.out)
+    out = os.path.normpath(args.out)           # 'dash/' replays into 'dash_vo', not 'dash/_vo'
     command = (f'planar_vo replay {shlex.quote(out)} --out {shlex.quote(out + "_vo")} '
                f'--set mount.height=H')
     if camera is None:

@@ -58,7 +58,7 @@ class CameraConfig(Options):
             a principal point outside the image is refused at the first image.
         distortion_model: ``'none'``, ``'plumb_bob'``, ``'rational_polynomial'`` or
             ``'equidistant'`` (ROS names).
-        distortion: coefficients in the ROS order for that model.
+        distortion: coefficients in the ROS order for that model; empty: none (zeros).
         estimate_focal: self-calibrate the focal length online when ``fx`` is 0, instead of
             CameraInfo (the node does not subscribe to it, replay leaves a bag's unused):
             profile likelihoods of the focal length over frame pairs the car turned between
@@ -127,10 +127,20 @@ class CameraConfig(Options):
     mono16_bits: int = bounded(16, 8, 16, expected='an integer number of bits in 8..16')
     rectified: bool = False
 
+    @property
+    def coefficients(self) -> tuple[float, ...]:
+        """``distortion``, the model's zeros when empty."""
+        return self.distortion or (0.0,) * DISTORTION_MODELS[self.distortion_model]
+
     def validate(self) -> None:
         self._require(finite(*self.distortion), 'distortion', 'finite coefficients')
         count = DISTORTION_MODELS[self.distortion_model]
-        self._require(fits_distortion_model(self.distortion_model, self.distortion), 'distortion',
+        # Empty: no distortion for any model (a user test: a fisheye's nominal_fov needed
+        # distortion_model equidistant, which then refused the empty list, an undocumented
+        # '[0, 0, 0, 0]' being the way out).
+        self._require(not self.distortion
+                      or fits_distortion_model(self.distortion_model, self.distortion),
+                      'distortion',
                       f"{count} coefficients for distortion_model '{self.distortion_model}'"
                       + (' (or 4: k3 = 0)' if self.distortion_model == 'plumb_bob' else '')
                       + (' (more only if the extra ones are 0)' if self.distortion_model in

@@ -26,7 +26,7 @@ import numpy as np
 
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.checks import positive_number
-from planar_vo.errors import CameraModelError, ImageError, InputError
+from planar_vo.errors import CameraModelError, ImageError, InputError, plural
 from planar_vo.frontend.images import read_image
 from planar_vo.io.camera_bag import (
     CAMERA_INFO_TOPIC,
@@ -46,6 +46,9 @@ IMAGE_SUFFIXES = ('.png', '.jpg', '.jpeg')
 # decoded than the video states). OpenCV reads this when its first capture opens; a value the
 # user set wins (e.g. 24 for FFmpeg's warnings).
 os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')
+# A video must decode at least this share of the frames its container states (the counts of
+# some containers are estimates).
+_DECODED_SHARE = 0.98
 # A frame rate a container states beyond this is not believed (some write 1000 or 90000 for
 # "unknown").
 _MAX_PLAUSIBLE_FPS = 500.0
@@ -65,6 +68,7 @@ class VideoImportSummary:
         rate_hz: the source's frame rate the stamps follow; rate_source: where it came from.
         camera: the intrinsics written as CameraInfo (at the written size), or None.
         first_stamp_ns, last_stamp_ns: the first and last stamps.
+        every: one frame in so many was kept.
     """
 
     path: Path
@@ -81,6 +85,7 @@ class VideoImportSummary:
     camera: CameraModel | None
     first_stamp_ns: int
     last_stamp_ns: int
+    every: int = 1
 
     def format(self) -> str:
         duration = (self.last_stamp_ns - self.first_stamp_ns) / 1e9
@@ -88,9 +93,12 @@ class VideoImportSummary:
         if self.scale != 1.0:
             size += f', shrunk {self.scale:.4g}x'
         kept = (f'{self.frames} of {self.read} frames' if self.read != self.frames
-                else f'{self.frames} frames')
-        lines = [f'wrote {kept} ({size}, {duration:.2f} s at the {self.rate_source} '
-                 f'{self.rate_hz:g} Hz) to {self.path}: {IMAGE_TOPIC}'
+                else plural(self.frames, 'frame'))
+        rate = f'the {self.rate_source} {self.rate_hz:g} Hz'
+        if self.every > 1:
+            rate += f', every {_ordinal(self.every)} frame: {self.rate_hz / self.every:.4g} Hz'
+        lines = [f'wrote {kept} ({size}, {duration:.2f} s at {rate}) to {self.path}: '
+                 f'{IMAGE_TOPIC}'
                  + (f', {CAMERA_INFO_TOPIC} (fx {self.camera.fx:.2f})' if self.camera else
                     ' (no CameraInfo: intrinsics not given)')]
         if self.stated_frames is not None and self.stated_frames != self.read:
@@ -98,6 +106,10 @@ class VideoImportSummary:
             lines.append(f'note: the video states {self.stated_frames} frames; '
                          f'{self.read} could be decoded')
         return '\n'.join(lines)
+
+
+def _ordinal(n: int) -> str:
+    return f'{n}{"th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")}'
 
 
 def _natural_key(path: Path) -> list:
@@ -122,10 +134,32 @@ def _gray(frame: np.ndarray) -> np.ndarray:
     return frame
 
 
+def _is_text(path: Path) -> bool:
+    """The file starts with UTF-8 text (a video container starts with binary bytes)."""
+    try:
+        with open(path, 'rb') as f:
+            head = f.read(1024)
+    except OSError as err:
+        raise InputError(f"source: cannot read '{path}' ({err.strerror})") from err
+    if not head or b'\0' in head:
+        return False
+    try:
+        head.decode('utf-8')
+    except UnicodeDecodeError as err:
+        return err.start > len(head) - 4        # a character cut at the end: still text
+    return True
+
+
 class _Video:
     """Frames of a video file through OpenCV's FFmpeg back-end."""
 
     def __init__(self, path: Path) -> None:
+        if path.suffix.lower() in IMAGE_SUFFIXES:
+            raise InputError(f"source: '{path}' is an image; give the folder of the images "
+                             f'(with --rate-hz)')
+        if _is_text(path):
+            # FFmpeg's 'tty' format renders a text file as a video (a user test).
+            raise InputError(f"source: '{path}' is a text file, not a video")
         self.capture = cv2.VideoCapture(str(path))
         if not self.capture.isOpened():
             raise InputError(f"source: cannot open '{path}' as a video (not a video file, or a "
@@ -215,6 +249,9 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
         start_ns = seconds_to_ns(DEFAULT_START if start is None else start)
     except InputError:
         raise InputError(f'start: expected a number of seconds, got {start!r}') from None
+    if not 0 <= start_ns <= MAX_STAMP_NS:
+        raise InputError(f'start: expected seconds within what a ROS time stamp holds (0 to '
+                         f'{MAX_STAMP_NS // 10**9}: 1970 to 2038), got {start!r}')
     if not source.exists():
         raise InputError(f"source: '{source}' does not exist")
     stated = None
@@ -284,6 +321,18 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
                     last_ns = stamp
                 if written == 0:
                     raise InputError(f"source: no frame could be decoded from '{source}'")
+                if written == 1:
+                    raise InputError(f"source: one frame written from '{source}'; odometry "
+                                     f'needs two at least' + (f' (check --every {every})'
+                                                              if every > 1 else ''))
+                if stated is not None and read < _DECODED_SHARE * stated - 2:
+                    # A damaged part is skipped by the decoder, and the frames after it would
+                    # be stamped early (a user test): refused, like a bad image in a folder.
+                    raise InputError(f"source: decoded {read} of the {stated} frames "
+                                     f"'{source.name}' states: a damaged or truncated video "
+                                     f'(the frames after a damaged part would be stamped '
+                                     f'wrongly); repair or re-encode it, or import its frames '
+                                     f'as images')
             except InputError:
                 writer.discard(f'removed: {written} frames were written before the error')
                 raise
@@ -292,7 +341,7 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
     width, height = _shrunk(size, scale)
     return VideoImportSummary(Path(out_path), source, kind, written, read, stated, width, height,
                               scale, float(rate_hz), rate_source, scaled_camera, first_ns,
-                              last_ns)
+                              last_ns, every)
 
 
 def _shrunk(size: tuple[int, ...], scale: float) -> tuple[int, int]:

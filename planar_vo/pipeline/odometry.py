@@ -533,7 +533,7 @@ class VisualOdometry:
                 model = CameraModel(
                     width, height, np.array([[c.fx, 0.0, cx], [0.0, c.fy or c.fx, cy],
                                              [0.0, 0.0, 1.0]]),
-                    c.distortion_model, c.distortion)
+                    c.distortion_model, c.coefficients)
                 try:
                     # The checks a CameraInfo gets (a user test: fx 1 px lost every frame as
                     # 'unreliable', 100000 px published NaN covariances).
@@ -582,7 +582,7 @@ class VisualOdometry:
                         or self._in_use.fx != f:
                     self._in_use = CameraModel(
                         width, height, np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]]),
-                        c.distortion_model, c.distortion)
+                        c.distortion_model, c.coefficients)
                 return self._in_use
         self._in_use = self._camera
         return self._camera

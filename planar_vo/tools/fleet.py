@@ -71,9 +71,10 @@ from planar_vo.errors import (
     OutputError,
     PlanarVoError,
     one_line,
+    plural,
 )
 from planar_vo.io.outputs import interrupt_signal
-from planar_vo.tools.fleet_report import bag_names, plural, write_json, write_summary
+from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
 
 __all__ = [
     'FLEET_EXTRA',

@@ -20,20 +20,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from planar_vo.errors import plural
 from planar_vo.io.outputs import write_file
 from planar_vo.tools.evaluation.report import json_ready
 from planar_vo.tools.markdown import format_cell, markdown_table
 
-__all__ = ['aggregate', 'bag_names', 'plot_drift', 'plot_thumbnails', 'plural', 'write_json',
+__all__ = ['aggregate', 'bag_names', 'plot_drift', 'plot_thumbnails', 'write_json',
            'write_summary']
 
 MAX_BARS = 80            # bags in the drift plot (the largest drifts beyond that)
 MAX_THUMBNAILS = 48
-
-
-def plural(n: int, noun: str) -> str:
-    """``1 CPU``, ``2 CPUs``."""
-    return f'{n} {noun}' if n == 1 else f'{n} {noun}s'
 
 
 def write_json(path: Path, value: Any) -> None:
