@@ -87,9 +87,10 @@ class CameraConfig(Options):
             the KITTI 05 standard deviation by a third).
         focal_queue: turning pairs waiting for their profile at most (memory bound; further
             pairs are dropped and counted while it is full).
-        focal_block_frames: frames per block of the focal calibration (pairs within about one
-            second share scenery and pitch wobble: one cluster of its variance); about the
-            frame rate.
+        focal_block_frames: frames per block of the focal calibration at 10 Hz (pairs within
+            about one second share scenery and pitch wobble: one cluster of its variance); a
+            faster camera's blocks hold as many more frames (30 Hz: three times), so a block
+            stays about a second long.
         focal_min_blocks: blocks (clusters) needed before a self-calibrated focal length may
             be adopted (fewer make the variance itself unreliable).
         focal_max_blocks: blocks kept (memory bound; the least informative is dropped).

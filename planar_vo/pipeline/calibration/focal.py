@@ -130,6 +130,7 @@ class _Pair:
     p2: np.ndarray
     A: np.ndarray
     w: np.ndarray
+    block: int
 
 
 class OnlineFocalCalibrator:
@@ -273,11 +274,13 @@ class OnlineFocalCalibrator:
         return len(self._queue) + (self._job is not None)
 
     def offer(self, frame: int, p1: np.ndarray, p2: np.ndarray, A: np.ndarray,
-              weights: np.ndarray | None = None) -> bool:
+              weights: np.ndarray | None = None, *, block: int | None = None) -> bool:
         """Queue one turning pair ending at ``frame``.
 
         Args:
             frame: frame index (the pairs' blocks are ``frame // block_frames``).
+            block: the pair's block instead (the caller's, e.g. in time: a 30 Hz camera's
+                blocks hold three times the frames).
             p1, p2: pixels relative to the (assumed) principal point, levelled, ``(N, 2)``.
             A: pixel affines ``(N, 2, 2)``. weights: ``(N,)`` non-negative, or None.
 
@@ -295,7 +298,8 @@ class OnlineFocalCalibrator:
         if len(p1) > self.max_acs:
             pick = np.linspace(0, len(p1) - 1, self.max_acs).astype(int)
             p1, p2, A, w = p1[pick], p2[pick], A[pick], w[pick]
-        self._queue.append(_Pair(int(frame), p1.copy(), p2.copy(), A.copy(), w.copy()))
+        block = int(frame) // self.block_frames if block is None else int(block)
+        self._queue.append(_Pair(int(frame), p1.copy(), p2.copy(), A.copy(), w.copy(), block))
         return True
 
     def work(self, steps: float, frame: int | None = None) -> int:
@@ -350,11 +354,10 @@ class OnlineFocalCalibrator:
             yield
             shifted = shifted_profile(pair.p1, pair.p2, pair.A, pair.w, self.log_grid, prof,
                                       self.pp_step)
-        self._add(pair.frame, prof.cost, shifted)
+        self._add(pair.block, prof.cost, shifted)
         self.update_adoption(pair.frame if self._frame is None else self._frame)
 
-    def _add(self, frame: int, cost: np.ndarray, shifted: np.ndarray | None) -> None:
-        b = frame // self.block_frames
+    def _add(self, b: int, cost: np.ndarray, shifted: np.ndarray | None) -> None:
         self._blocks[b] = self._blocks.get(b, 0.0) + cost
         if shifted is not None:
             self._shifted[b] = self._shifted.get(b, 0.0) + shifted
