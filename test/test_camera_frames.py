@@ -155,7 +155,7 @@ def test_camera_info_binning_and_roi_give_the_images_model():
     ({'width': 0}, r'image size: expected positive integers, got 0x480'),
     ({'k': [1.0, 2.0]}, r'camera_info: not a CameraInfo message'),
     ({'k': np.r_[K.ravel()[:8], np.nan]},
-     r'K: expected a finite 3x3 matrix, got array\(\[\[.*nan\]\]\)$'),   # on one line
+     r'K: expected a finite 3x3 matrix, got \[\[.*, nan\]\]$'),   # a list, on one line
 ])
 def test_camera_info_errors(changes, match):
     fields = dict(width=640, height=480, k=K.ravel(), d=[], distortion_model='')

@@ -416,7 +416,9 @@ def _check_K(K) -> np.ndarray:
     except (TypeError, ValueError, OverflowError):     # OverflowError: a Python 10**400
         arr = np.zeros(0)
     if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
-        raise CameraModelError(f'K: expected a finite 3x3 matrix, got {one_line(repr(K))}')
+        # Lists, not numpy's repr (a user test: 'array([[ nan, 0. , ...').
+        shown = arr.tolist() if arr.shape == (3, 3) else one_line(repr(K))
+        raise CameraModelError(f'K: expected a finite 3x3 matrix, got {shown}')
     if arr[0, 0] <= 0 or arr[1, 1] <= 0 or arr[1, 0] != 0 or np.any(arr[2] != (0.0, 0.0, 1.0)):
         raise CameraModelError(f'K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy '
                                f'> 0, got {arr.tolist()}')

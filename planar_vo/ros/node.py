@@ -1285,7 +1285,10 @@ def usage() -> str:
         'main parameters (ros2 param describe shows every one with its range):',
     ]
     for name in _MAIN_PARAMETERS:
-        lines += textwrap.wrap(f'{name} (default {defaults[name]!r}): {descriptions[name]}', 96,
+        # As ROS parameters are typed: true/false, not Python's True/False (a user test).
+        value = defaults[name]
+        shown = str(value).lower() if isinstance(value, bool) else repr(value)
+        lines += textwrap.wrap(f'{name} (default {shown}): {descriptions[name]}', 96,
                                initial_indent='  ', subsequent_indent='      ')
     lines += [
         '',
