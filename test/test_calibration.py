@@ -567,3 +567,15 @@ def test_turn_pair_selector_picks_turns_within_the_pixel_window():
         sel.step(11, float('nan'), f)
     with pytest.raises(ConfigError, match=r'0 < min_shift < max_shift'):
         TurnPairSelector(600, min_shift=0.2)
+
+
+def test_a_pair_goes_into_the_block_its_caller_names():
+    """`offer(block=...)`: the pipeline's blocks in time (about a second at any frame rate)
+    rather than ``frame // block_frames``; without it, the frame's."""
+    rng = np.random.default_rng(3)
+    cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, pp_std=1.0)
+    assert cal.offer(5, *_pair(rng, 6.0), block=7)
+    assert cal.offer(25, *_pair(rng, -7.0), block=7)          # another block by its frame
+    assert cal.offer(31, *_pair(rng, 5.0))                     # 31 // 10
+    cal.work(1000, 31)
+    assert sorted(cal._blocks) == [3, 7] and cal.pairs == 3

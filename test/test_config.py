@@ -128,10 +128,11 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
     # checked with the configuration, not frame by frame in the pipeline
     ({'camera': {'distortion_model': 'plumb_bob', 'distortion': [0.1]}},
      r"camera.distortion: expected 5 coefficients for distortion_model 'plumb_bob' \(or 4: "
-     r"k3 = 0\) \(more only if the extra ones are 0\), got \(0.1,\)"),
+     r"k3 = 0\) \(more only if the extra ones are 0\), or none for no distortion, got "
+     r"\(0.1,\)"),
     ({'camera': {'distortion_model': 'rational_polynomial', 'distortion': [0.1] * 8 + [0.2]}},
      r"camera.distortion: expected 8 coefficients for distortion_model 'rational_polynomial' "
-     r"\(more only if the extra ones are 0\), got"),
+     r"\(more only if the extra ones are 0\), or none for no distortion, got"),
     ({'camera': {'distortion': [0.1, 0.0]}},
      r"camera.distortion: expected 0 coefficients for distortion_model 'none'"),
     ({'voting': 3}, r'voting: expected a mapping, got int'),

@@ -6,8 +6,9 @@ stamped at the video's frame rate (or --rate-hz, which a folder of images needs)
 self-calibration (camera.estimate_focal=true): it starts from the field of view the camera's
 specification states (camera.nominal_fov, radians) when you give one, and needs turns to
 calibrate. Stamps are --start seconds plus each frame's time in the video (or its index over
---rate-hz, which a folder of images needs). A video that decodes to fewer than 98 % of the
-frames it states (damaged or truncated) is refused: nothing is kept.
+--rate-hz, which a folder of images needs). A video whose container counts its frames (MP4,
+MOV, AVI) and that decodes to fewer than 98 % of them (damaged or truncated) is refused:
+nothing is kept.
 """
 
 from __future__ import annotations

@@ -58,7 +58,8 @@ class CameraConfig(Options):
             a principal point outside the image is refused at the first image.
         distortion_model: ``'none'``, ``'plumb_bob'``, ``'rational_polynomial'`` or
             ``'equidistant'`` (ROS names).
-        distortion: coefficients in the ROS order for that model; empty: none (zeros).
+        distortion: coefficients in the ROS order for that model; empty: all zero (for
+            equidistant, the ideal fisheye).
         estimate_focal: self-calibrate the focal length online when ``fx`` is 0, instead of
             CameraInfo (the node does not subscribe to it, replay leaves a bag's unused):
             profile likelihoods of the focal length over frame pairs the car turned between
@@ -145,7 +146,8 @@ class CameraConfig(Options):
                       f"{count} coefficients for distortion_model '{self.distortion_model}'"
                       + (' (or 4: k3 = 0)' if self.distortion_model == 'plumb_bob' else '')
                       + (' (more only if the extra ones are 0)' if self.distortion_model in
-                         ('plumb_bob', 'rational_polynomial') else ''))
+                         ('plumb_bob', 'rational_polynomial') else '')
+                      + (', or none for no distortion' if count else ''))
         self._require(self.focal_max_blocks >= self.focal_min_blocks, 'focal_max_blocks',
                       'at least focal_min_blocks')
         self._require(self.fy == 0 or self.fx > 0, 'fy', '0 while fx is 0 (fy is used with fx '

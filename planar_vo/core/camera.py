@@ -417,7 +417,7 @@ def _check_K(K) -> np.ndarray:
         arr = np.zeros(0)
     if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
         # Lists, not numpy's repr (a user test: 'array([[ nan, 0. , ...').
-        shown = arr.tolist() if arr.shape == (3, 3) else one_line(repr(K))
+        shown = arr.tolist() if arr.size else one_line(repr(K))
         raise CameraModelError(f'K: expected a finite 3x3 matrix, got {shown}')
     if arr[0, 0] <= 0 or arr[1, 1] <= 0 or arr[1, 0] != 0 or np.any(arr[2] != (0.0, 0.0, 1.0)):
         raise CameraModelError(f'K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy '

@@ -46,9 +46,13 @@ IMAGE_SUFFIXES = ('.png', '.jpg', '.jpeg')
 # decoded than the video states). OpenCV reads this when its first capture opens; a value the
 # user set wins (e.g. 24 for FFmpeg's warnings).
 os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')
-# A video must decode at least this share of the frames its container states (the counts of
-# some containers are estimates).
+# A video must decode at least this share of the frames its container states, where the
+# container counts them (MP4 and MOV sample tables, the AVI index); Matroska, WebM and MPEG-TS
+# state an estimate from the duration, wrong for a variable rate (a review).
 _DECODED_SHARE = 0.98
+_COUNTED_SUFFIXES = ('.mp4', '.m4v', '.mov', '.3gp', '.avi')
+# The file names FFmpeg's 'tty' format (text rendered as video) claims.
+_TEXT_SUFFIXES = ('.txt', '.asc', '.nfo', '.ans', '.art', '.diz', '.ice', '.vt')
 # A frame rate a container states beyond this is not believed (some write 1000 or 90000 for
 # "unknown").
 _MAX_PLAUSIBLE_FPS = 500.0
@@ -102,7 +106,7 @@ class VideoImportSummary:
                  + (f', {CAMERA_INFO_TOPIC} (fx {self.camera.fx:.2f})' if self.camera else
                     ' (no CameraInfo: intrinsics not given)')]
         if self.stated_frames is not None and self.stated_frames != self.read:
-            # Containers' counts are estimates; a large shortfall is a truncated file.
+            # Within the tolerance of a counted container, or an estimated count.
             lines.append(f'note: the video states {self.stated_frames} frames; '
                          f'{self.read} could be decoded')
         return '\n'.join(lines)
@@ -134,22 +138,6 @@ def _gray(frame: np.ndarray) -> np.ndarray:
     return frame
 
 
-def _is_text(path: Path) -> bool:
-    """The file starts with UTF-8 text (a video container starts with binary bytes)."""
-    try:
-        with open(path, 'rb') as f:
-            head = f.read(1024)
-    except OSError as err:
-        raise InputError(f"source: cannot read '{path}' ({err.strerror})") from err
-    if not head or b'\0' in head:
-        return False
-    try:
-        head.decode('utf-8')
-    except UnicodeDecodeError as err:
-        return err.start > len(head) - 4        # a character cut at the end: still text
-    return True
-
-
 class _Video:
     """Frames of a video file through OpenCV's FFmpeg back-end."""
 
@@ -157,8 +145,10 @@ class _Video:
         if path.suffix.lower() in IMAGE_SUFFIXES:
             raise InputError(f"source: '{path}' is an image; give the folder of the images "
                              f'(with --rate-hz)')
-        if _is_text(path):
-            # FFmpeg's 'tty' format renders a text file as a video (a user test).
+        if path.suffix.lower() in _TEXT_SUFFIXES:
+            # FFmpeg's 'tty' format renders a text file as a video (a user test). By name
+            # only: Y4M video and ffconcat playlists are text too, and a pipe must not be read
+            # before FFmpeg opens it (a review).
             raise InputError(f"source: '{path}' is a text file, not a video")
         self.capture = cv2.VideoCapture(str(path))
         if not self.capture.isOpened():
@@ -230,8 +220,10 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
         progress: a progress bar on stderr.
 
     Raises:
-        InputError: a missing or unreadable source, an empty folder, no frame rate, frames of
-            different sizes, bad arguments; a bad frame mid-way leaves nothing at `out_path`.
+        InputError: a missing or unreadable source, a text file or a single image, an empty
+            folder, no frame rate, frames of different sizes, fewer than two frames, a video
+            with a frame count (MP4, MOV, AVI) decoded to under 98 % of it, bad arguments;
+            nothing is left at `out_path` then.
         BagError: `out_path` exists (nothing touched) or cannot be written.
     """
     from tqdm import tqdm
@@ -321,11 +313,8 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
                     last_ns = stamp
                 if written == 0:
                     raise InputError(f"source: no frame could be decoded from '{source}'")
-                if written == 1:
-                    raise InputError(f"source: one frame written from '{source}'; odometry "
-                                     f'needs two at least' + (f' (check --every {every})'
-                                                              if every > 1 else ''))
-                if stated is not None and read < _DECODED_SHARE * stated - 2:
+                if (stated is not None and source.suffix.lower() in _COUNTED_SUFFIXES
+                        and read < _DECODED_SHARE * stated - 2):
                     # A damaged part is skipped by the decoder, and the frames after it would
                     # be stamped early (a user test): refused, like a bad image in a folder.
                     raise InputError(f"source: decoded {read} of the {stated} frames "
@@ -333,6 +322,10 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
                                      f'(the frames after a damaged part would be stamped '
                                      f'wrongly); repair or re-encode it, or import its frames '
                                      f'as images')
+                if written == 1:
+                    raise InputError(f"source: one frame written from '{source}'; odometry "
+                                     f'needs two at least' + (f' (check --every {every})'
+                                                              if every > 1 else ''))
             except InputError:
                 writer.discard(f'removed: {written} frames were written before the error')
                 raise

@@ -674,7 +674,8 @@ class VisualOdometry:
         window.add_pair(keyframe.index, j, est.R, est.cov[:3, :3])
         for lag in range(2, self.config.odometry.window_lags + 1):
             old = self._keyframes.find(j - lag)
-            if old is None or old.index not in window:
+            # (The frame's own reference after a dim keyframe's fallback: measured above.)
+            if old is None or old is keyframe or old.index not in window:
                 continue
             acs = self._extractor.extract(old.image, gray)
             if len(acs) < self.config.odometry.min_correspondences:
@@ -840,14 +841,16 @@ class VisualOdometry:
     def _focal_block(self) -> int:
         """The focal calibration's block of the current frame: ``camera.focal_block_frames``
         frames at 10 Hz, as many more at a faster rate (the usual frame interval, fixed at the
-        first turning pair), so that a block stays about a second long (a user test: the same
+        first turning pair), so that a block stays about a second long (at least: a camera
+        slower than 10 Hz keeps 10 frames a block) (a user test: the same
         frames at 30 Hz made blocks of a third of a second, whose shared errors counted as
         independent, and stated 2.5 % where 10 Hz stated 9.8 %)."""
         if self._focal_stride is None:
             usual = self._clock.usual_interval
             if usual is None:
                 return self._frames // self.config.camera.focal_block_frames
-            self._focal_stride = max(1, round(0.1 / usual))
+            # Nearest, halves up; a slower camera keeps 10 frames a block (longer blocks).
+            self._focal_stride = max(1, math.floor(0.1 / usual + 0.5))
         return self._frames // (self.config.camera.focal_block_frames * self._focal_stride)
 
     def _scale(self, acs: AffineCorrespondences, camera: CameraModel, est: FrameEstimate,
@@ -1061,6 +1064,8 @@ class VisualOdometry:
         if unmatched and previous is not None and \
                 keyframe.contrast < _DIM_KEYFRAME * previous.contrast:
             self._keyframes.drop_current()
+            if self._window is not None:
+                self._window.clear()        # it held the dropped keyframe (a review)
             self._lost = 0
             message += ('; the newest keyframe, far dimmer than the one before it, matched '
                         'nothing: tracking goes on against the one before it')

@@ -769,7 +769,9 @@ class PlanarVoNode(Node):
             self._gaps_in_a_row.clear()
             return
         dt = stamp_ns - last
-        if len(self._intervals) >= 3:
+        # Judged from the second interval on (a user test: frames lost right after the start,
+        # the third interval, went uncounted while three were awaited).
+        if len(self._intervals) >= 2:
             period = float(np.median(self._intervals))
             if dt > _GAP_FACTOR * period:
                 missing = max(1, round(dt / period) - 1) - glitched
@@ -780,17 +782,6 @@ class PlanarVoNode(Node):
                 return          # a gap does not update the nominal period
         self._gaps_in_a_row.clear()
         self._intervals.append(dt)
-        if len(self._intervals) == 3:
-            # The first three intervals set the period: one of them far above the other two
-            # was a gap too (a user test: frames lost right after the start went uncounted).
-            period = float(np.median(self._intervals))
-            gaps = [d for d in self._intervals if d > _GAP_FACTOR * period]
-            for d in gaps:
-                self._count_gap(d, max(1, round(d / period) - 1), period, stamp_ns)
-            if gaps:
-                kept = [d for d in self._intervals if d <= _GAP_FACTOR * period]
-                self._intervals.clear()
-                self._intervals.extend(kept)
 
     def _count_gap(self, dt: int, missing: int, period: float, stamp_ns: int) -> None:
         self._counters['gaps'] += 1
