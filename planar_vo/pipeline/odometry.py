@@ -841,10 +841,10 @@ class VisualOdometry:
     def _focal_block(self) -> int:
         """The focal calibration's block of the current frame: ``camera.focal_block_frames``
         frames at 10 Hz, as many more at a faster rate (the usual frame interval, fixed at the
-        first turning pair), so that a block stays about a second long (at least: a camera
-        slower than 10 Hz keeps 10 frames a block) (a user test: the same
-        frames at 30 Hz made blocks of a third of a second, whose shared errors counted as
-        independent, and stated 2.5 % where 10 Hz stated 9.8 %)."""
+        first turning pair), so that a block lasts about a second; a camera slower than 10 Hz
+        keeps 10 frames a block, a longer one. (A user test: the same frames at 30 Hz made
+        blocks of a third of a second, whose shared errors counted as independent, and stated
+        2.5 % where 10 Hz stated 9.8 %.)"""
         if self._focal_stride is None:
             usual = self._clock.usual_interval
             if usual is None:
