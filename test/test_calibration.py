@@ -579,3 +579,35 @@ def test_a_pair_goes_into_the_block_its_caller_names():
     assert cal.offer(31, *_pair(rng, 5.0))                     # 31 // 10
     cal.work(1000, 31)
     assert sorted(cal._blocks) == [3, 7] and cal.pairs == 3
+
+
+def test_a_field_of_view_known_precisely_keeps_the_provisional_focal_near_it():
+    """camera.nominal_fov_std (a user test: a correct data-sheet field of view barely counted
+    against the wide prior): the prior's width in log focal length follows from the field of
+    view's standard deviation, and a tight one holds the provisional focal length where a wide
+    one lets the turns' profiles move it."""
+    from planar_vo.pipeline.calibration import prior_sigma_for_fov
+
+    fov, std = 1.43, 0.0175
+    assert prior_sigma_for_fov(fov, std) == pytest.approx(std / math.sin(fov))
+    assert prior_sigma_for_fov(3.0, std, fisheye=True) == pytest.approx(std / 3.0)
+    assert prior_sigma_for_fov(fov, 0.0) == 1e-3
+    nominal = 1.08 * FOCAL                                       # the stated value, 8 % long
+    provisional = {}
+    for sigma in (None, prior_sigma_for_fov(fov, std)):
+        rng = np.random.default_rng(5)
+        cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, nominal, pp_std=1.0, prior_sigma=sigma,
+                                    min_blocks=10)             # calibrates, never adopts
+        for b in range(3):
+            assert cal.offer(10 * b + 1, *_pair(rng, 7.0, sigma=0.5))
+            cal.work(1000, 10 * b + 1)
+        assert cal.adopted is None
+        provisional[sigma is None] = cal.provisional
+    # The wide prior follows the profiles to the truth; the tight one stays between, nearer
+    # the stated value (both as a posterior should: the profiles here are sharp).
+    assert abs(provisional[True] / FOCAL - 1) < 0.01
+    assert provisional[True] < provisional[False] < nominal
+    assert provisional[False] - FOCAL > 0.25 * (nominal - FOCAL)
+    cal = OnlineFocalCalibrator(WIDTH, HEIGHT_PX, nominal, prior_fov=fov, stated=True,
+                                prior_sigma=prior_sigma_for_fov(fov, std), prior_fov_std=std)
+    assert 'the stated 82 +- 1-degree field of view' in cal.status()

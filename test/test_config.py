@@ -335,3 +335,17 @@ def test_an_empty_distortion_means_none_for_any_model():
     with pytest.raises(ConfigError, match=r'camera.distortion: expected 4 coefficients'):
         PlanarVoConfig.from_dict({'camera': {'distortion_model': 'equidistant',
                                              'distortion': [0.1]}})
+
+
+def test_nominal_fov_std_says_how_well_a_stated_field_of_view_is_known():
+    camera = PlanarVoConfig.from_dict({'camera': {'estimate_focal': True, 'nominal_fov': 1.43,
+                                                  'nominal_fov_std': 0.0175}}).camera
+    assert camera.nominal_fov_std == 0.0175
+    with pytest.raises(ConfigError, match=r'camera.nominal_fov_std: expected 0 without '
+                                          r'nominal_fov \(it says how well that is known\)'):
+        PlanarVoConfig.from_dict({'camera': {'estimate_focal': True, 'nominal_fov_std': 0.02}})
+    with pytest.raises(ConfigError, match=r'camera.nominal_fov_std: expected 0 \(not said\) or '
+                                          r'a standard deviation of the field of view of at '
+                                          r'most 1 rad'):
+        PlanarVoConfig.from_dict({'camera': {'estimate_focal': True, 'nominal_fov': 1.43,
+                                             'nominal_fov_std': 2.0}})

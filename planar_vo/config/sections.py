@@ -75,6 +75,11 @@ class CameraConfig(Options):
             ``distortion_model: equidistant`` 0.40-4.0 rad (23-229 deg). Only with
             ``estimate_focal``. (The calibration profiles a fisheye's focal length to first
             order only: it rescales the undistorted points as a pinhole's.)
+        nominal_fov_std: how well ``nominal_fov`` is known (rad, one standard deviation; 0:
+            not said, the wide prior above). A measured or data-sheet value known to a degree
+            (0.0175) keeps the focal length near it unless the turns' profiles say otherwise
+            with more weight; give it only as tight as the value really is (KITTI's stated 90
+            deg is 82 deg in truth).
         focal_tolerance: the calibration is adopted once its relative standard deviation
             (reported so that the error stays within 3 of them) is below this; until then a
             provisional focal length is used and its uncertainty enters the covariance.
@@ -118,6 +123,9 @@ class CameraConfig(Options):
                                  expected='0 (unknown) or a horizontal field of view of at most '
                                           '4 rad, 229 deg through a fisheye lens (rad: 90 deg is '
                                           '1.5708)')
+    nominal_fov_std: float = bounded(0.0, 0.0, 1.0,
+                                     expected='0 (not said) or a standard deviation of the '
+                                              'field of view of at most 1 rad')
     focal_tolerance: float = bounded(0.02, 0.0, 1.0, low_open=True, high_open=True)
     focal_steps: float = bounded(2.0, 0.0, 100.0, low_open=True,
                                  expected='work steps per frame in (0, 100]')
@@ -169,6 +177,8 @@ class CameraConfig(Options):
                       + ')')
         self._require(self.nominal_fov == 0 or self.estimate_focal, 'nominal_fov',
                       '0 without estimate_focal (it is where the focal self-calibration starts)')
+        self._require(self.nominal_fov_std == 0 or self.nominal_fov > 0, 'nominal_fov_std',
+                      '0 without nominal_fov (it says how well that is known)')
 
 
 @dataclasses.dataclass(frozen=True)

@@ -76,6 +76,7 @@ from planar_vo.pipeline.calibration import (
     TurnPairSelector,
     focal_pitch,
     pair_road_normal,
+    prior_sigma_for_fov,
 )
 from planar_vo.pipeline.clock import (
     FrameClock,
@@ -568,6 +569,10 @@ class VisualOdometry:
                         width, height, nominal, pp_std=1.0 if c.cx and c.cy else None,
                         prior_fov=field_of_view_for_focal(width, nominal, c.distortion_model),
                         stated=c.nominal_fov > 0,
+                        prior_sigma=(prior_sigma_for_fov(c.nominal_fov, c.nominal_fov_std,
+                                                         c.distortion_model == 'equidistant')
+                                     if c.nominal_fov_std > 0 else None),
+                        prior_fov_std=c.nominal_fov_std,
                         tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
                         max_queue=c.focal_queue, block_frames=c.focal_block_frames,
                         min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,

@@ -192,8 +192,8 @@ _QOS_POLICY_VALUES = {
                          ('durability', DurabilityPolicy))}
 # The parameters `usage` lists (the parameter file has them all).
 _MAIN_PARAMETERS = ('scale.source', 'mount.height', 'mount.pitch', 'camera.fx',
-                    'camera.estimate_focal', 'camera.nominal_fov', 'ros.image_transport',
-                    'ros.publish_tf',
+                    'camera.estimate_focal', 'camera.nominal_fov', 'camera.nominal_fov_std',
+                    'ros.image_transport', 'ros.publish_tf',
                     'ros.odom_frame', 'ros.base_frame')
 
 

@@ -4,7 +4,11 @@ ground-plane scale), and the focal length (1ACf self-calibration)."""
 
 from __future__ import annotations
 
-from planar_vo.pipeline.calibration.focal import OnlineFocalCalibrator, TurnPairSelector
+from planar_vo.pipeline.calibration.focal import (
+    OnlineFocalCalibrator,
+    TurnPairSelector,
+    prior_sigma_for_fov,
+)
 from planar_vo.pipeline.calibration.road import RoadNormalCalibrator, pair_road_normal
 from planar_vo.pipeline.calibration.tilt import MountTiltEstimator, TiltEstimate, focal_pitch
 
@@ -16,4 +20,5 @@ __all__ = [
     'TurnPairSelector',
     'focal_pitch',
     'pair_road_normal',
+    'prior_sigma_for_fov',
 ]

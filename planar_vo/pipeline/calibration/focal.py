@@ -34,7 +34,7 @@ from planar_vo.core.robust.stats import few_cluster_factor
 from planar_vo.core.robust.types import check_inputs
 from planar_vo.errors import ConfigError, InputError
 
-__all__ = ['OnlineFocalCalibrator', 'TurnPairSelector']
+__all__ = ['OnlineFocalCalibrator', 'TurnPairSelector', 'prior_sigma_for_fov']
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +65,15 @@ _PP_STEP = 0.01
 # points such pairs took 8 steps, the queue grew through the turn and the provisional focal
 # length lagged it by up to 25 frames.
 _STEP_WORK = 10_000
+
+
+def prior_sigma_for_fov(fov: float, fov_std: float, fisheye: bool = False) -> float:
+    """The log-focal standard deviation of a field of view known to ``fov_std`` (rad):
+    rectilinear ``f = w / (2 tan(fov / 2))`` gives ``d ln f / d fov = -1 / sin(fov)``, an
+    equidistant fisheye ``f = w / fov`` gives ``-1 / fov``; at least 0.1 % (a prior, not a
+    calibration)."""
+    gain = 1.0 / fov if fisheye else 1.0 / math.sin(fov)
+    return max(fov_std * gain, 1e-3)
 
 
 class TurnPairSelector:
@@ -195,6 +204,9 @@ class OnlineFocalCalibrator:
         prior_fov: the horizontal field of view (rad) of ``nominal`` through the lens, for the
             status (default: through a rectilinear lens).
         stated: whether the user stated it (``camera.nominal_fov``), else it is assumed.
+        prior_sigma: the prior's standard deviation in log focal length (None: 0.45, wide;
+            `prior_sigma_for_fov` from a stated field of view's standard deviation).
+        prior_fov_std: that standard deviation (rad), for the status (0: not said).
         pp_std: standard deviation (pixels) of the horizontal principal point the caller
             assumed (default 1 % of the width, for the image centre; about 1 when cx, cy are
             configured).
@@ -214,7 +226,8 @@ class OnlineFocalCalibrator:
 
     def __init__(self, width: int, height: int, nominal: float | None = None,
                  pp_std: float | None = None, *, prior_fov: float | None = None,
-                 stated: bool = False,
+                 stated: bool = False, prior_sigma: float | None = None,
+                 prior_fov_std: float = 0.0,
                  tolerance: float = CameraConfig.focal_tolerance,
                  max_acs: int = CameraConfig.focal_max_acs,
                  max_queue: int = CameraConfig.focal_queue,
@@ -233,6 +246,11 @@ class OnlineFocalCalibrator:
         self.prior_fov = (float(prior_fov) if prior_fov is not None
                           else 2.0 * math.atan(0.5 * self.width / self.nominal))
         self.stated = bool(stated)
+        self.prior_sigma = _PRIOR_SIGMA if prior_sigma is None else float(prior_sigma)
+        self.prior_fov_std = float(prior_fov_std)
+        if not (math.isfinite(self.prior_sigma) and self.prior_sigma > 0):
+            raise ConfigError(f'prior_sigma: expected a positive standard deviation, got '
+                              f'{prior_sigma}')
         if not (math.isfinite(self.nominal) and self.nominal > 0):
             raise ConfigError(f'nominal: expected a positive focal length, got {nominal}')
         self.pp_std = _PP_STEP * width if pp_std is None else float(pp_std)
@@ -404,9 +422,9 @@ class OnlineFocalCalibrator:
         return self._cache
 
     def _posterior(self) -> tuple[float, float]:
-        """``(log f, std)`` of the prior (nominal focal, ``_PRIOR_SIGMA``) combined with the
+        """``(log f, std)`` of the prior (nominal focal, `prior_sigma`) combined with the
         calibration (1-sigma)."""
-        m0, s0 = math.log(self.nominal), _PRIOR_SIGMA
+        m0, s0 = math.log(self.nominal), self.prior_sigma
         f, _, info = self.estimate()
         s1 = info.get('std_1sigma', float('inf')) / f if math.isfinite(f) else float('inf')
         if not (math.isfinite(s1) and s1 > 0) or info.get('edge', True):
@@ -459,8 +477,10 @@ class OnlineFocalCalibrator:
         f = self.provisional
         blocks = len(self._blocks)
         if not blocks:
+            known = (f' +- {math.degrees(self.prior_fov_std):.2g}'
+                     if self.prior_fov_std else '')
             prior = (f"{'the stated' if self.stated else 'an assumed'} "
-                     f'{math.degrees(self.prior_fov):.0f}-degree field of view')
+                     f'{math.degrees(self.prior_fov):.0f}{known}-degree field of view')
             why = (f'no turn to calibrate from yet: {prior}, 0 of {self.min_blocks} '
                    f'blocks')
         elif blocks < self.min_blocks:
