@@ -17,7 +17,7 @@ import math
 import os
 import re
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from decimal import Decimal
 from pathlib import Path
 
@@ -182,19 +182,37 @@ def _images(paths: list[Path]) -> Iterator[tuple[str, np.ndarray, None]]:
             raise InputError(f'source: {err}') from err
 
 
-def frame_size(source: str | Path) -> tuple[int, int]:
-    """``(width, height)`` of the first frame of a video file or image folder (`import_video`'s
-    sources; the same errors)."""
-    source = Path(source)
+@dataclasses.dataclass
+class _Source:
+    """An opened source: its frames ``(name, frame, time in ms or None)``, their count (the
+    folder's images, or what the video states; None: not stated) and the video's own rate."""
+
+    kind: str
+    frames: Iterator[tuple[str, np.ndarray, float | None]]
+    count: int | None
+    fps: float | None
+    close: Callable[[], None]
+
+
+def _open_source(source: Path) -> _Source:
     if not source.exists():
         raise InputError(f"source: '{source}' does not exist")
     if source.is_dir():
-        height, width = next(_images(_folder_images(source)))[1].shape[:2]
-        return width, height
+        paths = _folder_images(source)
+        return _Source('images', _images(paths), len(paths), None, lambda: None)
     video = _Video(source)
-    for _, frame, _ in video:
-        video.capture.release()
-        return frame.shape[1], frame.shape[0]
+    return _Source('video', iter(video), video.stated, video.fps, video.capture.release)
+
+
+def frame_size(source: str | Path) -> tuple[int, int]:
+    """``(width, height)`` of the first frame of a video file or image folder (`import_video`'s
+    sources; the same errors)."""
+    opened = _open_source(Path(source))
+    try:
+        for _, frame, _ in opened.frames:
+            return frame.shape[1], frame.shape[0]
+    finally:
+        opened.close()
     raise InputError(f"source: no frame could be decoded from '{source}'")
 
 
@@ -244,25 +262,18 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
     if not 0 <= start_ns <= MAX_STAMP_NS:
         raise InputError(f'start: expected seconds within what a ROS time stamp holds (0 to '
                          f'{MAX_STAMP_NS // 10**9}: 1970 to 2038), got {start!r}')
-    if not source.exists():
-        raise InputError(f"source: '{source}' does not exist")
-    stated = None
-    if source.is_dir():
-        kind, paths = 'images', _folder_images(source)
-        if rate_hz is None:
+    opened = _open_source(source)
+    kind, frames, total = opened.kind, opened.frames, opened.count
+    stated = opened.count if kind == 'video' else None
+    if rate_hz is None and opened.fps is None:
+        opened.close()
+        if kind == 'images':
             raise InputError(f"rate_hz: a folder of images has no frame rate; give the rate "
-                             f"the {len(paths)} images were taken at")
-        frames, rate_source, total = _images(paths), 'given', len(paths)
-    else:
-        kind, video = 'video', _Video(source)
-        stated, total = video.stated, video.stated
-        if rate_hz is None and video.fps is None:
-            video.capture.release()
-            raise InputError(f"rate_hz: '{source.name}' states no plausible frame rate; give "
-                             f'the rate it was recorded at')
-        rate_source = 'given' if rate_hz is not None else "video's"
-        rate_hz = rate_hz if rate_hz is not None else video.fps
-        frames = iter(video)
+                             f"the {total} images were taken at")
+        raise InputError(f"rate_hz: '{source.name}' states no plausible frame rate; give the "
+                         f'rate it was recorded at')
+    rate_source = 'given' if rate_hz is not None else "video's"
+    rate_hz = rate_hz if rate_hz is not None else opened.fps
     period_ns = Decimal(1_000_000_000) / Decimal(repr(float(rate_hz)))
     if period_ns < 1:
         raise InputError(f'rate_hz: {rate_hz:g} Hz puts frames less than 1 ns apart')

@@ -379,8 +379,9 @@ class VisualOdometry:
             return self._drop(stamp, DropReason.DUPLICATE_STAMP,
                               f'timestamp {format_stamp(stamp)} is '
                               f'{1e3 * seconds_between(stamp, last):.3g} ms after the previous '
-                              f'frame, under 5 ms and a quarter of the usual {1e3 * usual:.3g} '
-                              f'ms: a duplicated or mis-stamped frame')
+                              f'frame, under {1e3 * FrameClock.TOO_CLOSE_S:g} ms and a quarter of '
+                              f'the usual {1e3 * usual:.3g} ms: a duplicated or mis-stamped '
+                              f'frame')
         if check is StampCheck.OUT_OF_ORDER:
             return self._drop(stamp, DropReason.OUT_OF_ORDER,
                               f'timestamp {format_stamp(stamp)} is older than the previous '

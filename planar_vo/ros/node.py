@@ -777,18 +777,15 @@ class PlanarVoNode(Node):
                 missing = max(1, round(dt / period) - 1) - glitched
                 if missing < 1:
                     return      # the refused frames filled it: no gap, no new period
-                self._count_gap(dt, missing, period, stamp_ns)
+                self._counters['gaps'] += 1
+                self._counters['missing_frames'] += missing
+                self._warn('gap', f'gap of {dt / 1e6:.0f} ms in the image stamps before '
+                                  f'{_format_stamp(stamp_ns)} (about {missing} frame(s) missing at '
+                                  f'{1e9 / period:.1f} Hz); odometry bridges it')
                 self._rate_change(dt, missing, period)
                 return          # a gap does not update the nominal period
         self._gaps_in_a_row.clear()
         self._intervals.append(dt)
-
-    def _count_gap(self, dt: int, missing: int, period: float, stamp_ns: int) -> None:
-        self._counters['gaps'] += 1
-        self._counters['missing_frames'] += missing
-        self._warn('gap', f'gap of {dt / 1e6:.0f} ms in the image stamps before '
-                          f'{_format_stamp(stamp_ns)} (about {missing} frame(s) missing at '
-                          f'{1e9 / period:.1f} Hz); odometry bridges it')
 
     def _rate_change(self, dt: int, missing: int, period: float) -> None:
         """`_RATE_CHANGE_GAPS` gaps in a row of about one length are the camera's new frame rate

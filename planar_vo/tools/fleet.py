@@ -273,18 +273,15 @@ def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig], *,
     """Every bag under every configuration, bag-major. The same bag given twice (another
     spelling, a symbolic link, its folder and its storage file) runs once, as first given, and
     a warning names the repeat."""
-    paths: dict[str, str] = {}
-    seen: dict[str, str] = {}
+    seen: dict[str, str] = {}                # identity -> the bag as first given
     for given in bags:
         bag = os.path.normpath(Path(given).expanduser().absolute())
         identity = bag_identity(bag)
-        if identity in seen:
-            if bag != seen[identity]:
-                log.warning("BAG: '%s' is the bag '%s' again; it runs once", given,
-                            seen[identity])
-            continue
-        seen[identity] = bag
-        paths[bag] = identity
+        if identity not in seen:
+            seen[identity] = bag
+        elif bag != seen[identity]:
+            log.warning("BAG: '%s' is the bag '%s' again; it runs once", given, seen[identity])
+    paths = list(seen.values())
     jobs = []
     topics = {'image': image_topic, 'camera_info': camera_info_topic}
     for bag in paths:
@@ -786,7 +783,7 @@ def run_fleet(jobs: Sequence[FleetJob], out_dir: str | Path, *, address: str | N
     workers = default_workers() if workers is None else workers
     if workers < 1 or retries < 0:
         raise InputError(f'workers, retries: expected at least 1 and 0, got {workers}, {retries}')
-    check_out_dir(out_dir, [job.bag for job in jobs])
+    check_out_dir(out_dir, dict.fromkeys(job.bag for job in jobs))   # each bag once
     out_dir = Path(out_dir)
     created = not out_dir.exists()
     try:
