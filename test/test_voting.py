@@ -144,6 +144,22 @@ def test_weights_scale_does_not_change_the_result(rng):
     np.testing.assert_allclose(s1.covariance, s2.covariance, rtol=1e-9)
 
 
+@pytest.mark.parametrize('outliers', [0.0, 0.5])
+@pytest.mark.parametrize('method', ['histogram', 'ransac'])
+def test_skipping_the_covariance_changes_nothing_else(rng, outliers, method):
+    acs = shared_motion_acs(rng, 1500, 0.5, outlier_ratio=outliers)
+    config = VotingConfig(method=method)
+    m1, s1 = _vote(acs, config=config)
+    m2, s2 = _vote(acs, config=config, covariance=False)
+    assert (m1.alpha, m1.beta) == (m2.alpha, m2.beta)
+    np.testing.assert_array_equal(s1.inliers, s2.inliers)
+    assert (s1.reliable, s1.flag, s1.point_scale, s1.affine_scale) == \
+        (s2.reliable, s2.flag, s2.point_scale, s2.affine_scale)
+    assert np.all(np.isfinite(s1.covariance))
+    if method == 'histogram':
+        assert np.all(np.isinf(s2.covariance)) and np.isnan(s2.residual_rms)
+
+
 def test_zero_weights_exclude_correspondences(rng):
     acs = shared_motion_acs(rng, 2000, 0.5, outlier_ratio=0.5)
     good = ~acs.outliers

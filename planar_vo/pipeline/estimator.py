@@ -258,7 +258,8 @@ class MotionEstimator:
             raise InputError(f'level: expected the {len(acs)} ACs of acs levelled, got '
                              f'{len(level)}')
         motion, vstats = vote_planar_motion(level.p1, level.p2, level.A, level.weights,
-                                            self.voting)
+                                            self.voting,
+                                            covariance=self.config.model == 'planar')
         vote = (motion.alpha, motion.beta, bool(vstats.reliable))
         if self.config.model == 'planar':
             return self._planar(acs, motion, vstats, vote)
@@ -383,7 +384,8 @@ class MotionEstimator:
         unexplained = np.flatnonzero(w * ~first.inliers > 0)
         if unexplained.size >= self.config.min_inliers:
             rest, w_rest = level.subset(unexplained), w[unexplained]
-            m2, v2 = vote_planar_motion(rest.p1, rest.p2, rest.A, w_rest, self.voting)
+            m2, v2 = vote_planar_motion(rest.p1, rest.p2, rest.A, w_rest, self.voting,
+                                        covariance=False)
             # The revote's inliers, counted at its own coarse scales, overstate the support
             # its motion would keep at the first answer's: one below the screen's bar cannot
             # matter (with random outliers, 0.09 of the first answer's support typically and

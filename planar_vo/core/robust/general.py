@@ -62,8 +62,9 @@ __all__ = [
 # chi-square(3), so that an active set chosen at a motion still a little off keeps its inliers).
 GATE = 4.0 * CHI2_3_99
 _IRLS_ITERATIONS = 2          # IRLS iterations per selection round
-_GN_STEPS = 1                 # Gauss-Newton steps per IRLS iteration
 _STEP_TOLERANCE = 2e-6        # rad: a step below this ends an IRLS loop
+_EYE5 = np.eye(5)
+_EYE5.flags.writeable = False
 _ROUND_TOLERANCE = 0.2        # a round that moves the motion by less sigma (Mahalanobis) ...
 _MAX_SET_CHANGE = 0.03        # ... and changes the active set by at most this share: converged
 _FINAL_TOLERANCE = 1.0        # out of rounds: a last move below one sigma still counts
@@ -200,8 +201,10 @@ def noise_scales(r: np.ndarray, g: np.ndarray, h: np.ndarray, mask: np.ndarray,
     return robust_scales(r[mask], g[mask], h[mask], quantile, floors=_SCALE_FLOORS, min_count=5)
 
 
-def _essential_jacobian(R: np.ndarray, t: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``d vec(E) / d(w, d)`` (9, 5) for ``R <- exp([w]x) R``, ``t <- t + B d``.
+def _essential_jacobian(R: np.ndarray, t: np.ndarray, B: np.ndarray, with_e: bool = False
+                        ) -> np.ndarray:
+    """``d vec(E) / d(w, d)`` (9, 5) for ``R <- exp([w]x) R``, ``t <- t + B d``; with
+    ``with_e`` a sixth column ``vec(E)`` (``E = [t]x R``).
 
     ``[t]x [e_k]x = e_k t^T - t_k I``, so ``dE/dw_k = e_k (t^T R) - t_k R``; ``dE/dd_m =
     [B_m]x R``. In plain floats: at this size numpy's per-call overhead would be the cost.
@@ -216,13 +219,18 @@ def _essential_jacobian(R: np.ndarray, t: np.ndarray, B: np.ndarray) -> np.ndarr
     S0 = [(-z0 * a + y0 * b, -z1 * a + y1 * b) for a, b in zip(rows[1], rows[2])]
     S1 = [(z0 * a - x0 * b, z1 * a - x1 * b) for a, b in zip(rows[0], rows[2])]
     S2 = [(-y0 * a + x0 * b, -y1 * a + x1 * b) for a, b in zip(rows[0], rows[1])]
+    if with_e:
+        # [t]x R row by row, as [b]x R above
+        E = ([-tz * a + ty * b for a, b in zip(rows[1], rows[2])],
+             [tz * a - tx * b for a, b in zip(rows[0], rows[2])],
+             [-ty * a + tx * b for a, b in zip(rows[0], rows[1])])
     D = []
     for i, S in enumerate((S0, S1, S2)):
         for j in range(3):
             r = rows[i][j]
             w = [-r * tx, -r * ty, -r * tz]
             w[i] += tR[j]
-            D.append(w + list(S[j]))
+            D.append(w + list(S[j]) + [E[i][j]] if with_e else w + list(S[j]))
     return np.array(D)
 
 
@@ -392,63 +400,42 @@ def _cheirality_sign(q1: np.ndarray, q2: np.ndarray, R: np.ndarray, t: np.ndarra
 
 
 def _minimize_form(G: np.ndarray, R: np.ndarray, t: np.ndarray, prior: PlanarPrior | None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gauss-Newton for ``min vec(E)^T G vec(E) + |p(R, t)|^2`` (``E = [t]x R``).
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One Gauss-Newton step for ``min vec(E)^T G vec(E) + |p(R, t)|^2`` (``E = [t]x R``).
 
     With ``G = L^T L`` the residual is ``L e`` and its Jacobian ``L D``, so a step costs O(1):
-    ``H = D^T G D``, ``grad = D^T G e``. The prior is linearised once at entry (it is weak and
-    smooth; the next IRLS iteration re-linearises it). Step halving keeps the cost from rising.
-    Returns ``R, t`` and the last Gauss-Newton matrix ``H`` (5, 5).
+    ``X = [D | e]`` gives ``X^T G X = [[H, grad], [grad^T, f]]`` in one product, and the
+    prior, linearised here (it is weak and smooth; the next IRLS iteration re-linearises it),
+    adds ``Y^T Y`` with ``Y = [Jp | p0]``. Step halving keeps the cost from rising.
+    Returns ``R, t``, the Gauss-Newton matrix ``H`` (5, 5) and the step taken ``(w, d)`` (5,)
+    (zeros when none lowered the cost).
     """
     B = tangent_basis(t)
+    X = _essential_jacobian(R, t, B, with_e=True)            # (9, 6): D and vec(E)
+    S = X.T @ (G @ X)
     if prior is not None:
         p0, Jp = prior.residuals(R, t, B)
-        Hp = Jp.T @ Jp
-    delta = np.zeros(5)
-
-    def cost(R: np.ndarray, t: np.ndarray, delta: np.ndarray) -> float:
-        e = essential(R, t).ravel()
-        f = float(e @ G @ e)
+        Y = np.column_stack([Jp, p0])
+        S += Y.T @ Y
+    H, grad, f = S[:5, :5], S[:5, 5], float(S[5, 5])
+    none = np.zeros(5)
+    try:
+        step = -np.linalg.solve(H + (1e-12 * float(np.trace(H))) * _EYE5, grad)
+    except np.linalg.LinAlgError:
+        return R, t, H, none
+    for _ in range(5):
+        Rn = so3_exp(step[:3]) @ R
+        tn = t + B @ step[3:]
+        tn = tn / math.sqrt(float(tn @ tn))
+        e = essential(Rn, tn).ravel()
+        fn = float(e @ G @ e)
         if prior is not None:
-            p = p0 + Jp @ delta
-            f += float(p @ p)
-        return f
-
-    e = essential(R, t).ravel()
-    f = float(e @ G @ e) + (float(p0 @ p0) if prior is not None else 0.0)
-    H = np.zeros((5, 5))
-    for k in range(_GN_STEPS):
-        if k:
-            B = tangent_basis(t)
-            e = essential(R, t).ravel()
-        D = _essential_jacobian(R, t, B)
-        GD = G @ D
-        H = D.T @ GD
-        grad = GD.T @ e
-        if prior is not None:
-            H = H + Hp
-            grad = grad + Jp.T @ (p0 + Jp @ delta)
-        Hr = H.copy()
-        Hr.flat[::6] += 1e-12 * np.trace(H)
-        try:
-            step = -np.linalg.solve(Hr, grad)
-        except np.linalg.LinAlgError:
-            break
-        for _ in range(5):
-            Rn = so3_exp(step[:3]) @ R
-            tn = t + B @ step[3:]
-            tn = tn / math.sqrt(float(tn @ tn))
-            fn = cost(Rn, tn, delta + step)
-            if fn <= f * (1.0 + 1e-12):
-                break
-            step = 0.5 * step
-        else:
-            break
-        R, t, f = Rn, tn, fn
-        delta = delta + step
-        if float(np.abs(step).max()) < _STEP_TOLERANCE:
-            break
-    return R, t, H
+            p = p0 + Jp @ step
+            fn += float(p @ p)
+        if fn <= f * (1.0 + 1e-12):
+            return Rn, tn, H, step
+        step = 0.5 * step
+    return R, t, H, none
 
 
 def refine_general_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, weights: np.ndarray,
@@ -480,7 +467,7 @@ def refine_general_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, weights
     Method: per selection round the whitening ``1 / sqrt(var)`` is computed at the current
     motion and held fixed; IRLS: the Cauchy weights give one 9x9 Gram matrix ``G = Mw^T W Mw``
     (the only O(N) work of an iteration) and ``e^T G e + |p|^2`` is minimised over the 5 DoF by
-    a few O(1) Gauss-Newton steps (`_minimize_form`). Then the noise scales are measured again
+    an O(1) Gauss-Newton step (`_minimize_form`). Then the noise scales are measured again
     (`noise_scales`, the median over the active set) or annealed, and the active set
     (chi-square at most `GATE`) is re-selected over ALL ACs. Converged when a round moves the
     motion by less than `_ROUND_TOLERANCE` sigmas (Mahalanobis with the Gauss-Newton matrix)
@@ -501,18 +488,25 @@ def refine_general_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, weights
     for rounds in range(1, cfg.rounds + extra_rounds + 1):
         # Whitening at the round's starting motion (g, h: computed there, at the end of the
         # previous round or before the first), held fixed for the round: ``inv_var`` the
-        # inverse variances, ``base`` the AC weights over them (zero off the active set).
-        inv_var = 1.0 / (sp * sp * g + sa * sa * h + 1e-300)
-        base = (weights * active)[:, None] * inv_var
+        # inverse variances, ``base`` the AC weights over them; the IRLS sums run over the
+        # active ACs only (the others would enter with weight 0).
+        if np.all(active):
+            Ma, ga, ha, wa = Mf, g, h, weights
+        else:
+            idx = np.flatnonzero(active)
+            Ma, ga, ha, wa = M[idx].reshape(-1, 9), g[idx], h[idx], weights[idx]
+        inv_var = 1.0 / (sp * sp * ga + sa * sa * ha + 1e-300)
+        base = wa[:, None] * inv_var
         R_round, t_round = R, t
         H_gn = np.zeros((5, 5))
         for _ in range(_IRLS_ITERATIONS):
             iterations += 1
-            r = (Mf @ essential(R, t).ravel()).reshape(n, 3)
+            r = (Ma @ essential(R, t).ravel()).reshape(-1, 3)
             W = (base * _robust_weights(r * r * inv_var, cfg.cauchy)).reshape(-1, 1)
-            G = Mf.T @ (Mf * W)
-            Rn, tn, H_gn = _minimize_form(G, R, t, prior)
-            moved = max(float(np.abs(so3_log(Rn @ R.T)).max()), float(np.abs(tn - t).max()))
+            G = Ma.T @ (Ma * W)
+            Rn, tn, H_gn, step = _minimize_form(G, R, t, prior)
+            # (the rotation moved by the step's w: log(exp(w) R R^T) = w)
+            moved = max(float(np.abs(step[:3]).max()), float(np.abs(tn - t).max()))
             R, t = Rn, tn
             if moved < _STEP_TOLERANCE:
                 break

@@ -44,7 +44,7 @@ __all__ = ['PlanarMotion', 'VotingStats', 'vote_planar_motion']
 
 def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
                        weights: np.ndarray | None = None, config: VotingConfig | None = None,
-                       *, clusters: np.ndarray | None = None
+                       *, clusters: np.ndarray | None = None, covariance: bool = True
                        ) -> tuple[PlanarMotion, VotingStats]:
     """Robust planar motion from N affine correspondences (1AC + weighted histogram voting).
 
@@ -57,6 +57,9 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
             correlated (one surface, one segment). Default: cells of a
             ``config.covariance_grid`` grid over image 1, since neighbouring ACs share errors.
             Used only for the cluster-robust covariance.
+        covariance: False skips the covariance of the histogram method (``stats.covariance``
+            infinite, ``stats.residual_rms`` NaN) for a caller that uses only the motion, the
+            inliers and the noise scales; everything else is the same.
 
     Returns:
         ``(motion, stats)``: a `PlanarMotion` and `VotingStats`. When ``stats.reliable`` is
@@ -67,7 +70,7 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     """
     q1, q2, A, w, config = check_inputs(q1, q2, A, weights, config)
     clusters = check_clusters(clusters, q1.shape[0])
-    if clusters is None:
+    if clusters is None and (covariance or config.method == 'ransac'):
         clusters = refine.spatial_clusters(q1, config.covariance_grid)
     if config.method == 'ransac':
         return ransac_planar_motion(q1, q2, A, w, config, clusters)
@@ -132,8 +135,9 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
         sp, sa = min(sp, sp_cap), min(sa, sa_cap)
         wrows = refine.whiten_rows(rows, g, h, sp, sa, out=rows)
         theta, beta, inliers, cov, rms = refine.select_and_refine(
-            wrows, w, theta, beta, config, clusters, passes=3, scratch=scratch)
-    elif config.refine:
+            wrows, w, theta, beta, config, clusters, passes=3, covariance=covariance,
+            scratch=scratch)
+    elif config.refine and covariance:
         _, _, _, cov, rms = refine.select_and_refine(wrows, w, theta, beta, config, clusters,
                                                      passes=1, scratch=scratch)
     motion = PlanarMotion(float(wrap_angle(theta - beta)), float(wrap_angle(beta)))
