@@ -1668,7 +1668,8 @@ YEAR_NS = 365 * 86400 * 10 ** 9
 def write_clock_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
     """F0-F24 of the drive with one extra image after F15 stamped a year later (a single bad
     clock sample), then F0-F9 again with their original stamps (a looped bag: time jumps back
-    2.4 s). Returns the expected ``(stamp_ns, result)`` of every image, in publishing order."""
+    2.4 s; F0 is refused, F1 confirms the older time). Returns the expected ``(stamp_ns,
+    result)`` of every image, in publishing order."""
     with open_bag(clean) as reader:
         frames = list(iter_camera_frames(reader, IMAGE_TOPIC))[:25]
     entries, expected = [], []
@@ -1688,7 +1689,7 @@ def write_clock_bag(clean: Path, out: Path) -> list[tuple[int, str]]:
         if i == 15:
             publish(frame, frame.stamp_ns + YEAR_NS, 'time_jump_ahead')
     for i, frame in enumerate(frames[:10]):
-        publish(frame, frame.stamp_ns, 'time_jump_back' if i == 0 else 'ok')
+        publish(frame, frame.stamp_ns, ('out_of_order', 'time_jump_back')[i] if i < 2 else 'ok')
     from bagdata import write_bag
 
     write_bag(out, 'mcap', sorted(entries, key=lambda e: e[2]))
@@ -1700,7 +1701,7 @@ def test_future_stamp_and_looped_bag_neither_wedge_nor_count_as_gaps(
         prefix, ros_env, tmp_path, drive_bag):
     expected = write_clock_bag(drive_bag, tmp_path / 'clock')
     odom, status, output = run_drive(prefix, ros_env, tmp_path, tmp_path / 'clock',
-                                     {**MOUNT_PARAMS, 'ros.path_max_length': 9},
+                                     {**MOUNT_PARAMS, 'ros.path_max_length': 8},
                                      topics=[IMAGE_TOPIC, CAMERA_INFO_TOPIC],
                                      frames=len(expected), reliable=True,
                                      extra=reliable_subscriptions(IMAGE_TOPIC))
@@ -1708,17 +1709,18 @@ def test_future_stamp_and_looped_bag_neither_wedge_nor_count_as_gaps(
             for s in status] == expected
     # The glitch is that frame's problem only; the loop resets tracking at the origin.
     states = [status_values(s)['tracking'] for s in status]
-    assert states == ['tracking'] * 26 + ['reinitialised'] + ['tracking'] * 9
+    assert states == ['tracking'] * 27 + ['reinitialised'] + ['tracking'] * 8
     final = status_values(status[-1])
     assert (final['gaps'], final['missing_frames'], final['dropped.time_jump_ahead'],
-            final['dropped.time_jump_back'], final['odometry_out']) == ('0', '0', '1', '1', '34')
-    looped = odom[-9:]                        # F1-F9 again, from the origin
-    assert [stamp_to_ns(m.header.stamp) for m in looped] == [s for s, _ in expected[27:]]
+            final['dropped.out_of_order'], final['dropped.time_jump_back'],
+            final['odometry_out']) == ('0', '0', '1', '1', '1', '33')
+    looped = odom[-8:]                        # F2-F9 again, from the origin at F1
+    assert [stamp_to_ns(m.header.stamp) for m in looped] == [s for s, _ in expected[28:]]
     truth = ground_truth(drive_bag)
-    assert_tracks_ground_truth(*odom_track(looped), truth, expected[26][0], yaw_deg=0.0)
+    assert_tracks_ground_truth(*odom_track(looped), truth, expected[27][0], yaw_deg=0.0)
     for needle in ('tracking state initialising -> tracking',
                    'tracking state tracking -> reinitialised',
-                   'tracking state reinitialised -> tracking', 'time jumped back 2.400 s',
+                   'tracking state reinitialised -> tracking', 'time jumped back 2.300 s',
                    'time_jump_ahead: timestamp'):
         assert sum(needle in ln for ln in output.splitlines()) == 1, (needle, output[-3000:])
     assert 'gap of' not in output

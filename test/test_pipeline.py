@@ -974,6 +974,22 @@ def test_a_frame_stamped_far_sooner_than_the_usual_interval_is_refused():
     assert clock.check(stamps[-1] + 0.001) is StampCheck.TOO_CLOSE
 
 
+def test_frame_clock_needs_a_second_frame_to_jump_in_time():
+    from planar_vo.pipeline.clock import FrameClock, StampCheck
+
+    clock = FrameClock(10.0, 1.0)
+    verdicts = [clock.check(t) for t in (100.0, 100.1, 100.2, 0.0, 100.3, 50.0, 50.1, 50.2,
+                                         50.25, 49.5, 1000.0, 50.3, 1000.0, 1000.1)]
+    S = StampCheck
+    assert verdicts == [S.OK, S.OK, S.OK, S.FAR_BEHIND, S.OK,        # one bad stamp: its own
+                        S.FAR_BEHIND, S.JUMP_BACK, S.OK, S.OK,       # a loop: the next confirms
+                        S.OUT_OF_ORDER, S.JUMP_AHEAD, S.OK, S.JUMP_AHEAD, S.NEW_TIME_BASE]
+    assert clock.last == 1000.1
+    # A far-back frame followed by one that does not follow it (earlier still) is refused too.
+    verdicts = [clock.check(t) for t in (10.0, 5.0, 5.1)]
+    assert verdicts == [S.FAR_BEHIND, S.FAR_BEHIND, S.JUMP_BACK]
+
+
 def test_undecodable_frames_count_towards_lost_tracking():
     """As blank ones do (a user test: after five undecodable frames the stale keyframe cost five
     good frames more): odometry.max_lost_frames of them in a row, and the next good frame
@@ -1346,11 +1362,33 @@ def test_time_jumping_back_resets_tracking_and_keeps_counters():
     assert np.linalg.norm(vo.pose[:3, 3]) > 1.0
     # The bag loops: stamps start again 100 s earlier. Small steps back stay out of order.
     assert vo.process(images[6], stamps[5] + 100.0 - 0.05).reason is DropReason.OUT_OF_ORDER
-    reset = vo.process(images[0], stamps[0])
+    # The first frame far back is refused (it could be one bad stamp); the next one, which
+    # follows it, confirms the older time and resets tracking at the origin.
+    refused = vo.process(images[0], stamps[0])
+    assert refused.reason is DropReason.OUT_OF_ORDER and 'confirms' in refused.message
+    reset = vo.process(images[1], stamps[1])
     assert reset.reason is DropReason.TIME_JUMP_BACK
     assert reset.tracking is TrackingState.REINITIALISED
     np.testing.assert_allclose(reset.pose, np.eye(4))
-    again = vo.process(images[1], stamps[1])
+    again = vo.process(images[2], stamps[2])
     assert again.ok and vo.counters['ok'] == 6 and vo.counters['time_jump_back'] == 1
-    step = np.linalg.norm(trajectory.xy[1] - trajectory.xy[0])
+    step = np.linalg.norm(trajectory.xy[2] - trajectory.xy[1])
     assert abs(np.linalg.norm(again.pose[:2, 3]) - step) < 0.1 * step
+
+
+def test_one_frame_stamped_far_back_is_its_own_problem():
+    # A user test: one frame stamped 0 (or 10 s early) in the middle of a drive reset the rest
+    # of it to the origin. It is refused like one stamped far ahead; tracking goes on.
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    stamps = [float(s) + 100.0 for s in trajectory.stamps]
+    results = [vo.process(images[i], stamps[i]) for i in range(5)]
+    for glitch in (0.0, stamps[4] - 10.0):
+        bad = vo.process(images[5], glitch)
+        assert bad.reason is DropReason.OUT_OF_ORDER and bad.tracking is TrackingState.TRACKING
+    results += [vo.process(images[i], stamps[i]) for i in range(5, 8)]
+    assert all(r.ok for r in results[1:])
+    assert 'time_jump_back' not in vo.counters and vo.counters['out_of_order'] == 2
+    truth = trajectory.xy[7] - trajectory.xy[0]
+    assert abs(np.linalg.norm(results[-1].pose[:2, 3]) - np.linalg.norm(truth)) \
+        < 0.05 * np.linalg.norm(truth)

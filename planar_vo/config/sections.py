@@ -414,7 +414,8 @@ class OdometryConfig(Options):
         max_frame_gap: the longest plausible interval between consecutive frames (s): a frame
             stamped further ahead is refused as a clock glitch unless the next frame confirms
             the new time, which then restarts tracking.
-        max_time_jump_back: a stamp further back than this (s) resets tracking (a looped bag, a
+        max_time_jump_back: a stamp further back than this (s) is refused unless the next
+            frame confirms the older time, which then resets tracking (a looped bag, a
             restarted clock); a smaller step back is a frame out of order.
         output: ``'3d'`` (the full pose: the vehicle follows hills, with roll and pitch) or
             ``'flat'`` (x, y and yaw; z, roll and pitch zero, and their rates in the twist:

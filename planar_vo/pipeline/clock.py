@@ -8,8 +8,12 @@ long real gap). None of them may stop the odometry for good:
   is refused (`StampCheck.JUMP_AHEAD`) and the time base is kept, unless the next frame confirms
   the new time (it follows it within ``max_gap``): then the stream really moved on
   (`StampCheck.NEW_TIME_BASE`) and tracking restarts there;
-- a stamp more than ``max_jump_back`` seconds behind the last one is a new time base
-  (`StampCheck.JUMP_BACK`): tracking is reset; a smaller step back is a frame out of order.
+- likewise a stamp more than ``max_jump_back`` seconds behind the last one is refused
+  (`StampCheck.FAR_BEHIND`; a user test: one frame stamped 0 in a drive reset the rest of it
+  to the origin) unless the next frame confirms the older time (it follows it within
+  ``max_gap`` and is still that far behind): a looped bag or a restarted clock
+  (`StampCheck.JUMP_BACK`), and tracking is reset there; a smaller step back is a frame out
+  of order.
 
 Stamps are float seconds. A float holds about 0.24 us at 1.7e9 s, so two stamps 1 ns apart may
 be the same float: where the source has integer nanoseconds (ROS header stamps, bag times), a
@@ -68,7 +72,8 @@ class StampCheck(str, enum.Enum):
     OUT_OF_ORDER = 'out_of_order'        # slightly older than the last accepted frame
     JUMP_AHEAD = 'jump_ahead'            # far in the future: refused, time base kept
     NEW_TIME_BASE = 'new_time_base'      # the second frame after a forward jump: accepted
-    JUMP_BACK = 'jump_back'              # far in the past: a new time base (reset)
+    FAR_BEHIND = 'far_behind'            # far in the past: refused, time base kept
+    JUMP_BACK = 'jump_back'              # the second frame far in the past: a new time base
 
 
 class FrameClock:
@@ -96,12 +101,13 @@ class FrameClock:
         self.max_jump_back = float(max_jump_back)
         self.last: float | None = None
         self._ahead: float | None = None
+        self._behind: float | None = None
         self._intervals: collections.deque[float] = collections.deque(maxlen=self.INTERVALS)
 
     def reset(self) -> None:
         """Forget the time base (the next stamp is accepted as is)."""
         self.last = None
-        self._ahead = None
+        self._ahead = self._behind = None
         self._intervals.clear()
 
     @property
@@ -116,7 +122,7 @@ class FrameClock:
         stamp."""
         last = self.last
         if last is None:
-            self.last, self._ahead = stamp, None
+            self.last, self._ahead, self._behind = stamp, None, None
             return StampCheck.OK
         step = seconds_between(stamp, last)
         if step == 0.0:
@@ -124,19 +130,29 @@ class FrameClock:
         if step < 0.0:
             if -step <= self.max_jump_back:
                 return StampCheck.OUT_OF_ORDER
-            self.last, self._ahead = stamp, None
-            return StampCheck.JUMP_BACK
+            if self._follows(stamp, self._behind):
+                self._new_base(stamp)
+                return StampCheck.JUMP_BACK
+            self._behind = stamp
+            return StampCheck.FAR_BEHIND
         if step > self.max_gap:
-            ahead = self._ahead
-            if ahead is not None and 0.0 < seconds_between(stamp, ahead) <= self.max_gap:
-                self.last, self._ahead = stamp, None
-                self._intervals.clear()
+            if self._follows(stamp, self._ahead):
+                self._new_base(stamp)
                 return StampCheck.NEW_TIME_BASE
             self._ahead = stamp
             return StampCheck.JUMP_AHEAD
         usual = self.usual_interval
         if usual is not None and step < min(self.TOO_CLOSE_SHARE * usual, self.TOO_CLOSE_S):
             return StampCheck.TOO_CLOSE
-        self.last, self._ahead = stamp, None
+        self.last, self._ahead, self._behind = stamp, None, None
         self._intervals.append(step)
         return StampCheck.OK
+
+    def _follows(self, stamp: float, refused: float | None) -> bool:
+        """``stamp`` confirms the time of the frame refused before it: it comes after it,
+        within ``max_gap``."""
+        return refused is not None and 0.0 < seconds_between(stamp, refused) <= self.max_gap
+
+    def _new_base(self, stamp: float) -> None:
+        self.last, self._ahead, self._behind = stamp, None, None
+        self._intervals.clear()

@@ -386,6 +386,13 @@ class VisualOdometry:
             return self._drop(stamp, DropReason.OUT_OF_ORDER,
                               f'timestamp {format_stamp(stamp)} is older than the previous '
                               f'{format_stamp(last)}')
+        if check is StampCheck.FAR_BEHIND:
+            return self._drop(stamp, DropReason.OUT_OF_ORDER,
+                              f'timestamp {format_stamp(stamp)} is '
+                              f'{seconds_between(last, stamp):.3g} s before the previous frame '
+                              f'(more than odometry.max_time_jump_back); refused unless the '
+                              f'next frame confirms the older time (a looped bag, a restarted '
+                              f'clock)')
         if check is StampCheck.JUMP_AHEAD:
             return self._drop(stamp, DropReason.TIME_JUMP_AHEAD,
                               f'timestamp {format_stamp(stamp)} is {stamp - last:.3g} s after '

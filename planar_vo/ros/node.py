@@ -750,14 +750,14 @@ class PlanarVoNode(Node):
         """Count frames lost before reaching the node (an interval far above the usual one).
 
         The stamps are judged by the pipeline's rules (`FrameClock`, the same limits): a
-        duplicate, a frame out of order or a single stamp far ahead (a clock glitch) leave the
-        time base alone, and a jump back (a looped bag) or a confirmed jump ahead starts a new
-        one: none of them is a gap of lost frames. A frame refused as far ahead came in the
-        interval it falls in (its stamp is wrong, not the frame lost): it takes one of the
-        interval's slots off the missing count (a user test: a frame stamped 1000 s ahead in
+        duplicate, a frame out of order or a single stamp far ahead or behind (a clock glitch)
+        leave the time base alone, and a confirmed jump back (a looped bag) or ahead starts a
+        new one: none of them is a gap of lost frames. A frame refused as far ahead or behind
+        came in the interval it falls in (its stamp is wrong, not the frame lost): it takes one
+        of the interval's slots off the missing count (a user test: a frame stamped 1000 s ahead in
         place of the next one counted a frame missing besides its `time_jump_ahead`)."""
         check = self._stamps.check(Stamp(stamp_ns))
-        if check is StampCheck.JUMP_AHEAD:
+        if check in (StampCheck.JUMP_AHEAD, StampCheck.FAR_BEHIND):
             self._glitched += 1
             return
         if check in (StampCheck.DUPLICATE, StampCheck.TOO_CLOSE, StampCheck.OUT_OF_ORDER):
