@@ -9,6 +9,7 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+import yaml
 from bagdata import (
     TS,
     camera_info_msg,
@@ -528,3 +529,40 @@ def test_storage_file_suffixes(small_bag):
     shutil.copy(storage_file(bag_dir), single)
     with open_bag(single) as bag:
         assert stamp_to_ns(next(iter_messages(bag, '/cam/image_raw')).msg.header.stamp) == T0
+
+
+@pytest.mark.parametrize('storage', STORAGES)
+def test_messages_the_index_counts_but_reading_skips_are_counted(tmp_path, rng, storage, caplog):
+    """A damaged MCAP chunk is skipped by the reader without an error (a user test: an image
+    lost unsaid, 'dropped 0'). Here the bag's index (metadata.yaml) counts two images and one
+    ground-truth message more than its storage holds: replay counts the images as
+    'unreadable' frames, names every topic's loss, and eval warns about its topic's."""
+    gt = (lambda i, stamp: ('/ground_truth/odom', ODOM, stamp + 1, odometry_msg(stamp, 0.1 * i)))
+    in_bag, _ = _big_image_bag(tmp_path / 'in', storage, rng, n=8, extra=(gt,))
+    meta = in_bag / 'metadata.yaml'
+    info = yaml.safe_load(meta.read_text())
+    for entry in info['rosbag2_bagfile_information']['topics_with_message_count']:
+        assert entry['message_count'] == 8
+        entry['message_count'] += 2 if entry['topic_metadata']['name'] == '/cam/image_raw' else 1
+    meta.write_text(yaml.safe_dump(info))
+    with open_bag(in_bag) as bag:
+        counts = {t: bag.count(t) for t in bag.topics}
+        assert {t: n - len(list(bag.messages([t]))) for t, n in counts.items()} == bag.unread
+    assert sorted(bag.unread.values()) == [1, 2]
+    summary = replay_bag(in_bag, tmp_path / 'out', ConstantVelocityDouble(), progress=False)
+    lost = bag.unread['/cam/image_raw']
+    assert summary.frames_in == counts['/cam/image_raw'] == 8 + lost
+    assert summary.dropped == {'unreadable': lost} and summary.odometry_out == 8
+    assert summary.unreadable == bag.unread
+    text = summary.format()
+    assert f'  dropped            {lost} (unreadable {lost})\n' in text
+    other = next(t for t in bag.unread if t != '/cam/image_raw')
+    assert (f'  unreadable         {" ".join(f"{t} {bag.unread[t]}," for t in sorted(bag.unread))}'
+            .rstrip(',') + ' (indexed in the bag, skipped by the reader: damaged storage)'
+            ) in text
+    assert 'unreadable (damaged storage' in caplog.text and other in caplog.text
+    caplog.clear()
+    from planar_vo.tools.evaluation import load_trajectory
+    load_trajectory(in_bag, other)
+    assert (f"topic '{other}' in '{in_bag}': {bag.unread[other]} of its "
+            f'{counts[other]} messages could not be read') in caplog.text

@@ -7,6 +7,7 @@ Bags without embedded message definitions are decoded with the ROS 2 Jazzy type 
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -64,6 +65,9 @@ class BagReader:
     def __init__(self, path: Path, reader: AnyReader) -> None:
         self.path = path
         self._reader = reader
+        # Messages of a topic that its index counts but a full read of it did not yield
+        # (`messages`): damaged storage the reader skipped without an error.
+        self.unread: dict[str, int] = {}
 
     @property
     def typestore(self) -> Any:
@@ -137,6 +141,10 @@ class BagReader:
     def messages(self, topics: Iterable[str]) -> Iterator[BagMessage]:
         """Serialized messages of `topics` in log-time order.
 
+        When the stream ends, each topic that yielded fewer messages than the bag's index
+        counts has the difference in `unread` (a damaged MCAP chunk is skipped by the reader
+        without an error: a user test lost an image that way, unsaid).
+
         Raises:
             BagError: the storage fails while reading (a corrupt or truncated file discovered
                 mid-way); messages yielded before stay valid.
@@ -147,16 +155,24 @@ class BagReader:
             return
         stream = self._reader.messages(connections=connections)
         count = 0
+        read: Counter[str] = Counter()
         while True:
             try:
                 connection, log_time, rawdata = next(stream)
             except StopIteration:
+                for topic in wanted & set(self.topics):
+                    missing = self.count(topic) - read[topic]
+                    if missing > 0:
+                        self.unread[topic] = missing
+                    else:
+                        self.unread.pop(topic, None)
                 return
             except Exception as err:   # noqa: BLE001 - any storage failure means a damaged file
                 raise BagError(f"bag '{self.path}': corrupt or truncated, reading failed after "
                                f'{count} messages ({type(err).__name__}: {one_line(err)})'
                                ) from err
             count += 1
+            read[connection.topic] += 1
             yield BagMessage(connection.topic, connection.msgtype, log_time, rawdata, connection)
 
     def deserialize(self, message: BagMessage) -> Any:

@@ -365,6 +365,10 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
                          progress=False)
     row.update(frames_in=summary.frames_in, odom_out=summary.odometry_out,
                drops=dict(sorted(summary.dropped.items())))
+    if summary.unreadable:
+        # A damaged bag that reading got through: the row says so (a user test: 'ok' alone).
+        row['reason'] = ('damaged storage: unreadable ' + ', '.join(
+            f'{t} {n}' for t, n in sorted(summary.unreadable.items())))
     _kept_outputs(job, work, row)
     if not summary.frames_in:
         raise InputError(f'bag: no frames on {summary.image_topic}')

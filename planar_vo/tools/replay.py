@@ -34,7 +34,14 @@ import numpy as np
 
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
-from planar_vo.errors import BagError, ConfigError, ImageError, InputError, OutputError
+from planar_vo.errors import (
+    BagError,
+    ConfigError,
+    ImageError,
+    InputError,
+    OutputError,
+    plural,
+)
 from planar_vo.io.images import CameraFrame, CameraFrameDecoder, resolve_camera_topics
 from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
@@ -61,6 +68,8 @@ SPEED_TYPES = (
     ODOMETRY_TYPE,
 )
 BAD_IMAGE = DropReason.BAD_IMAGE.value
+# Images the bag's index counts that reading skipped (damaged storage): replay's own reason.
+UNREADABLE = 'unreadable'
 
 
 class FrameProcessor(Protocol):
@@ -101,6 +110,9 @@ class ReplaySummary:
             processor's ``road_top_ups``; None if it has none).
         why_none: without any motion estimated (no odometry beyond the origin), the most
             frequent drop reason and its first message (empty otherwise).
+        unreadable: messages per topic that the bag's index counts but reading skipped
+            (damaged storage); the image topic's are also in ``frames_in`` and ``dropped``
+            (``unreadable``).
     """
 
     input: str
@@ -123,6 +135,7 @@ class ReplaySummary:
     scale_sources: dict[str, int] = field(default_factory=dict)
     road_top_ups: int | None = None
     why_none: str = ''
+    unreadable: dict[str, int] = field(default_factory=dict)
 
     @property
     def motion_out(self) -> int:
@@ -148,6 +161,7 @@ class ReplaySummary:
         dropped = ', '.join(f'{k} {v}' for k, v in sorted(self.dropped.items())) or 'none'
         copied = ', '.join(f'{k} {v}' for k, v in sorted(self.copied.items())) or 'none'
         sources = ', '.join(f'{k} {v}' for k, v in sorted(self.scale_sources.items())) or 'none'
+        unreadable = ', '.join(f'{k} {v}' for k, v in sorted(self.unreadable.items()))
         info = self.camera_info_topic or 'none'
         if self.camera_info_unused:
             info += f' not used: {self.camera_info_unused}'
@@ -159,6 +173,8 @@ class ReplaySummary:
             f'  odometry out       {self.odometry_out}' + self._origins_note(),
             f'  dropped            {sum(self.dropped.values())} ({dropped})',
             f'  copied             {copied}',
+            *([f'  unreadable         {unreadable} (indexed in the bag, skipped by the reader: '
+               f'damaged storage)'] if self.unreadable else []),
             f'  speed messages     {self.speed_messages}',
             f'  camera info errors {self.camera_info_errors}',
             f'  camera             {self.focal or "unknown"}',
@@ -390,6 +406,19 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             raise
         finally:
             bar.close()
+        # Messages the index counts that reading skipped (a damaged MCAP chunk): counted, so
+        # that every image in the bag has odometry or a reason.
+        summary.unreadable = dict(bag.unread)
+        lost = bag.unread.get(image_topic, 0)
+        if lost:
+            summary.frames_in += lost
+            dropped[UNREADABLE] += lost
+            first[UNREADABLE] = (f'{plural(lost, "image message")} that the bag indexes '
+                                 f'could not be read (damaged storage)')
+        if bag.unread:
+            log.warning("bag '%s': %s indexed but unreadable (damaged storage, skipped by the "
+                        'reader)', in_path, ', '.join(f'{plural(n, "message")} on {t}'
+                                                      for t, n in sorted(bag.unread.items())))
     summary.odometry_out = writer.count
     if tum_path is not None and summary.motion_out:
         try:

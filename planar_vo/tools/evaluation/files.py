@@ -171,6 +171,10 @@ def _read_pose_topic(path: str | Path, topic: str, role: str, *, covariances: bo
                 values = getattr(getattr(item.msg, 'pose', None), 'covariance', None)
                 covs.append(None if values is None else
                             np.asarray(values, dtype=np.float64).reshape(6, 6))
+        if bag.unread.get(topic):
+            log.warning("topic '%s' in '%s': %d of its %d messages could not be read (damaged "
+                        'storage, skipped by the reader)', topic, path, bag.unread[topic],
+                        bag.count(topic))
     if not poses:
         raise InputError(f"{role}: '{topic}' in '{path}' has no messages")
     stamps_arr = np.array(stamps, dtype=np.int64)
