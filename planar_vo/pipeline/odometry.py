@@ -141,6 +141,7 @@ class VisualOdometry:
         self._estimator = MotionEstimator(self.config.estimator, self.config.voting)
         self._camera = camera
         self._camera_from_config = False
+        self._size_matched = False                  # an image had the camera model's size
         self._camera_problem: str | None = None     # why the configured intrinsics are refused
         self._took_camera = False                   # a camera model replaced the calibration
         scale = self.config.scale
@@ -424,11 +425,19 @@ class VisualOdometry:
                               'no camera intrinsics yet (no valid CameraInfo and camera.fx = 0; '
                               'or set camera.estimate_focal: true to self-calibrate)')
         if camera.size != (gray.shape[1], gray.shape[0]):
+            if not self._size_matched:
+                # No image has had this model's size: the intrinsics are another camera's or
+                # another resolution's (a user test: counted as size changes of every frame).
+                return self._drop(stamp, DropReason.NO_CAMERA_INFO,
+                                  f'the camera model (CameraInfo) is {camera.width}x'
+                                  f'{camera.height} but the image is {gray.shape[1]}x'
+                                  f'{gray.shape[0]}: intrinsics of another camera or resolution')
             # A stray frame of another size: drop it, keep tracking (a new camera model with
             # the new size resets the keyframe in _resolve_camera).
             return self._drop(stamp, DropReason.SIZE_CHANGED,
                               f'image is {gray.shape[1]}x{gray.shape[0]} but the camera model is '
                               f'{camera.width}x{camera.height}')
+        self._size_matched = True
         if _is_blank(gray, self.config.odometry.min_contrast):
             # Nothing to track: the frame counts towards lost tracking (a tunnel, a covered
             # lens), but it never becomes a keyframe.
@@ -531,6 +540,8 @@ class VisualOdometry:
                               'keyframe chain', shift)
                     self._keyframes.clear()
                     self._restart = 'a camera model change'
+            if camera != self._camera:
+                self._size_matched = False
             self._camera = camera
             self._camera_from_config = False
         if self._camera is None:

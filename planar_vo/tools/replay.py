@@ -294,6 +294,12 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     if not str(out_path).strip():
         raise BagError('out: an empty path; expected the folder to write the bag to')
     out_path = Path(out_path)
+    source = Path(os.path.realpath(Path(in_path).expanduser()))
+    if source.is_dir() and source in Path(os.path.realpath(out_path.expanduser())).parents:
+        # (a user test: the output went into the input bag's folder, which eval and fleet
+        # refuse: a bag folder holds one bag)
+        raise BagError(f"out: '{out_path}' lies inside the input bag '{in_path}'; choose a "
+                       f'folder outside it')
     if tum_path is not None:
         tum = Path(tum_path)
         if tum.exists():
