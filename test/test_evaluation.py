@@ -64,9 +64,13 @@ GOOD = '1.0 0 0 0 0 0 0 1'
 @pytest.mark.parametrize('lines, match', [
     ([GOOD, '2.0 1 2 3 0 0 0'], r't\.tum line 2: expected 8 values \'timestamp tx ty tz qx qy qz '
                                 r"qw', got 7"),
-    (['# header', '', GOOD, '2.0 1 2 x 0 0 0 1'], r"t\.tum line 4: expected 8 numbers, got "
-     r"'2\.0 1 2 x 0 0 0 1'"),
-    ([GOOD, '2.0 1 2 nan 0 0 0 1'], r't\.tum line 2: expected finite values'),
+    (['# header', '', GOOD, '2.0 1 2 x 0 0 0 1'], r"t\.tum line 4: tz: expected a number, got "
+     r"'x'"),
+    ([GOOD, 'two 1 2 3 0 0 0 1'], r"t\.tum line 2: the timestamp: expected a number, got 'two'"),
+    ([GOOD, '2.0 1 2 nan 0 0 0 1'], r"t\.tum line 2: tz: expected a finite value, got 'nan'"),
+    # (a user test: the line quoted to 80 characters hid the NaN at its end)
+    ([GOOD, '1700000000.311634300 3.8123456789012345 0.0686188825109657 0.01 0.0 0.0 0.1 NaN'],
+     r"t\.tum line 2: qw: expected a finite value, got 'NaN'"),
     ([GOOD, '2.0 1 2 3 0 0 0 0'], r't\.tum line 2: expected a non-zero quaternion'),
     ([GOOD, '1.0 1 2 3 0 0 0 1'], r't\.tum line 2: expected increasing timestamps, got 1\.0 '
                                   r'after 1\.000000000'),

@@ -172,7 +172,8 @@ def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
     (lambda d: (d / 'times.txt').write_text('0\n0.1\n'),
      r'times\.txt: expected one time per image \(4\), got 2'),
     (lambda d: (d / 'times.txt').unlink(),
-     r"has no times\.txt \(give a frame rate instead: rate_hz, --rate-hz\)"),
+     r"has no times\.txt; give the frame rate instead \(import-kitti --rate-hz; "
+     r"import_kitti\(rate_hz=\.\.\.\) in Python\)"),
     # (a user test: a missing image was blamed on times.txt's count)
     (lambda d: (d / 'image_0' / '000002.png').unlink(),
      r"images: '000002\.png' is missing from '.*image_0' \(frames are numbered without gaps; "
@@ -194,7 +195,11 @@ def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
     (lambda d: cv2.imwrite(str(d / 'image_0' / '000002.png'), np.zeros((31, 40), np.uint8)),
      r"images: expected every image 40x30, got 40x31 for '000002\.png'"),
     (lambda d: (d / 'image_0' / '000001.png').write_bytes(b'not a png'),
-     r"images: cannot read '.*000001\.png' as an image"),
+     r"images: cannot read '.*000001\.png' as an image \(expected PNG or JPEG"),
+    # (a user test: the message of a cut-short PNG named a CompressedImage's field)
+    (lambda d: (d / 'image_0' / '000001.png').write_bytes(
+        (d / 'image_0' / '000001.png').read_bytes()[:60]),
+     r"images: cannot read '.*000001\.png' as an image \(\d+ bytes of png data"),
     (lambda d: [p.unlink() for p in (d / 'image_0').iterdir()],
      r"sequence: '.*image_0' contains no \.png images"),
     (lambda d: (d / 'image_0').rename(d / 'pictures'),
@@ -307,6 +312,25 @@ def test_absurd_times_are_refused_before_anything_is_written(tmp_path, rng, time
     with pytest.raises(InputError, match=match):
         import_kitti(tmp_path / 'seq', tmp_path / 'bag', **kwargs)
     assert not (tmp_path / 'bag').exists() and partial_leftovers(tmp_path) == []
+
+
+def test_frames_1_ns_apart_import_without_numpy_warnings(tmp_path, rng):
+    """--rate-hz 1e9: the ground truth's velocities came from float64 absolute nanoseconds
+    (256 ns apart near 1.7e18), divided by zero and were refused as 'poses too far apart'
+    (a user test)."""
+    import warnings
+
+    from planar_vo.io.kitti import kitti_ground_truth
+
+    _write_sequence(tmp_path / 'seq', rng)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag', rate_hz=1e9)
+    stamps = 1_700_000_000_000_000_000 + np.arange(3)
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[:, 2, 3] = [0.0, 1e-9, 2e-9]                      # 1 m/s forward
+    _, twists = kitti_ground_truth(poses, stamps, 1.65)
+    np.testing.assert_allclose(twists[:, :3], [[1.0, 0.0, 0.0]] * 3, atol=1e-6)
 
 
 def test_cli_absurd_times_are_one_line(tmp_path, rng, capsys):

@@ -1350,6 +1350,9 @@ def test_a_confirmed_forward_gap_restarts_tracking():
     assert np.allclose(second.pose, last.pose)
     assert np.linalg.norm(third.pose[:3, 3] - last.pose[:3, 3]) < 2.0
     assert np.sqrt(second.pose_covariance[0, 0]) > 100.0
+    # ... but no angle is less known than a uniform one (std pi / sqrt(3); a user test: 287 deg)
+    angles = np.sqrt(np.diag(second.pose_covariance)[3:])
+    assert np.all(angles > 1.0) and np.all(angles <= np.pi / np.sqrt(3.0) + 0.02)
 
 
 def test_time_jumping_back_resets_tracking_and_keeps_counters():

@@ -304,4 +304,6 @@ def read_image(path: str | Path) -> np.ndarray:
     try:
         return decode_compressed(data, path.suffix.lstrip('.') or 'png')
     except ImageError as err:
-        raise ImageError(f"cannot read '{path}' as an image ({err})") from err
+        # (the message's field name is a CompressedImage's, not the file's: a user test)
+        why = str(err).removeprefix('compressed_image.data: ')
+        raise ImageError(f"cannot read '{path}' as an image ({why})") from err

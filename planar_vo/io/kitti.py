@@ -194,8 +194,8 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
             raise InputError(f'times.txt: expected one time per image ({n}), got {len(parsed)}')
         times = tuple(parsed)
     elif need_times:
-        raise InputError(f"sequence: '{folder}' has no times.txt (give a frame rate instead: "
-                         f'rate_hz, --rate-hz)')
+        raise InputError(f"sequence: '{folder}' has no times.txt; give the frame rate instead "
+                         f'(import-kitti --rate-hz; import_kitti(rate_hz=...) in Python)')
 
     poses = None
     sought = [folder / 'poses.txt']
@@ -248,7 +248,9 @@ def kitti_ground_truth(poses_cam: np.ndarray, stamps_ns: np.ndarray, camera_heig
     twists = np.zeros((len(poses), 6))
     if len(poses) > 1:
         rel = invert(poses[:-1]) @ poses[1:]                    # T_prev_cur
-        dt = np.diff(np.asarray(stamps_ns, dtype=np.float64)) / 1e9
+        # From the integer differences: float64 nanoseconds near 1.7e18 hold 256 ns (a user
+        # test: frames 1 ns apart divided by zero).
+        dt = np.diff(np.asarray(stamps_ns, dtype=np.int64)).astype(np.float64) / 1e9
         # displacement in the current frame: R_cur^T (p_cur - p_prev) = R_rel^T t_rel
         v = np.einsum('nji,nj->ni', rel[:, :3, :3], rel[:, :3, 3]) / dt[:, None]
         w = _rotation_vector(rel[:, :3, :3]) / dt[:, None]   # same axis in both frames

@@ -1164,8 +1164,10 @@ class VisualOdometry:
                 self._focal_sums = _focal_sums(
                     self._focal_sums, C, so3_log(C.T @ self.camera_pose[:3, :3]), step,
                     self._in_use.fx, self.config.scale.source == 'ground')
-        grow = np.diag([(cfg.lost_turn_rate_std * dt) ** 2] * 3
-                       + [(cfg.lost_speed_std * dt) ** 2] * 3)
+        # An angle is at most as uncertain as a uniform one (std pi / sqrt(3)): a gap of 100 s
+        # gave the held pose 287 deg of roll and pitch std (a user test).
+        turn = min(cfg.lost_turn_rate_std * dt, _UNIFORM_ANGLE_STD)
+        grow = np.diag([turn ** 2] * 3 + [(cfg.lost_speed_std * dt) ** 2] * 3)
         Ad = adjoint(invert(T_bc))
         self._camera_cov = self._camera_cov + Ad @ grow @ Ad.T
 
@@ -1426,6 +1428,8 @@ _DIM_KEYFRAME = 0.5
 # ACs whose ray is within this sine (about 3 deg) of the epipole carry no depth for
 # `_heading_nominal`.
 _EPIPOLE_SIN = 0.05
+# The standard deviation of an angle uniform on the circle: no angle is less known.
+_UNIFORM_ANGLE_STD = math.pi / math.sqrt(3.0)
 # Steps of history before the excess variances are measured (`_yaw_excess`, `_heading_excess`).
 _EXCESS_MIN_STEPS = 10
 # The road normal before its first fit is the mount's tilt (configured or estimated), trusted to

@@ -142,18 +142,26 @@ def plot_thumbnails(records: Sequence[dict], path: Path, names: dict[str, str], 
         return None
     cols = min(6, len(records))
     nrows = math.ceil(len(records) / cols)
-    fig = _figure(2.2 * cols, 2.3 * nrows)
-    axes = fig.subplots(nrows, cols, squeeze=False).ravel()
-    for ax, record in zip(axes, records):
+    # At least 4.4 in wide, the title in two lines below three panels (a user test: one run's
+    # title was cut to '...d truth (grey), estimate si...').
+    fig = _figure(max(2.2 * cols, 4.4), 2.3 * nrows + 0.3)
+    axes = fig.subplots(nrows, cols, squeeze=False)
+    for k, (ax, record) in enumerate(zip(axes.ravel(), records)):
         ref, est = record['thumbnail']['ref_xy'], record['thumbnail']['est_xy']
         ax.plot([p[0] for p in ref], [p[1] for p in ref], '-', color='0.4', lw=1.5)
         ax.plot([p[0] for p in est], [p[1] for p in est], '-', color='tab:red', lw=0.9)
         ax.set_aspect('equal', adjustable='datalim')
         ax.set_title(_label(record['row'], names, configs), fontsize=7)
         ax.tick_params(labelsize=6)
-    for ax in axes[len(records):]:
+        if k % cols == 0:
+            ax.set_ylabel('y (m)', fontsize=6)
+        if k + cols >= len(records):
+            ax.set_xlabel('x (m)', fontsize=6)
+    for ax in axes.ravel()[len(records):]:
         ax.set_axis_off()
-    fig.suptitle('Trajectories: ground truth (grey), estimate sim(3)-aligned (red)')
+    sep = ', ' if cols >= 3 else ',\n'
+    fig.suptitle(f'Trajectories: ground truth (grey){sep}estimate sim(3)-aligned (red)',
+                 fontsize=10 if cols >= 3 else 9)
     return write_file(path, fig.savefig, role='plot')
 
 

@@ -7,6 +7,7 @@ Stamps are kept as integer nanoseconds so that a stamp written and read back is 
 from __future__ import annotations
 
 import logging
+import math
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
@@ -51,6 +52,9 @@ def _parse_stamp(text: str) -> int:
     return int((value * 1_000_000_000).to_integral_value())
 
 
+_TUM_FIELDS = ('tx', 'ty', 'tz', 'qx', 'qy', 'qz', 'qw')
+
+
 def read_tum(path: str | Path) -> Trajectory:
     """Read a TUM trajectory file (``#`` comments and blank lines are skipped).
 
@@ -74,11 +78,21 @@ def read_tum(path: str | Path) -> Trajectory:
                              f'got {len(tokens)}')
         try:
             stamp = _parse_stamp(tokens[0])
-            values = [float(v) for v in tokens[1:]]
         except (InvalidOperation, ValueError):
-            raise InputError(f'{where}: expected 8 numbers, got {line.strip()[:80]!r}') from None
-        if not all(np.isfinite(values)):
-            raise InputError(f'{where}: expected finite values, got {line.strip()[:80]!r}')
+            raise InputError(f'{where}: the timestamp: expected a number, got '
+                             f'{tokens[0][:40]!r}') from None
+        values = []
+        for name, token in zip(_TUM_FIELDS, tokens[1:]):
+            # The field by name, with its token (a user test: the line quoted up to 80
+            # characters hid a NaN in its last column).
+            try:
+                value = float(token)
+            except ValueError:
+                raise InputError(f'{where}: {name}: expected a number, got '
+                                 f'{token[:40]!r}') from None
+            if not math.isfinite(value):
+                raise InputError(f'{where}: {name}: expected a finite value, got {token!r}')
+            values.append(value)
         if not -_MAX_STAMP_NS <= stamp <= _MAX_STAMP_NS:
             raise InputError(f'{where}: expected a timestamp in seconds within +-9.2e9 s (ROS '
                              f'time, int64 nanoseconds), got {tokens[0]} (nanoseconds?)')
