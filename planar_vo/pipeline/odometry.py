@@ -216,7 +216,7 @@ class VisualOdometry:
         self._bias = np.zeros(3)
         self._tilt_gain = np.zeros((6, 3))       # `Keyframe.tilt_gain` of the current pose
         self._focal_sums = np.zeros((9, 3))      # `Keyframe.focal_sums` of the current pose
-        self._lost = 0
+        self._lost = self._miss_run = 0
         self._restart = ''          # why the next usable frame starts a new keyframe chain
         self._time_reset = False
         self._new_time_base = False
@@ -508,7 +508,7 @@ class VisualOdometry:
                                 self._tilt_gain, self._focal_sums).matched = False
         else:
             keyframe.age += 1
-        self._lost = 0
+        self._lost = self._miss_run = 0
         R_lc = self._estimator.R_lc
         alpha, beta = planar_motion_from_pose(R_lc @ est.R @ R_lc.T, R_lc @ est.t)
         if new_keyframe and self._focal is not None and self._camera is None:
@@ -1054,7 +1054,7 @@ class VisualOdometry:
         self._twist = np.zeros(6)
         self._twist_cov = np.diag([speed_var] * 3 + [1e-8] * 3)
         self._last_out = (stamp, self.camera_pose.copy())
-        self._lost = 0
+        self._lost = self._miss_run = 0
         return self._result(stamp, True, keyframe=False, scale_source='stationary',
                             num_correspondences=count, alpha=0.0, beta=float('nan'))
 
@@ -1073,7 +1073,9 @@ class VisualOdometry:
         if keyframe is not None:
             keyframe.age += 1
         self._state = TrackingState.LOST
-        if keyframe is not None and reason is DropReason.TOO_FEW_CORRESPONDENCES:
+        miss = reason is DropReason.TOO_FEW_CORRESPONDENCES
+        self._miss_run = self._miss_run + 1 if miss else 0
+        if keyframe is not None and miss:
             keyframe.misses += 1
         # A keyframe that two frames in a row found no correspondences with is the garbled
         # one, not they (noise is not blank; a dim frame, an exposure glitch, matched the
@@ -1090,7 +1092,7 @@ class VisualOdometry:
             self._keyframes.drop_current()
             if self._window is not None:
                 self._window.clear()        # it held the dropped keyframe (a review)
-            self._lost = 0
+            self._lost = self._miss_run = 0
             message += ('; the newest keyframe, far dimmer than the one before it, matched '
                         'nothing: tracking goes on against the one before it')
         elif unmatched and previous is None:
@@ -1098,6 +1100,14 @@ class VisualOdometry:
             self._restart = 'a first keyframe that no frame matched'
             message += ('; the new chain\'s first keyframe matched nothing: the next usable '
                         'frame starts a new keyframe chain')
+        elif self._miss_run >= _OUTGROWN_MISSES and not self._restart:
+            # Frames that move ever further from the keyframe find ever fewer correspondences
+            # with it (a user test: after two lost frames 15, 10, 4, 4, 2 of them, six frames
+            # without odometry): two misses in a row start a new chain at the next usable frame.
+            self._keyframes.clear()
+            self._restart = 'lost tracking'
+            message += ('; two frames in a row found too few correspondences with the keyframe: '
+                        'the next usable frame starts a new keyframe chain')
         elif self._lost >= self.config.odometry.max_lost_frames and not self._restart:
             self._keyframes.clear()
             self._restart = 'lost tracking'
@@ -1127,7 +1137,7 @@ class VisualOdometry:
                        else TrackingState.REINITIALISED)
         self._restart = ''
         self._time_reset = self._new_time_base = False
-        self._lost = 0
+        self._lost = self._miss_run = 0
         if self._last_out is None:
             self._last_out = (stamp, self.camera_pose.copy())
         # The frame is the chain's keyframe (a user test: the status said keyframe false
@@ -1422,6 +1432,9 @@ _UNKNOWN = 1e6
 # it, that drop it (`_lost_frame`): one may be a garbled frame itself, two in a row implicate the
 # keyframe.
 _UNMATCHED_MISSES = 2
+# Frames in a row with too few correspondences against any keyframe that start a new chain at
+# the next usable frame (`_lost_frame`): the frames have moved away from it, or it is garbled.
+_OUTGROWN_MISSES = 2
 # A keyframe whose contrast is below this share of the one before it is a dim one (see
 # `VisualOdometry._lost_frame`).
 _DIM_KEYFRAME = 0.5
