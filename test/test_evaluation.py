@@ -673,3 +673,83 @@ def test_se2_drift_ignores_height_roll_and_pitch():
 def test_tum_with_a_byte_order_mark_reads_like_without(tmp_path):
     (tmp_path / 't.tum').write_text('\ufeff' + GOOD + '\n2.0 1 2 3 0 0 0 1\n', encoding='utf-8')
     assert len(read_tum(tmp_path / 't.tum')) == 2
+
+
+def _camera_drive(rng, tmp_path, height=1.65):
+    """A drive's ground truth as import-kitti writes it (a level vehicle, stamps from the
+    default start plus times.txt) and the same drive as KITTI camera poses (T_w_cam)."""
+    from planar_vo.core.conventions import mount_transform
+    from planar_vo.core.trajectory import invert
+
+    gt = _drive(rng)
+    T_bc = mount_transform(height=height)
+    cam = invert(T_bc) @ gt.poses @ T_bc              # the camera's poses, world = camera 0
+    cam = invert(cam[0]) @ cam
+    gt = Trajectory(gt.stamps_ns, T_bc @ cam @ invert(T_bc))
+    times = (gt.stamps_ns - 1_700_000_000 * 10 ** 9) / 1e9
+    (tmp_path / 'times.txt').write_text(''.join(f'{t:.9f}\n' for t in times))
+    (tmp_path / 'other.txt').write_text(''.join(
+        ' '.join(f'{v:.12g}' for v in p[:3].ravel()) + '\n' for p in cam))
+    write_tum(tmp_path / 'gt.tum', gt)
+    write_tum(tmp_path / 'cam.tum', Trajectory(gt.stamps_ns, cam))
+    return gt, cam
+
+
+def _metric_line(text: str, start: str) -> str:
+    return next(line for line in text.splitlines() if line.startswith(start))
+
+
+def test_cli_eval_of_another_methods_kitti_or_camera_poses(tmp_path, rng, capsys, caplog):
+    """A user test: KITTI's own poses written as TUM (camera poses) scored t_rel 101 % against
+    the ground truth import-kitti writes, without a word. A KITTI pose file with --est-times,
+    or camera poses with --est-frame camera, now compare exactly; camera poses without the
+    option are warned about."""
+    _camera_drive(rng, tmp_path)
+    gt = str(tmp_path / 'gt.tum')
+    for est in (['other.txt', '--est-times', str(tmp_path / 'times.txt')],
+                ['cam.tum', '--est-frame', 'camera']):
+        assert main(['eval', str(tmp_path / est[0]), *est[1:], '--gt', gt,
+                     '--segments', '5']) == 0
+        out = capsys.readouterr().out
+        assert '| matched poses | 60 (unmatched: 0 estimated, 0 reference) |' in \
+            ' '.join(out.split()).replace('| |', '|')
+        for start, value in (('| ATE (m) rmse', '0.000000 / 0.000000 / 0.000000 / 0.000000'),
+                             ('| RPE/frame rot (deg)', '0.000000 / 0.000000'),
+                             ('| KITTI protocol on 10-50 m (short drive), SE(2)', '0.000 / 0.000'),
+                             ('| heading error (deg)', '0.0000 / 0.0000 / 0.0000')):
+            assert value in _metric_line(out, start), (start, out)
+    caplog.clear()
+    assert main(['eval', str(tmp_path / 'cam.tum'), '--gt', gt, '--segments', '5']) == 0
+    capsys.readouterr()
+    assert "moves along its poses' z axis, an optical camera's forward" in caplog.text
+    caplog.clear()
+    assert main(['eval', gt, '--gt', gt, '--segments', '5']) == 0     # base poses: no word
+    assert 'optical camera' not in caplog.text
+
+
+@pytest.mark.parametrize('extra, message', [
+    ([], "--est-times: '{est}' is a KITTI pose file, which has no stamps; give the sequence's "
+         'times.txt'),
+    (['--est-times', '{dir}/times.txt', '--est-frame', 'base'],
+     '--est-frame: a KITTI pose file holds camera poses (T_w_cam); give --est-frame camera or '
+     'leave it out'),
+    (['--est-times', '{dir}/short.txt'],
+     "--est-times: '{dir}/short.txt' holds 3 times for the 60 poses of other.txt; expected one "
+     'per pose'),
+    (['--est-times', '{dir}/times.txt', '--est-start', 'soon'],
+     "--est-start: expected seconds, got 'soon'"),
+])
+def test_cli_eval_kitti_pose_file_errors_are_one_line(tmp_path, rng, capsys, extra, message):
+    _camera_drive(rng, tmp_path)
+    (tmp_path / 'short.txt').write_text('0\n0.1\n0.2\n')
+    est = str(tmp_path / 'other.txt')
+    args = [a.format(dir=tmp_path) for a in extra]
+    assert main(['eval', est, *args, '--gt', str(tmp_path / 'gt.tum')]) == 1
+    assert capsys.readouterr().err == \
+        f'planar_vo eval: error: {message.format(est=est, dir=tmp_path)}\n'
+    # --est-times belongs to a KITTI pose file only.
+    assert main(['eval', str(tmp_path / 'cam.tum'), '--est-times', str(tmp_path / 'times.txt'),
+                 '--gt', str(tmp_path / 'gt.tum')]) == 1
+    assert capsys.readouterr().err == (
+        f"planar_vo eval: error: --est-times: only for a KITTI pose file EST (12 numbers per "
+        f"line); '{tmp_path / 'cam.tum'}' is not one\n")

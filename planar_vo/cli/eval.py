@@ -8,20 +8,30 @@ with --out-dir, metrics.json and PNG plots are written there. When EST is a bag 
 carries a pose covariance (Odometry), its consistency with the errors is printed too: each
 axis's |error| / std and the 2D position's Mahalanobis distance, against the reference anchored
 at the first pose.
+
+Another method's output: a TUM file of camera poses (x right, y down, z forward, the world its
+first camera's frame; most visual odometry and SLAM outputs) with --est-frame camera, or a
+KITTI pose file (12 numbers per line: the 3x4 T_w_cam of KITTI's poses.txt, no stamps) with
+--est-times (the sequence's times.txt): their poses become a level vehicle's, the camera
+--camera-height above it, and their stamps start at --est-start, as planar_vo import-kitti
+writes the ground truth, so they compare with it.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
+from planar_vo.io.camera_bag import DEFAULT_START
 from planar_vo.tools.evaluation.align import ALIGNMENTS
 
 EXAMPLES = """examples:
   planar_vo eval drive_vo                         estimate and ground truth from one bag
   planar_vo eval est.tum --gt gt.tum --align sim3 --out-dir eval_out
   planar_vo eval drive_vo --gt kitti06 --gt-topic /ground_truth/odom --segments 5 10 20
+  planar_vo eval orbslam_05.txt --est-times kitti/05/times.txt --gt k05_vo   another method
 """
 
 DEFAULT_EST_TOPIC = '/odom'
@@ -40,6 +50,21 @@ def register(subparsers) -> argparse.ArgumentParser:
                         help=f'estimate topic in a bag (default: {DEFAULT_EST_TOPIC})')
     parser.add_argument('--gt-topic', default=DEFAULT_GT_TOPIC, metavar='TOPIC',
                         help=f'ground-truth topic in a bag (default: {DEFAULT_GT_TOPIC})')
+    parser.add_argument('--est-frame', choices=('base', 'camera'), default=None,
+                        help="the frame EST's poses are of: 'base' (REP-103 x forward, z up: "
+                             "planar_vo's and a robot's odometry) or 'camera' (x right, y down, "
+                             'z forward, the world the first camera frame: most VO and SLAM '
+                             'outputs; re-expressed as a level vehicle\'s); default: base, '
+                             'camera for a KITTI pose file')
+    parser.add_argument('--est-times', metavar='FILE',
+                        help='times of a KITTI pose file EST (one per pose: the sequence\'s '
+                             'times.txt)')
+    parser.add_argument('--est-start', default=None, metavar='SEC',
+                        help='seconds added to --est-times (default: import-kitti\'s start, '
+                             f'{DEFAULT_START:g})')
+    parser.add_argument('--camera-height', type=float, default=1.65, metavar='M',
+                        help='camera height above the vehicle origin for --est-frame camera '
+                             '(default: 1.65, KITTI\'s; as given to import-kitti)')
     parser.add_argument('--align', choices=ALIGNMENTS, default='se3',
                         help='alignment of the estimate (default: se3)')
     parser.add_argument('--max-diff', type=float, default=0.02, metavar='SEC',
@@ -72,6 +97,75 @@ def _load(path: str, topic: str, name: str, topic_option: str, covariances: bool
     except PlanarVoError as err:
         relabel(err, dict.fromkeys(('trajectory', 'tum', 'bag'), name))
         raise
+
+
+def _load_estimate(args: argparse.Namespace):
+    """EST and its pose covariances (None without them): a bag topic or a TUM file, in the
+    vehicle's frame or the camera's (--est-frame), or a KITTI pose file with --est-times (a
+    user test: KITTI's own poses as a TUM file scored 101 % t_rel, without a word)."""
+    from planar_vo.errors import InputError
+    from planar_vo.tools.evaluation.files import (
+        camera_trajectory_to_vehicle,
+        is_bag_path,
+        is_kitti_pose_file,
+        read_kitti_trajectory,
+    )
+
+    kitti = is_kitti_pose_file(args.est)
+    given = {'--est-times': args.est_times, '--est-start': args.est_start}
+    if not kitti:
+        for option, value in given.items():
+            if value is not None:
+                raise InputError(f"{option}: only for a KITTI pose file EST (12 numbers per "
+                                 f"line); '{args.est}' is not one")
+    if not (math.isfinite(args.camera_height) and args.camera_height >= 0):
+        raise InputError(f'--camera-height: expected a non-negative height in metres, got '
+                         f'{args.camera_height}')
+    if kitti:
+        if args.est_frame == 'base':
+            raise InputError('--est-frame: a KITTI pose file holds camera poses (T_w_cam); '
+                             'give --est-frame camera or leave it out')
+        if args.est_times is None:
+            raise InputError(f"--est-times: '{args.est}' is a KITTI pose file, which has no "
+                             f"stamps; give the sequence's times.txt")
+        start = DEFAULT_START
+        if args.est_start is not None:
+            try:
+                start = Decimal(args.est_start)
+                if not start.is_finite():
+                    raise InvalidOperation
+            except InvalidOperation:
+                raise InputError(f'--est-start: expected seconds, got '
+                                 f'{args.est_start!r}') from None
+        return read_kitti_trajectory(args.est, args.est_times, start, args.camera_height), None
+    est, covariances = _load(args.est, args.est_topic, 'EST', '--est-topic', covariances=True)
+    if args.est_frame == 'camera':
+        if covariances is not None:
+            raise InputError(f"--est-frame camera: '{args.est}' carries a pose covariance in "
+                             f'its own frame; give camera poses as a TUM file')
+        est = camera_trajectory_to_vehicle(est, args.camera_height)
+    elif args.est_frame is None and not is_bag_path(args.est):
+        _warn_if_camera_frame(est, args.est)
+    return est, covariances
+
+
+def _warn_if_camera_frame(est, path: str) -> None:
+    """A TUM estimate that moves along its own z axis (an optical camera's forward) rather
+    than x (REP-103's) is most likely camera poses: said, with the option."""
+    import logging
+
+    import numpy as np
+
+    p = est.poses[:, :3, 3]
+    if len(p) < 2:
+        return
+    # Displacements in each pose's own frame, over the drive.
+    d = np.einsum('nji,nj->ni', est.poses[:-1, :3, :3], np.diff(p, axis=0))
+    along = np.abs(d).sum(axis=0)
+    if along.sum() > 0 and along[2] > 0.8 * along.sum():
+        logging.getLogger('planar_vo.eval').warning(
+            "EST '%s' moves along its poses' z axis, an optical camera's forward: if these are "
+            'camera poses (x right, y down, z forward), give --est-frame camera', path)
 
 
 def _is_camera_bag(path: str) -> bool:
@@ -125,8 +219,7 @@ def run(args: argparse.Namespace) -> int:
     # With the pose covariance the odometry published (Odometry, PoseWithCovarianceStamped):
     # its consistency with the errors is evaluated too.
     try:
-        est, covariances = _load(args.est, args.est_topic, 'EST', '--est-topic',
-                                 covariances=True)
+        est, covariances = _load_estimate(args)
     except PlanarVoError as err:
         if args.est_topic == DEFAULT_EST_TOPIC and _is_camera_bag(args.est):
             # A user test: the bag of images itself, given for EST, named only the topic.

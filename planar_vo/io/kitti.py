@@ -53,9 +53,12 @@ from planar_vo.ros.messages import seconds_to_ns
 __all__ = [
     'KittiImportSummary',
     'KittiSequence',
+    'camera_to_vehicle',
     'import_kitti',
     'kitti_ground_truth',
+    'read_kitti_poses',
     'read_kitti_sequence',
+    'read_kitti_times',
 ]
 
 log = logging.getLogger(__name__)
@@ -177,22 +180,9 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
     times = None
     times_path = folder / 'times.txt'
     if times_path.is_file():
-        parsed = []
-        for lineno, line in _lines(times_path):
-            try:
-                value = Decimal(line.strip())
-                if not value.is_finite():
-                    raise InvalidOperation
-            except InvalidOperation:
-                raise InputError(f'times.txt line {lineno}: expected seconds, got '
-                                 f'{line.strip()[:40]!r}') from None
-            if parsed and value <= parsed[-1]:
-                raise InputError(f'times.txt line {lineno}: expected increasing times, got '
-                                 f'{value} after {parsed[-1]}')
-            parsed.append(value)
-        if len(parsed) != n:
-            raise InputError(f'times.txt: expected one time per image ({n}), got {len(parsed)}')
-        times = tuple(parsed)
+        times = read_kitti_times(times_path)
+        if len(times) != n:
+            raise InputError(f'times.txt: expected one time per image ({n}), got {len(times)}')
     elif need_times:
         raise InputError(f"sequence: '{folder}' has no times.txt; give the frame rate instead "
                          f'(import-kitti --rate-hz; import_kitti(rate_hz=...) in Python)')
@@ -206,22 +196,67 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
         sought.append(where.parent.parent / 'poses' / f'{where.name}.txt')
     poses_path = next((path for path in sought if path.is_file()), None)
     if poses_path is not None:
-        name = poses_path.name
-        rows = [_numbers(poses_path, i, line, 12, 'a 3x4 pose') for i, line in _lines(poses_path)]
-        if len(rows) != n:
-            raise InputError(f'{name}: expected one pose per image ({n}), got {len(rows)}')
-        poses = np.tile(np.eye(4), (n, 1, 1))
-        poses[:, :3, :] = np.array(rows).reshape(n, 3, 4)
-        # The rotation blocks must be rotations (KITTI writes them to about 1e-6): a scaled,
-        # zero or mirrored block would silently become some other ground truth.
-        bad, error, det = rotation_defects(poses[:, :3, :3])
-        if bad.size:
-            line = [i for i, _ in _lines(poses_path)][bad[0]]
-            raise InputError(f'{name} line {line}: expected a rotation matrix in the first '
-                             f'3x3 block (orthonormal, determinant +1), got R^T R off the '
-                             f'identity by {error[bad[0]]:.3g} and determinant '
-                             f'{det[bad[0]]:.3g}')
+        poses = read_kitti_poses(poses_path)
+        if len(poses) != n:
+            raise InputError(f'{poses_path.name}: expected one pose per image ({n}), got '
+                             f'{len(poses)}')
     return KittiSequence(images, P0, times, poses, poses_path, tuple(sought))
+
+
+def read_kitti_times(path: str | Path) -> tuple[Decimal, ...]:
+    """The increasing times (seconds) of a KITTI ``times.txt``, one per line.
+
+    Raises:
+        InputError: a line that is not a finite number, or not after the one before.
+    """
+    path = Path(path)
+    parsed: list[Decimal] = []
+    for lineno, line in _lines(path):
+        try:
+            value = Decimal(line.strip())
+            if not value.is_finite():
+                raise InvalidOperation
+        except InvalidOperation:
+            raise InputError(f'{path.name} line {lineno}: expected seconds, got '
+                             f'{line.strip()[:40]!r}') from None
+        if parsed and value <= parsed[-1]:
+            raise InputError(f'{path.name} line {lineno}: expected increasing times, got '
+                             f'{value} after {parsed[-1]}')
+        parsed.append(value)
+    return tuple(parsed)
+
+
+def read_kitti_poses(path: str | Path) -> np.ndarray:
+    """``(N, 4, 4)`` poses ``T_w_cam`` of a KITTI pose file (``poses.txt``, or another
+    method's output in that format): a 3x4 matrix per line, row-major.
+
+    Raises:
+        InputError: a line without 12 numbers, or a first 3x3 block that is not a rotation.
+    """
+    path = Path(path)
+    name = path.name
+    lines = _lines(path)
+    rows = [_numbers(path, i, line, 12, 'a 3x4 pose') for i, line in lines]
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    if rows:
+        poses[:, :3, :] = np.array(rows).reshape(-1, 3, 4)
+    # The rotation blocks must be rotations (KITTI writes them to about 1e-6): a scaled,
+    # zero or mirrored block would silently become some other ground truth.
+    bad, error, det = rotation_defects(poses[:, :3, :3])
+    if bad.size:
+        raise InputError(f'{name} line {lines[bad[0]][0]}: expected a rotation matrix in the '
+                         f'first 3x3 block (orthonormal, determinant +1), got R^T R off the '
+                         f'identity by {error[bad[0]]:.3g} and determinant {det[bad[0]]:.3g}')
+    return poses
+
+
+def camera_to_vehicle(poses_cam: np.ndarray, camera_height: float) -> np.ndarray:
+    """REP-103 poses ``T_odom_base (N, 4, 4)`` of a level vehicle from an optical camera's
+    ``T_w_cam`` (x right, y down, z forward; the world the first camera's frame: KITTI's
+    poses, most visual odometry and SLAM outputs), the camera ``camera_height`` metres above
+    the ``base_link`` origin: how `import_kitti` writes the ground truth."""
+    T_bc = mount_transform(height=camera_height)
+    return T_bc @ poses_cam @ invert(T_bc)
 
 
 def _rotation_vector(R: np.ndarray) -> np.ndarray:
@@ -243,8 +278,7 @@ def kitti_ground_truth(poses_cam: np.ndarray, stamps_ns: np.ndarray, camera_heig
         stamps_ns: ``(N,)`` increasing integer ns.
         camera_height: metres of the camera above the ground (``base_link`` origin).
     """
-    T_bc = mount_transform(height=camera_height)
-    poses = T_bc @ poses_cam @ invert(T_bc)
+    poses = camera_to_vehicle(poses_cam, camera_height)
     twists = np.zeros((len(poses), 6))
     if len(poses) > 1:
         rel = invert(poses[:-1]) @ poses[1:]                    # T_prev_cur

@@ -205,6 +205,57 @@ def _read_pose_topic(path: str | Path, topic: str, role: str, *, covariances: bo
     return stamps_arr[order], np.array(poses)[order], cov
 
 
+def is_kitti_pose_file(path: str | Path) -> bool:
+    """``path`` is a text file whose first pose line holds 12 numbers (a KITTI pose file: a
+    3x4 matrix per line, no stamps), not 8 (TUM)."""
+    path = Path(path)
+    if not path.is_file() or is_bag_path(path):
+        return False
+    try:
+        with path.open(encoding='utf-8') as lines:
+            for line in lines:
+                tokens = line.split()
+                if tokens and not tokens[0].startswith('#'):
+                    return len(tokens) == 12
+    except (OSError, UnicodeDecodeError):
+        return False
+    return False
+
+
+def read_kitti_trajectory(path: str | Path, times: str | Path, start: float | str | Decimal,
+                          camera_height: float) -> Trajectory:
+    """Another method's KITTI-format poses (``T_w_cam`` of an optical camera, the world its
+    first frame) as the REP-103 poses of a level vehicle with the camera ``camera_height``
+    above its origin, stamped ``start`` plus the times of ``times`` (a KITTI ``times.txt``):
+    the frame and stamps `planar_vo.io.import_kitti` gives the ground truth, so the two
+    compare.
+
+    Raises:
+        InputError: malformed files, or not one time per pose.
+    """
+    from planar_vo.io.kitti import camera_to_vehicle, read_kitti_poses, read_kitti_times
+    from planar_vo.ros.messages import seconds_to_ns
+
+    poses = read_kitti_poses(path)
+    if not len(poses):
+        raise InputError(f"EST: '{path}' contains no poses")
+    offsets = read_kitti_times(times)
+    if len(offsets) != len(poses):
+        raise InputError(f"--est-times: '{times}' holds {len(offsets)} times for the "
+                         f'{len(poses)} poses of {Path(path).name}; expected one per pose')
+    start_ns = seconds_to_ns(start)
+    stamps = np.array([start_ns + seconds_to_ns(t) for t in offsets], dtype=np.int64)
+    return Trajectory(stamps, camera_to_vehicle(poses, camera_height))
+
+
+def camera_trajectory_to_vehicle(trajectory: Trajectory, camera_height: float) -> Trajectory:
+    """A trajectory of optical camera poses (x right, y down, z forward, the world the first
+    camera's frame) as a level vehicle's REP-103 poses (`planar_vo.io.kitti.camera_to_vehicle`)."""
+    from planar_vo.io.kitti import camera_to_vehicle
+
+    return Trajectory(trajectory.stamps_ns, camera_to_vehicle(trajectory.poses, camera_height))
+
+
 def load_trajectory(path: str | Path, topic: str | None = None, *, role: str = 'topic'
                     ) -> Trajectory:
     """A TUM file, or `topic` of a bag (see `is_bag_path`); `role` names the argument."""
