@@ -974,6 +974,30 @@ def test_a_frame_stamped_far_sooner_than_the_usual_interval_is_refused():
     assert clock.check(stamps[-1] + 0.001) is StampCheck.TOO_CLOSE
 
 
+def test_gap_counter_counts_lost_frames_not_glitches_or_a_new_rate():
+    from planar_vo.pipeline.clock import GapCounter
+
+    ms = 1_000_000
+    gaps = GapCounter(10.0, 1.0)
+    t0 = 1_700_000_000 * 10 ** 9
+    stamps = [t0 + 100 * ms * i for i in (0, 1, 2, 5, 6)]           # frames 3 and 4 lost
+    found = [gaps.note(t) for t in stamps]
+    assert found[:3] == [None] * 3 and found[4] is None
+    assert (found[3].missing, found[3].interval_ns, found[3].period_ns) == (2, 300 * ms, 100 * ms)
+    assert (gaps.gaps, gaps.missing) == (1, 2)
+    # A frame stamped far ahead in place of frame 7, then frame 8: no gap (it came).
+    assert gaps.note(t0 + 10**13) is None and gaps.note(t0 + 800 * ms) is None
+    # ... nor one stamped far behind.
+    assert gaps.note(t0 - 10**10) is None and gaps.note(t0 + 900 * ms) is None
+    assert (gaps.gaps, gaps.missing) == (1, 2)
+    # The camera halves its rate: three gaps of one length are the new rate, off the counts.
+    last = [gaps.note(t0 + 900 * ms + 200 * ms * k) for k in (1, 2, 3)]
+    assert [g.rate_change for g in last[:2]] == [None, None]
+    assert last[2].rate_change is not None and round(last[2].rate_change.after_hz, 3) == 5.0
+    assert (gaps.gaps, gaps.missing) == (1, 2)
+    assert gaps.note(t0 + 900 * ms + 200 * ms * 4) is None         # the new rate: no gap
+
+
 def test_frame_clock_needs_a_second_frame_to_jump_in_time():
     from planar_vo.pipeline.clock import FrameClock, StampCheck
 

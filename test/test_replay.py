@@ -388,6 +388,34 @@ def test_replay_tells_apart_frames_stamped_1_ns_apart(tmp_path, drive_bags):
         [t0 + i for i in range(6)]
 
 
+def test_replay_counts_the_frames_missing_from_the_stamps(tmp_path, caplog, drive_bags):
+    """Frames lost before the recording show as gaps in the stamps, counted as the node counts
+    them (a user test: the summary said nothing of them)."""
+    from planar_vo.config import PlanarVoConfig
+    from planar_vo.io import iter_camera_frames
+    from planar_vo.io.camera_bag import CameraBagWriter
+    from planar_vo.pipeline import VisualOdometry
+    from planar_vo.tools.replay import replay_bag
+
+    _, bags = drive_bags
+    with open_bag(bags['mcap']) as bag:
+        frames = list(iter_camera_frames(bag))[:14]
+    with CameraBagWriter(tmp_path / 'gaps') as writer:
+        for i, frame in enumerate(frames):
+            if i not in (4, 9, 10):
+                writer.write_frame(frame.stamp_ns, frame.image, frame.camera)
+    config = PlanarVoConfig.from_flat({'mount.height': 1.5})
+    with caplog.at_level('WARNING', logger='planar_vo.tools.replay'):
+        summary = replay_bag(tmp_path / 'gaps', tmp_path / 'vo', VisualOdometry(config),
+                             progress=False)
+    assert (summary.frames_in, summary.gaps, summary.missing_frames) == (11, 2, 3)
+    assert '  frames in          11 (3 frames missing in 2 gaps of the stamps)\n' in \
+        summary.format()
+    lines = [r.getMessage() for r in caplog.records if 'gap of' in r.getMessage()]
+    assert len(lines) == 1 and lines[0].startswith('frame 4 (') and \
+        'a gap of 200 ms in the image stamps (about 1 frame missing at 10.0 Hz' in lines[0]
+
+
 def test_replay_of_rectified_images_uses_the_projection(tmp_path, capsys, drive_bags):
     """camera.rectified: CameraInfo's P is the model (the drive's frames, rendered through K,
     written with a P of another focal length: only the switch makes the replay use it)."""

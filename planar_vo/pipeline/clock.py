@@ -26,8 +26,10 @@ from __future__ import annotations
 import collections
 import enum
 import statistics
+from dataclasses import dataclass
 
-__all__ = ['FrameClock', 'Stamp', 'StampCheck', 'format_stamp', 'seconds_between']
+__all__ = ['FrameClock', 'Gap', 'GapCounter', 'RateChange', 'Stamp', 'StampCheck',
+           'format_stamp', 'seconds_between']
 
 
 class Stamp(float):
@@ -156,3 +158,103 @@ class FrameClock:
     def _new_base(self, stamp: float) -> None:
         self.last, self._ahead, self._behind = stamp, None, None
         self._intervals.clear()
+
+
+@dataclass(frozen=True)
+class RateChange:
+    """The last `GapCounter.RATE_CHANGE_GAPS` gaps were the camera's new frame rate (taken off
+    the counts)."""
+
+    before_hz: float
+    after_hz: float
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Frames lost before a stamp: the interval (ns), about how many frames are missing, the
+    nominal period (ns) it was judged against, and the rate change it completed (if any: then
+    it and the gaps before it are off the counts)."""
+
+    interval_ns: int
+    missing: int
+    period_ns: float
+    rate_change: RateChange | None = None
+
+
+class GapCounter:
+    """Frames lost on the way: intervals far above the usual one, counted as ``gaps`` and
+    ``missing`` frames (the node and replay share it).
+
+    The stamps are judged by the pipeline's rules (`FrameClock`, the same limits): a duplicate,
+    a frame out of order or a single stamp far ahead or behind (a clock glitch) leave the time
+    base alone, and a confirmed jump back (a looped bag) or ahead starts a new one: none of
+    them is a gap of lost frames. A frame refused as far ahead or behind came in the interval
+    it falls in (its stamp is wrong, not the frame lost): it takes one of the interval's slots
+    off the missing count (a user test: a frame stamped 1000 s ahead in place of the next one
+    counted a frame missing besides its `time_jump_ahead`). An interval is judged from the
+    second one on (a user test: frames lost right after the start went uncounted) against the
+    median of the last `PERIOD_WINDOW` ones; `RATE_CHANGE_GAPS` gaps in a row of about one
+    length are the camera's new frame rate (a driver reconfigured, auto-exposure at dusk, a
+    throttled topic), not lost frames: the nominal period becomes theirs and they are taken
+    off the counts.
+    """
+
+    GAP_FACTOR = 1.8            # an interval this many times the nominal period is a gap
+    PERIOD_WINDOW = 20
+    RATE_CHANGE_GAPS = 3
+    RATE_CHANGE_SPREAD = 0.2    # ... gaps in a row within this share of their median
+
+    def __init__(self, max_gap: float, max_jump_back: float) -> None:
+        self._clock = FrameClock(max_gap, max_jump_back)
+        self._last_ns: int | None = None
+        self._intervals: collections.deque[int] = collections.deque(maxlen=self.PERIOD_WINDOW)
+        self._run: collections.deque[tuple[int, int]] = collections.deque(
+            maxlen=self.RATE_CHANGE_GAPS)
+        self._glitched = 0      # frames refused as far ahead or behind since the last one
+        self.gaps = 0
+        self.missing = 0
+
+    def note(self, stamp_ns: int) -> Gap | None:
+        """Judge one frame's stamp (integer ns): the gap before it, or None."""
+        check = self._clock.check(Stamp(stamp_ns))
+        if check in (StampCheck.JUMP_AHEAD, StampCheck.FAR_BEHIND):
+            self._glitched += 1
+            return None
+        if check in (StampCheck.DUPLICATE, StampCheck.TOO_CLOSE, StampCheck.OUT_OF_ORDER):
+            return None
+        last, self._last_ns = self._last_ns, stamp_ns
+        glitched, self._glitched = self._glitched, 0
+        if check in (StampCheck.JUMP_BACK, StampCheck.NEW_TIME_BASE) or last is None:
+            self._intervals.clear()
+            self._run.clear()
+            return None
+        dt = stamp_ns - last
+        if len(self._intervals) >= 2:
+            period = statistics.median(self._intervals)
+            if dt > self.GAP_FACTOR * period:
+                missing = max(1, round(dt / period) - 1) - glitched
+                if missing < 1:
+                    return None     # the refused frames filled it: no gap, no new period
+                self.gaps += 1
+                self.missing += missing
+                return Gap(dt, missing, period, self._rate_change(dt, missing, period))
+        self._run.clear()
+        self._intervals.append(dt)
+        return None
+
+    def _rate_change(self, dt: int, missing: int, period: float) -> RateChange | None:
+        run = self._run
+        run.append((dt, missing))
+        if len(run) < self.RATE_CHANGE_GAPS:
+            return None
+        lengths = [g for g, _ in run]
+        middle = statistics.median(lengths)
+        if max(lengths) - min(lengths) > self.RATE_CHANGE_SPREAD * middle:
+            run.popleft()
+            return None
+        self.gaps -= len(run)
+        self.missing -= sum(m for _, m in run)
+        self._intervals.clear()
+        self._intervals.extend(lengths)
+        run.clear()
+        return RateChange(1e9 / period, 1e9 / middle)

@@ -94,7 +94,7 @@ from planar_vo.config import PlanarVoConfig, describe, flatten, ranges
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import CameraModelError, ConfigError, ImageError, InputError, one_line
 from planar_vo.pipeline import DropReason, FrameResult, TrackingState, VisualOdometry
-from planar_vo.pipeline.clock import FrameClock, Stamp, StampCheck
+from planar_vo.pipeline.clock import GapCounter, Stamp
 from planar_vo.pipeline.threads import limit_blas_threads
 from planar_vo.ros.messages import (
     compressed_to_array,
@@ -145,11 +145,6 @@ _MESSAGE_TYPES = {
     'geometry_msgs/msg/Vector3': Vector3,
 }
 
-# A stamp interval this many times the nominal frame period is a gap (frames lost on the way).
-_GAP_FACTOR = 1.8
-_PERIOD_WINDOW = 20
-# Gaps in a row of lengths within this share of their median are a new frame rate.
-_RATE_CHANGE_GAPS, _RATE_CHANGE_SPREAD = 3, 0.2
 _INT64_MAX = 2 ** 63 - 1
 # Images that may wait for the first CameraInfo: the one it was published with may come after
 # the next images on a loaded machine (DDS does not order two topics); none waits longer than
@@ -261,11 +256,7 @@ class PlanarVoNode(Node):
         self.tracking = self._vo.tracking
         self._node_time = 0.0
         odometry = self.config.odometry
-        self._stamps = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
-        self._last_stamp_ns: int | None = None
-        self._intervals: deque[int] = deque(maxlen=_PERIOD_WINDOW)
-        self._gaps_in_a_row: deque[tuple[int, int]] = deque(maxlen=_RATE_CHANGE_GAPS)
-        self._glitched = 0      # frames refused as far ahead since the last accepted stamp
+        self._gaps = GapCounter(odometry.max_frame_gap, odometry.max_time_jump_back)
         self._path: deque[PoseStamped] = deque(maxlen=ros.path_max_length)
         self._path_tip: PoseStamped | None = None     # the latest pose, when not kept
         self._path_published = -math.inf
@@ -747,67 +738,22 @@ class PlanarVoNode(Node):
                            message=message, tracking=self._vo.tracking)
 
     def _note_gap(self, stamp_ns: int) -> None:
-        """Count frames lost before reaching the node (an interval far above the usual one).
-
-        The stamps are judged by the pipeline's rules (`FrameClock`, the same limits): a
-        duplicate, a frame out of order or a single stamp far ahead or behind (a clock glitch)
-        leave the time base alone, and a confirmed jump back (a looped bag) or ahead starts a
-        new one: none of them is a gap of lost frames. A frame refused as far ahead or behind
-        came in the interval it falls in (its stamp is wrong, not the frame lost): it takes one
-        of the interval's slots off the missing count (a user test: a frame stamped 1000 s ahead in
-        place of the next one counted a frame missing besides its `time_jump_ahead`)."""
-        check = self._stamps.check(Stamp(stamp_ns))
-        if check in (StampCheck.JUMP_AHEAD, StampCheck.FAR_BEHIND):
-            self._glitched += 1
+        """Count frames lost before reaching the node (`GapCounter`: an interval far above the
+        usual one; a clock glitch, a looped bag or a new frame rate are none)."""
+        gap = self._gaps.note(stamp_ns)
+        self._counters['gaps'], self._counters['missing_frames'] = (self._gaps.gaps,
+                                                                    self._gaps.missing)
+        if gap is None:
             return
-        if check in (StampCheck.DUPLICATE, StampCheck.TOO_CLOSE, StampCheck.OUT_OF_ORDER):
-            return
-        last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
-        glitched, self._glitched = self._glitched, 0
-        if check in (StampCheck.JUMP_BACK, StampCheck.NEW_TIME_BASE) or last is None:
-            self._intervals.clear()
-            self._gaps_in_a_row.clear()
-            return
-        dt = stamp_ns - last
-        # Judged from the second interval on (a user test: frames lost right after the start,
-        # the third interval, went uncounted while three were awaited).
-        if len(self._intervals) >= 2:
-            period = float(np.median(self._intervals))
-            if dt > _GAP_FACTOR * period:
-                missing = max(1, round(dt / period) - 1) - glitched
-                if missing < 1:
-                    return      # the refused frames filled it: no gap, no new period
-                self._counters['gaps'] += 1
-                self._counters['missing_frames'] += missing
-                self._warn('gap', f'gap of {dt / 1e6:.0f} ms in the image stamps before '
-                                  f'{_format_stamp(stamp_ns)} (about {missing} frame(s) missing at '
-                                  f'{1e9 / period:.1f} Hz); odometry bridges it')
-                self._rate_change(dt, missing, period)
-                return          # a gap does not update the nominal period
-        self._gaps_in_a_row.clear()
-        self._intervals.append(dt)
-
-    def _rate_change(self, dt: int, missing: int, period: float) -> None:
-        """`_RATE_CHANGE_GAPS` gaps in a row of about one length are the camera's new frame rate
-        (a driver reconfigured, auto-exposure at dusk, a throttled topic), not lost frames:
-        the nominal period becomes theirs and they are taken off the counts."""
-        run = self._gaps_in_a_row
-        run.append((dt, missing))
-        if len(run) < _RATE_CHANGE_GAPS:
-            return
-        lengths = np.array([g for g, _ in run], dtype=np.float64)
-        if np.ptp(lengths) > _RATE_CHANGE_SPREAD * float(np.median(lengths)):
-            run.popleft()
-            return
-        self._counters['gaps'] -= len(run)
-        self._counters['missing_frames'] -= sum(m for _, m in run)
-        self._intervals.clear()
-        self._intervals.extend(int(g) for g in lengths)
-        run.clear()
-        self.get_logger().info(
-            f'image rate changed from {1e9 / period:.1f} to {1e9 / float(np.median(lengths)):.1f}'
-            f' Hz: the last {_RATE_CHANGE_GAPS} intervals were the new rate, not lost frames '
-            f'(taken off the gap counts)')
+        self._warn('gap', f'gap of {gap.interval_ns / 1e6:.0f} ms in the image stamps before '
+                          f'{_format_stamp(stamp_ns)} (about {gap.missing} frame(s) missing at '
+                          f'{1e9 / gap.period_ns:.1f} Hz); odometry bridges it')
+        change = gap.rate_change
+        if change is not None:
+            self.get_logger().info(
+                f'image rate changed from {change.before_hz:.1f} to {change.after_hz:.1f} Hz: '
+                f'the last {GapCounter.RATE_CHANGE_GAPS} intervals were the new rate, not lost '
+                f'frames (taken off the gap counts)')
 
     def _note_tracking(self, stamp_ns: int, result: FrameResult) -> None:
         """One log line per change of the tracking state (warnings for lost and reinitialised);

@@ -46,6 +46,7 @@ from planar_vo.io.images import CameraFrame, CameraFrameDecoder, resolve_camera_
 from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
 from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
+from planar_vo.pipeline.clock import GapCounter
 from planar_vo.pipeline.types import DropReason, FrameResult
 from planar_vo.ros.messages import speed_from_message
 
@@ -113,6 +114,9 @@ class ReplaySummary:
         unreadable: messages per topic that the bag's index counts but reading skipped
             (damaged storage); the image topic's are also in ``frames_in`` and ``dropped``
             (``unreadable``).
+        gaps, missing_frames: intervals of the image stamps far above the usual one, and
+            about how many frames they lack (lost before the recording; `GapCounter`, as the
+            node counts them).
     """
 
     input: str
@@ -136,6 +140,8 @@ class ReplaySummary:
     road_top_ups: int | None = None
     why_none: str = ''
     unreadable: dict[str, int] = field(default_factory=dict)
+    gaps: int = 0
+    missing_frames: int = 0
 
     @property
     def motion_out(self) -> int:
@@ -169,7 +175,7 @@ class ReplaySummary:
             f'replay {self.input} -> {self.output}',
             f'  image topic        {self.image_topic} (camera info: {info}, speed: '
             f'{self.speed_topic or "none"})',
-            f'  frames in          {self.frames_in}',
+            f'  frames in          {self.frames_in}' + self._gaps_note(),
             f'  odometry out       {self.odometry_out}' + self._origins_note(),
             f'  dropped            {sum(self.dropped.values())} ({dropped})',
             f'  copied             {copied}',
@@ -188,6 +194,16 @@ class ReplaySummary:
         if self.tum:
             lines.append(f'  TUM trajectory     {self.tum}')
         return '\n'.join(lines)
+
+    def _gaps_note(self) -> str:
+        """Frames missing from the image stamps (lost before the recording), if any."""
+        if not self.gaps:
+            return ''
+        unreadable = self.unreadable.get(self.image_topic, 0)
+        also = (f'; the {plural(unreadable, "unreadable image")} leave gaps too'
+                if unreadable else '')
+        return (f' ({plural(self.missing_frames, "frame")} missing in '
+                f'{plural(self.gaps, "gap")} of the stamps{also})')
 
     def _unit_note(self) -> str:
         """Steps without a metric length, said in words (a user test: 'unit 50' alone read
@@ -359,6 +375,9 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         from planar_vo.pipeline import VisualOdometry
         takes_errors = isinstance(processor, VisualOdometry)
         decoder.prime()
+        odometry = config.odometry if isinstance(config, PlanarVoConfig) else None
+        gaps = GapCounter(odometry.max_frame_gap if odometry else 10.0,
+                          odometry.max_time_jump_back if odometry else 1.0)
         bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
                    disable=not progress, leave=False)
         try:
@@ -375,6 +394,13 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                         continue
                     summary.frames_in += 1
                     bar.update(1)
+                    gap = gaps.note(frame.stamp_ns)
+                    if gap is not None and gaps.gaps == 1:
+                        log.warning('frame %d (%d ns): a gap of %.0f ms in the image stamps '
+                                    '(about %s missing at %.1f Hz; further gaps are counted in '
+                                    'the summary)', frame.index, frame.stamp_ns,
+                                    gap.interval_ns / 1e6, plural(gap.missing, 'frame'),
+                                    1e9 / gap.period_ns)
                     image = frame.image
                     if image is None:
                         if not takes_errors:
@@ -415,6 +441,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         # Messages the index counts that reading skipped (a damaged MCAP chunk): counted, so
         # that every image in the bag has odometry or a reason.
         summary.unreadable = dict(bag.unread)
+        summary.gaps, summary.missing_frames = gaps.gaps, gaps.missing
         lost = bag.unread.get(image_topic, 0)
         if lost:
             summary.frames_in += lost
