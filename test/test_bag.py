@@ -566,3 +566,21 @@ def test_messages_the_index_counts_but_reading_skips_are_counted(tmp_path, rng, 
     load_trajectory(in_bag, other)
     assert (f"topic '{other}' in '{in_bag}': {bag.unread[other]} of its "
             f'{counts[other]} messages could not be read') in caplog.text
+
+
+def test_an_input_topic_named_like_the_output_is_said_not_copied(tmp_path, rng, caplog):
+    """A vehicle bag's wheel odometry on /odom (a user test: it vanished from the output
+    without a word): said, and odom_topic (replay --odom-topic) names the output otherwise."""
+    wheel = (lambda i, stamp: ('/odom', ODOM, stamp + 1, odometry_msg(stamp, 0.1 * i)))
+    in_bag, _ = _big_image_bag(tmp_path / 'in', 'mcap', rng, n=5, extra=(wheel,))
+    with caplog.at_level('WARNING', logger='planar_vo.tools.replay'):
+        summary = replay_bag(in_bag, tmp_path / 'out', ConstantVelocityDouble(), progress=False)
+    assert summary.not_copied == '/odom' and summary.copied == {}
+    assert ("  copied             none; not /odom (the output odometry's topic: --odom-topic "
+            'names another)\n') in summary.format()
+    assert "input topic /odom not copied: it is the output odometry's topic" in caplog.text
+    summary = replay_bag(in_bag, tmp_path / 'out2', ConstantVelocityDouble(), progress=False,
+                         odom_topic='/vo/odom')
+    assert summary.not_copied == '' and summary.copied == {'/odom': 5}
+    assert len(_read_odometry(tmp_path / 'out2', '/vo/odom')) == 5
+    assert len(_read_odometry(tmp_path / 'out2', '/odom')) == 5

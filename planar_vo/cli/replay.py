@@ -44,6 +44,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     parser.add_argument('--speed-topic', metavar='TOPIC',
                         help='TwistStamped or Odometry topic giving the speed for metric scale '
                              '(sets scale.source: speed; required with scale.source: speed)')
+    parser.add_argument('--odom-topic', default='/odom', metavar='TOPIC',
+                        help='the output odometry topic (default: /odom; an input topic of that '
+                             'name, wheel odometry say, is then not copied)')
     parser.add_argument('--tum', metavar='FILE', help='also write the odometry as a TUM file')
     parser.add_argument('--config', metavar='YAML', action=Once,
                         help='configuration file (default: built-in defaults, as in '
@@ -74,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
     summary = replay_bag(
         args.bag, args.out, VisualOdometry(config), image_topic=args.image_topic,
         camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
-        tum_path=args.tum, storage=args.storage, odom_frame=config.ros.odom_frame,
+        tum_path=args.tum, storage=args.storage, odom_topic=args.odom_topic,
+        odom_frame=config.ros.odom_frame,
         base_frame=config.ros.base_frame, progress=show_progress(args))
     print(summary.format())
     if summary.no_motion:

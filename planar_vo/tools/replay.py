@@ -114,6 +114,7 @@ class ReplaySummary:
         unreadable: messages per topic that the bag's index counts but reading skipped
             (damaged storage); the image topic's are also in ``frames_in`` and ``dropped``
             (``unreadable``).
+        not_copied: an input topic of the output odometry's name, not copied (empty if none).
         gaps, missing_frames: intervals of the image stamps far above the usual one, and
             about how many frames they lack (lost before the recording; `GapCounter`, as the
             node counts them).
@@ -142,6 +143,7 @@ class ReplaySummary:
     unreadable: dict[str, int] = field(default_factory=dict)
     gaps: int = 0
     missing_frames: int = 0
+    not_copied: str = ''
 
     @property
     def motion_out(self) -> int:
@@ -178,7 +180,9 @@ class ReplaySummary:
             f'  frames in          {self.frames_in}' + self._gaps_note(),
             f'  odometry out       {self.odometry_out}' + self._origins_note(),
             f'  dropped            {sum(self.dropped.values())} ({dropped})',
-            f'  copied             {copied}',
+            f'  copied             {copied}' + (
+                f'; not {self.not_copied} (the output odometry\'s topic: --odom-topic names '
+                f'another)' if self.not_copied else ''),
             *([f'  unreadable         {unreadable} (indexed in the bag, skipped by the reader: '
                f'damaged storage)'] if self.unreadable else []),
             f'  speed messages     {self.speed_messages}',
@@ -352,6 +356,11 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             info_topic = None
         if copy_topics is None:
             copy = [t for t in bag.topics_of_type(*COPY_TYPES) if t != odom_topic]
+            if odom_topic in bag.topics:
+                # Said (a user test: a bag's wheel odometry on /odom vanished without a word).
+                summary.not_copied = odom_topic
+                log.warning("input topic %s not copied: it is the output odometry's topic "
+                            '(--odom-topic names another)', odom_topic)
         else:
             copy = [bag.require_topic('copy_topics', t) for t in copy_topics]
         if odom_topic in copy:
