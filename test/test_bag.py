@@ -444,6 +444,10 @@ def test_replay_of_a_bag_corrupt_mid_way_keeps_what_was_written(tmp_path, rng, s
     _one_line_error(exc)
     kept = int(re.search(r'/odom: (\d+),', exc.value.__notes__[0]).group(1))
     assert kept == len(double.poses) + 1 >= 5                # the origin and the steps
+    # The counts of what was replayed travel with the error (the CLI prints them, the fleet's
+    # row keeps them).
+    partial = exc.value.replay_summary
+    assert (partial.frames_in, partial.odometry_out, partial.dropped) == (kept, kept, {})
     odom = _read_odometry(tmp_path / 'out')                  # the output is a complete bag
     assert len(odom) == kept
     assert [m.stamp_ns for m in odom] == [T0 + i * 100_000_000 for i in range(kept)]
@@ -584,3 +588,16 @@ def test_an_input_topic_named_like_the_output_is_said_not_copied(tmp_path, rng, 
     assert summary.not_copied == '' and summary.copied == {'/odom': 5}
     assert len(_read_odometry(tmp_path / 'out2', '/vo/odom')) == 5
     assert len(_read_odometry(tmp_path / 'out2', '/odom')) == 5
+
+
+def test_cli_replay_of_a_bag_corrupt_mid_way_prints_what_it_replayed(tmp_path, rng, capsys):
+    in_bag, images = _big_image_bag(tmp_path / 'in', 'mcap', rng)
+    corrupt_mid_way(in_bag, images[25][120].tobytes())
+    assert main(['replay', str(in_bag), '--out', str(tmp_path / 'out'), '--no-progress',
+                 '--set', 'camera.fx=300']) == 1
+    captured = capsys.readouterr()
+    assert captured.out.startswith(f'replay {in_bag} -> {tmp_path / "out"} (until the error '
+                                   f'below)\n')
+    frames = int(re.search(r'frames in +(\d+)', captured.out).group(1))
+    assert 5 <= frames < 40
+    assert 'corrupt or truncated, reading failed after' in captured.err

@@ -837,6 +837,20 @@ def test_a_failure_of_the_outputs_is_retried_by_the_rerun(drives, tmp_path, monk
                         lambda job, work, row: (_ for _ in ()).throw(InputError('bag: corrupt')))
     record = run_job(job, tmp_path)
     assert record['final'] and load_result(tmp_path, job)['row']['reason'] == 'bag: corrupt'
+    # A bag that fails mid-way: the row counts what replay did before (a user test: 0 frames
+    # and 0 odometry where 20 odometry messages were kept).
+    from planar_vo.tools.replay import ReplaySummary
+
+    def mid_way(job, work, row):
+        err = BagError('bag: corrupt or truncated, reading failed after 41 messages')
+        err.replay_summary = ReplaySummary('in', 'out', frames_in=20, odometry_out=19,
+                                           dropped={'unreliable': 1})
+        raise err
+
+    monkeypatch.setattr(fleet, '_replay_and_evaluate', mid_way)
+    row = run_job(job, tmp_path)['row']
+    assert (row['status'], row['frames_in'], row['odom_out'], row['drops']) == \
+        ('failed', 20, 19, {'unreliable': 1})
 
 
 def test_config_given_twice_and_manifest_comments(drives, tmp_path, capsys):

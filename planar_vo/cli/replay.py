@@ -63,6 +63,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from planar_vo.cli import show_progress
+    from planar_vo.errors import BagError
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.tools.replay import replay_bag
 
@@ -74,12 +75,19 @@ def run(args: argparse.Namespace) -> int:
             logging.getLogger('planar_vo').warning(
                 '--set %s: a setting of the ROS node; replay does not use it (of ros.* only %s)',
                 key, ' and '.join(REPLAY_ROS_KEYS))
-    summary = replay_bag(
-        args.bag, args.out, VisualOdometry(config), image_topic=args.image_topic,
-        camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
-        tum_path=args.tum, storage=args.storage, odom_topic=args.odom_topic,
-        odom_frame=config.ros.odom_frame,
-        base_frame=config.ros.base_frame, progress=show_progress(args))
+    try:
+        summary = replay_bag(
+            args.bag, args.out, VisualOdometry(config), image_topic=args.image_topic,
+            camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
+            tum_path=args.tum, storage=args.storage, odom_topic=args.odom_topic,
+            odom_frame=config.ros.odom_frame,
+            base_frame=config.ros.base_frame, progress=show_progress(args))
+    except BagError as err:
+        partial = getattr(err, 'replay_summary', None)
+        if partial is not None and partial.frames_in:
+            # The counts of the frames replayed before the bag failed (the error follows).
+            print(partial.format().replace('\n', ' (until the error below)\n', 1))
+        raise
     print(summary.format())
     if summary.no_motion:
         # The output bag is complete (the summary above says what it holds), but a script that

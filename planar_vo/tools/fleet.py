@@ -427,6 +427,12 @@ def run_job(job: FleetJob, out_dir: str | Path) -> dict:
             thumbnail = _replay_and_evaluate(job, work, row)
         except PlanarVoError as err:
             row.update(status='failed', reason=one_line(err))
+            partial = getattr(err, 'replay_summary', None)
+            if partial is not None:
+                # What replay did before the bag failed (a user test: 0 frames, 0 odometry
+                # where 20 odometry messages were kept).
+                row.update(frames_in=partial.frames_in, odom_out=partial.odometry_out,
+                           drops=dict(sorted(partial.dropped.items())))
             _kept_outputs(job, work, row)
             final = not _output_failure(err)
     wall = time.perf_counter() - start

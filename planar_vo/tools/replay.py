@@ -444,6 +444,11 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
             if tum_path is not None:
                 err.add_note(poses.save(tum_path))
+            # What was replayed before it stopped (a user test: a bag corrupt mid-way printed
+            # no counts, and the fleet's row said 0 frames where 20 had odometry).
+            summary.dropped = dict(dropped)
+            summary.odometry_out = writer.count
+            err.replay_summary = summary
             raise
         finally:
             bar.close()
