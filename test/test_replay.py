@@ -529,3 +529,28 @@ def test_demo_stopped_by_sigterm_lists_what_its_folder_holds(tmp_path):
     assert len(load_trajectory(out / 'drive', '/ground_truth/odom')) == 30     # complete
     assert len(read_tum(out / 'odometry.tum')) == int(match.group(1))
     assert partial_leftovers(tmp_path) == []
+
+
+def test_the_odometry_bag_and_the_evaluation_say_what_made_them(tmp_path, capsys, drive_bags,
+                                                                monkeypatch):
+    """A user test: an odometry bag evaluated later could not be traced to the camera height it
+    ran with, and metrics.json's paths were relative to wherever eval ran."""
+    import planar_vo
+    from planar_vo.tools.provenance import bag_custom_data, code_digest
+
+    _, bags = drive_bags
+    monkeypatch.chdir(tmp_path)
+    assert main(['replay', str(bags['mcap']), '--out', 'vo', '--no-progress',
+                 '--set', 'mount.height=1.5', '--set', 'voting.bins=360']) == 0
+    made = bag_custom_data(tmp_path / 'vo')
+    assert made == {'planar_vo.version': planar_vo.__version__,
+                    'planar_vo.source_digest': code_digest(),
+                    'planar_vo.settings': '{"voting.bins": 360}',   # 1.5 m is the default
+                    'planar_vo.input': str(bags['mcap'].resolve())}
+    assert main(['eval', 'vo', '--out-dir', 'report']) == 0
+    capsys.readouterr()
+    metrics = json.loads((tmp_path / 'report' / 'metrics.json').read_text())
+    assert metrics['estimate'] == metrics['reference'] == str(tmp_path / 'vo')
+    assert metrics['estimate_made_by'] == made
+    assert metrics['evaluated_by'] == {k: made[k] for k in ('planar_vo.version',
+                                                            'planar_vo.source_digest')}

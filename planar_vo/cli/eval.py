@@ -255,6 +255,12 @@ def run(args: argparse.Namespace) -> int:
     print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
     print(evaluation.format_table())
     if args.out_dir:
-        written = write_report(evaluation, args.out_dir, estimate=args.est, reference=gt_path)
+        from planar_vo.tools.provenance import evaluation_provenance
+
+        # Absolute paths (a user test: relative to wherever eval ran), the planar_vo that
+        # evaluated, and what produced the estimate when its bag says (replay records it).
+        written = write_report(evaluation, args.out_dir, estimate=Path(args.est).resolve(),
+                               reference=Path(gt_path).resolve(),
+                               **evaluation_provenance(args.est))
         print(f'wrote {written[0]}, ' + ', '.join(p.name for p in written[1:]))
     return 0

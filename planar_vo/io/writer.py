@@ -94,6 +94,8 @@ class BagWriter:
                            f"e.g. '{self.path.with_suffix('')}'")
         self.storage = storage
         self.counts: dict[str, int] = {}
+        # Written to metadata.yaml's custom_data when the bag is finished (`close`).
+        self.custom_data: dict[str, str] = {}
         self.kept = False
         self._writer: Writer | None = None
         self._tmp: Path | None = None
@@ -164,6 +166,8 @@ class BagWriter:
             try:
                 if self._failure:
                     raise BagError(self._failure)
+                for key, value in self.custom_data.items():
+                    writer.set_custom_data(key, value)
                 writer.close()
                 self._refuse_existing()
                 (self._tmp / self.path.name).rename(self.path)

@@ -75,6 +75,7 @@ from planar_vo.errors import (
 )
 from planar_vo.io.outputs import interrupt_signal
 from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
+from planar_vo.tools.provenance import code_digest, evaluation_provenance
 
 __all__ = [
     'FLEET_EXTRA',
@@ -244,16 +245,6 @@ class FleetJob:
 
 
 @functools.lru_cache(maxsize=1)
-def code_digest() -> str:
-    """Digest of planar_vo's own source files (as installed): results computed by other code
-    are stale (a user test: a rerun after an upgrade reported the old numbers)."""
-    root = Path(__file__).resolve().parents[1]
-    h = hashlib.sha1()
-    for path in sorted(root.rglob('*.py')):
-        h.update(str(path.relative_to(root)).encode() + b'\0' + path.read_bytes() + b'\0')
-    return h.hexdigest()
-
-
 def bag_identity(path: str | Path) -> str:
     """The bag a path names, for finding the same bag under two spellings: symbolic links
     resolved, and a bag folder's only storage file (``bag/bag.mcap`` beside ``metadata.yaml``)
@@ -382,7 +373,7 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
     ref = load_trajectory(odometry, GROUND_TRUTH_TOPIC, role='gt-topic')
     evaluation = evaluate(ref, est, align=ALIGN, covariances=covariances)
     write_report(evaluation, work / EVALUATION, plots=False, estimate=odometry,
-                 reference=odometry)
+                 reference=odometry, **evaluation_provenance(odometry))
     metrics = evaluation.metrics()
     row.update(ate_sim3_m=metrics['ate_m']['rmse'],
                yaw_err_mean_deg=metrics['yaw_change_error_deg']['mean'],

@@ -47,6 +47,7 @@ from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
 from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
 from planar_vo.pipeline.clock import GapCounter
+from planar_vo.tools.provenance import provenance
 from planar_vo.pipeline.types import DropReason, FrameResult
 from planar_vo.ros.messages import speed_from_message
 
@@ -342,6 +343,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                             str(tum_path))
     writer = OdometryBagWriter(out_path, storage=storage, topic=odom_topic,
                                odom_frame=odom_frame, base_frame=base_frame)
+    writer.custom_data = provenance(config if isinstance(config, PlanarVoConfig) else None,
+                                    input=str(Path(in_path).resolve()))
     with open_bag(in_path) as bag:
         image_topic, info_topic = resolve_camera_topics(bag, image_topic, camera_info_topic)
         if not bag.count(image_topic):
@@ -444,11 +447,13 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
             if tum_path is not None:
                 err.add_note(poses.save(tum_path))
-            # What was replayed before it stopped (a user test: a bag corrupt mid-way printed
-            # no counts, and the fleet's row said 0 frames where 20 had odometry).
-            summary.dropped = dict(dropped)
-            summary.odometry_out = writer.count
-            err.replay_summary = summary
+            if not str(err).startswith('out:'):
+                # What was replayed before the input stopped it (a user test: a bag corrupt
+                # mid-way printed no counts, and the fleet's row said 0 frames where 20 had
+                # odometry); not when the output failed (nothing may be kept then).
+                summary.dropped = dict(dropped)
+                summary.odometry_out = writer.count
+                err.replay_summary = summary
             raise
         finally:
             bar.close()

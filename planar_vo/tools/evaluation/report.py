@@ -29,8 +29,8 @@ def json_ready(value):
 
 def write_report(evaluation: Evaluation, out_dir: str | Path, *, plots: bool = True,
                  **extra) -> list[Path]:
-    """Write ``metrics.json`` (the metrics plus ``extra`` fields) and, with ``plots``, the plots
-    into ``out_dir``.
+    """Write ``metrics.json`` (the metrics plus ``extra`` fields: dicts as they are, other
+    values as text) and, with ``plots``, the plots into ``out_dir``.
 
     Each file is complete or absent (`planar_vo.io.outputs.write_file`). When one cannot be
     written (a full or read-only disk) or the run is interrupted, the exception carries a note
@@ -43,7 +43,8 @@ def write_report(evaluation: Evaluation, out_dir: str | Path, *, plots: bool = T
         OutputError: a file or the folder cannot be written.
     """
     out = Path(out_dir)
-    metrics = {**{k: str(v) for k, v in extra.items()}, **evaluation.metrics()}
+    metrics = {**{k: v if isinstance(v, dict) else str(v) for k, v in extra.items()},
+               **evaluation.metrics()}
     written: list[Path] = []
     try:
         written.append(write_file(out / 'metrics.json',
