@@ -600,4 +600,8 @@ def test_cli_replay_of_a_bag_corrupt_mid_way_prints_what_it_replayed(tmp_path, r
                                    f'below)\n')
     frames = int(re.search(r'frames in +(\d+)', captured.out).group(1))
     assert 5 <= frames < 40
+    # Every line of it describes the replay so far (a review: 'wall time 0.00 s', 'throughput
+    # nan' and 'camera unknown' beside the counts).
+    assert 'nan' not in captured.out and 'wall time          0.00 s' not in captured.out
+    assert 'camera             focal length 300.0 px (configured)' in captured.out
     assert 'corrupt or truncated, reading failed after' in captured.err

@@ -515,7 +515,7 @@ def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
     (tmp_path / 'bad.tum').write_text('1.0 0 0 0 0 0 0 1\n2.0 0 0\n')
     cases = [
         (['eval', str(tmp_path / 'est.tum')],
-         'error: --gt: expected GT when EST is a TUM file, got none'),
+         'error: --gt: expected GT when EST is a file (TUM or KITTI poses), got none'),
         (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'bad.tum')],
          "bad.tum line 2: expected 8 values 'timestamp tx ty tz qx qy qz qw', got 3"),
         (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'missing.tum')],
@@ -527,11 +527,11 @@ def test_cli_eval_errors_are_one_line(tmp_path, rng, capsys):
         (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'), '--segments',
           '5', '5'], 'error: --segments: expected different lengths, got [5.0, 5.0]'),
         (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'), '--est-topic',
-          '/foo'], f"error: --est-topic: '{tmp_path / 'est.tum'}' is a TUM file, which has no "
-                   f'topics; give --est-topic only for a bag'),
+          '/foo'], f"error: --est-topic: '{tmp_path / 'est.tum'}' is a file (TUM or KITTI "
+                   f'poses), which has no topics; give --est-topic only for a bag'),
         (['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum'), '--gt-topic',
-          '/foo'], f"error: --gt-topic: '{tmp_path / 'est.tum'}' is a TUM file, which has no "
-                   f'topics; give --gt-topic only for a bag'),
+          '/foo'], f"error: --gt-topic: '{tmp_path / 'est.tum'}' is a file (TUM or KITTI "
+                   f'poses), which has no topics; give --gt-topic only for a bag'),
     ]
     path, _, _ = _bag_with(tmp_path, rng, topics=('/odom',))
     cases.append((['eval', str(path)], "error: --gt-topic: '/ground_truth/odom' is not a topic of"))
@@ -738,6 +738,11 @@ def test_cli_eval_of_another_methods_kitti_or_camera_poses(tmp_path, rng, capsys
      'per pose'),
     (['--est-times', '{dir}/times.txt', '--est-start', 'soon'],
      "--est-start: expected seconds, got 'soon'"),
+    (['--est-times', '{dir}/missing.txt'],
+     "--est-times: '{dir}/missing.txt' does not exist or is not a file"),
+    (['--est-times', '{dir}/times.txt', '--est-start', '1e10'],
+     '--est-start: 10000000000 s plus --est-times gives 10000000000.123456789 to '
+     '10000000006.023456789 s, outside the range of a ROS time stamp (1970 to 2038)'),
 ])
 def test_cli_eval_kitti_pose_file_errors_are_one_line(tmp_path, rng, capsys, extra, message):
     _camera_drive(rng, tmp_path)
@@ -747,6 +752,12 @@ def test_cli_eval_kitti_pose_file_errors_are_one_line(tmp_path, rng, capsys, ext
     assert main(['eval', est, *args, '--gt', str(tmp_path / 'gt.tum')]) == 1
     assert capsys.readouterr().err == \
         f'planar_vo eval: error: {message.format(est=est, dir=tmp_path)}\n'
+    # A KITTI pose file given as ground truth says what it is.
+    assert main(['eval', str(tmp_path / 'cam.tum'), '--gt', est]) == 1
+    assert capsys.readouterr().err.endswith(
+        "expected 8 values 'timestamp tx ty tz qx qy qz qw', got 12; a KITTI pose file? As the "
+        'estimate it takes --est-times; as ground truth, import its sequence with planar_vo '
+        'import-kitti\n')
     # --est-times belongs to a KITTI pose file only.
     assert main(['eval', str(tmp_path / 'cam.tum'), '--est-times', str(tmp_path / 'times.txt'),
                  '--gt', str(tmp_path / 'gt.tum')]) == 1

@@ -92,11 +92,13 @@ def test_replay_refuses_to_overwrite_and_reports_bad_input(tmp_path, capsys, dri
     assert err.startswith('planar_vo replay: error:') and '\n' not in err
     # Not into the input bag's folder (eval and fleet refuse that too), however spelt.
     inner = bags['mcap'] / '..' / bags['mcap'].name / 'inner'
-    assert main(['replay', str(bags['mcap']), '--out', str(inner)]) == 1
-    assert capsys.readouterr().err == (f"planar_vo replay: error: --out: '{inner}' lies inside "
-                                       f"the input bag '{bags['mcap']}'; choose a folder "
-                                       f'outside it\n')
-    assert not inner.exists()
+    storage = next(bags['mcap'].glob('*.mcap'))             # the bag by its storage file
+    for given in (bags['mcap'], storage):
+        assert main(['replay', str(given), '--out', str(inner)]) == 1
+        assert capsys.readouterr().err == (f"planar_vo replay: error: --out: '{inner}' lies "
+                                           f"inside the input bag '{given}'; choose a folder "
+                                           f'outside it\n')
+        assert not inner.exists()
 
 
 @pytest.mark.parametrize(('options', 'message'), [
@@ -107,6 +109,9 @@ def test_replay_refuses_to_overwrite_and_reports_bad_input(tmp_path, capsys, dri
      "--speed-topic: '/camera/image_raw' in '{bag}' has type sensor_msgs/msg/Image, expected "
      'geometry_msgs/msg/TwistStamped or geometry_msgs/msg/TwistWithCovarianceStamped or '
      'nav_msgs/msg/Odometry'),
+    (['--odom-topic', 'odom'], "--odom-topic: expected an absolute topic name ('/odom'), got "
+                               "'odom'"),
+    (['--odom-topic', ''], "--odom-topic: expected an absolute topic name ('/odom'), got ''"),
 ])
 def test_replay_errors_name_the_options_as_typed(tmp_path, capsys, drive_bags, options, message):
     """--image-topic, not the library's image_topic (and so on): one line, exit code 1."""

@@ -200,8 +200,8 @@ def run(args: argparse.Namespace) -> int:
                                          ('--gt-topic', args.gt_topic, DEFAULT_GT_TOPIC,
                                           gt_file)):
         if value != default and Path(path).is_file() and not is_bag_path(path):
-            raise InputError(f"{option}: '{path}' is a TUM file, which has no topics; give "
-                             f'{option} only for a bag')
+            raise InputError(f"{option}: '{path}' is a file (TUM or KITTI poses), which has "
+                             f'no topics; give {option} only for a bag')
     if args.out_dir is not None and not args.out_dir.strip():
         raise InputError('--out-dir: an empty path; expected the folder for the report')
     out = Path(args.out_dir) if args.out_dir else None
@@ -229,7 +229,8 @@ def run(args: argparse.Namespace) -> int:
     gt_path = args.gt
     if gt_path is None:
         if not is_bag_path(args.est):
-            raise InputError('--gt: expected GT when EST is a TUM file, got none')
+            raise InputError('--gt: expected GT when EST is a file (TUM or KITTI poses), got '
+                             'none')
         gt_path = args.est
     try:
         ref = _load(gt_path, args.gt_topic, '--gt', '--gt-topic')

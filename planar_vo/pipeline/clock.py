@@ -90,8 +90,8 @@ class FrameClock:
 
     Args:
         max_gap: the longest plausible interval between consecutive frames (seconds).
-        max_jump_back: a step back longer than this (seconds) is a new time base, not a frame
-            out of order.
+        max_jump_back: a step back longer than this (seconds) is refused unless the next
+            frame confirms it (then a new time base); a shorter one is a frame out of order.
     """
 
     TOO_CLOSE_SHARE = 0.25
@@ -102,6 +102,9 @@ class FrameClock:
         self.max_gap = float(max_gap)
         self.max_jump_back = float(max_jump_back)
         self.last: float | None = None
+        # Seconds from the last accepted stamp to the first of the two that confirmed the last
+        # new time base (negative: back), for messages.
+        self.jump = 0.0
         self._ahead: float | None = None
         self._behind: float | None = None
         self._intervals: collections.deque[float] = collections.deque(maxlen=self.INTERVALS)
@@ -133,15 +136,19 @@ class FrameClock:
             if -step <= self.max_jump_back:
                 return StampCheck.OUT_OF_ORDER
             if self._follows(stamp, self._behind):
+                self.jump = seconds_between(self._behind, last)
                 self._new_base(stamp)
                 return StampCheck.JUMP_BACK
-            self._behind = stamp
+            # One pending stamp at a time (a review: a far-behind glitch, a far-ahead one and
+            # a frame after the first confirmed a jump back).
+            self._behind, self._ahead = stamp, None
             return StampCheck.FAR_BEHIND
         if step > self.max_gap:
             if self._follows(stamp, self._ahead):
+                self.jump = seconds_between(self._ahead, last)
                 self._new_base(stamp)
                 return StampCheck.NEW_TIME_BASE
-            self._ahead = stamp
+            self._ahead, self._behind = stamp, None
             return StampCheck.JUMP_AHEAD
         usual = self.usual_interval
         if usual is not None and step < min(self.TOO_CLOSE_SHARE * usual, self.TOO_CLOSE_S):

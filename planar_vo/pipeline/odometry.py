@@ -205,6 +205,9 @@ class VisualOdometry:
         self._camera_cov = np.zeros((6, 6))
         self.pose = self._T_base_camera @ invert(self._T_base_camera)
         self._last_out: tuple[float, np.ndarray] | None = None   # stamp, camera pose
+        # (the last output's stamp, the seconds since it that `_extrapolate` has grown the
+        # covariance by)
+        self._grown: tuple[float, float] | None = None
         self._twist = np.zeros(6)
         self._twist_cov = np.eye(6) * _UNKNOWN
         # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
@@ -401,13 +404,13 @@ class VisualOdometry:
                               f'unless the next frame confirms the new time')
         if check is StampCheck.JUMP_BACK:
             log.warning('time jumped back %.3f s (looped bag or restarted clock): tracking '
-                        'reset', last - stamp)
+                        'reset', -self._clock.jump)
             self.reset()
             self._clock.check(stamp)
             self._time_reset = True
         elif check is StampCheck.NEW_TIME_BASE:
             log.warning('time moved on by %.3f s: tracking restarts, the pose held (the '
-                        'motion across a new time base is unknown)', stamp - last)
+                        'motion across a new time base is unknown)', self._clock.jump)
             self._keyframes.clear()
             self._restart, self._new_time_base = 'the time base moved on', True
         camera = self._resolve_camera(camera, gray.shape)
@@ -452,6 +455,12 @@ class VisualOdometry:
         acs = self._extractor.extract(keyframe.image, gray)
         timings['correspondences'] = time.perf_counter() - t
         if len(acs) < self.config.odometry.min_correspondences:
+            if self._miss_run >= _OUTGROWN_MISSES and not self._restart:
+                # The keyframe's last chance (`_lost_frame`) failed too: the frames have moved
+                # away from it, and this one starts a new chain.
+                self._keyframes.clear()
+                self._restart = 'lost tracking'
+                return self._start_chain(gray, stamp)
             return self._lost_frame(stamp, DropReason.TOO_FEW_CORRESPONDENCES,
                                     f'{len(acs)} correspondences (minimum '
                                     f'{self.config.odometry.min_correspondences})', len(acs))
@@ -1065,7 +1074,9 @@ class VisualOdometry:
         failed frame itself never becomes the keyframe, since it may be the cause (a blank or
         garbled image would leave the next real frame without correspondences). A chain's first
         keyframe that the first two frames after it find too few correspondences with is
-        dropped then: it is the garbled one."""
+        dropped then: it is the garbled one. After two frames in a row with too few
+        correspondences against any other keyframe, the next usable frame that misses it too
+        starts a new chain itself (`process`)."""
         if self._keyframes.current is None and not self._restart:
             return self._drop(stamp, reason, message, count, inliers)
         self._lost += 1
@@ -1100,18 +1111,18 @@ class VisualOdometry:
             self._restart = 'a first keyframe that no frame matched'
             message += ('; the new chain\'s first keyframe matched nothing: the next usable '
                         'frame starts a new keyframe chain')
-        elif self._miss_run >= _OUTGROWN_MISSES and not self._restart:
-            # Frames that move ever further from the keyframe find ever fewer correspondences
-            # with it (a user test: after two lost frames 15, 10, 4, 4, 2 of them, six frames
-            # without odometry): two misses in a row start a new chain at the next usable frame.
-            self._keyframes.clear()
-            self._restart = 'lost tracking'
-            message += ('; two frames in a row found too few correspondences with the keyframe: '
-                        'the next usable frame starts a new keyframe chain')
         elif self._lost >= self.config.odometry.max_lost_frames and not self._restart:
             self._keyframes.clear()
             self._restart = 'lost tracking'
             message += '; tracking lost: the next usable frame starts a new keyframe chain'
+        elif self._miss_run >= _OUTGROWN_MISSES and not self._restart:
+            # Frames that move ever further from the keyframe find ever fewer correspondences
+            # with it (a user test: after two lost frames 15, 10, 4, 4, 2 of them, six frames
+            # without odometry). After two misses in a row the next usable frame gets one try
+            # at the keyframe (two garbled frames do not cost a good keyframe: a review) and
+            # starts a new chain if it misses too (`process`).
+            message += ('; two frames in a row found too few correspondences with the keyframe: '
+                        'the next usable frame starts a new keyframe chain unless it matches it')
         return self._drop(stamp, reason, message, count, inliers)
 
     def _start_chain(self, gray: np.ndarray, stamp: float) -> FrameResult:
@@ -1174,12 +1185,23 @@ class VisualOdometry:
                 self._focal_sums = _focal_sums(
                     self._focal_sums, C, so3_log(C.T @ self.camera_pose[:3, :3]), step,
                     self._in_use.fx, self.config.scale.source == 'ground')
-        # An angle is at most as uncertain as a uniform one (std pi / sqrt(3)): a gap of 100 s
-        # gave the held pose 287 deg of roll and pitch std (a user test).
-        turn = min(cfg.lost_turn_rate_std * dt, _UNIFORM_ANGLE_STD)
-        grow = np.diag([turn ** 2] * 3 + [(cfg.lost_speed_std * dt) ** 2] * 3)
+        # The variance grows with the square of the time since the last output; a second
+        # restart before the next output adds only what the first did not (a review: it added
+        # the whole time again).
+        before = self._grown[1] if self._grown and self._grown[0] == last_stamp else 0.0
+        self._grown = (last_stamp, dt)
+        share = max(dt * dt - before * before, 0.0)
+        grow = np.diag([cfg.lost_turn_rate_std ** 2 * share] * 3
+                       + [cfg.lost_speed_std ** 2 * share] * 3)
         Ad = adjoint(invert(T_bc))
-        self._camera_cov = self._camera_cov + Ad @ grow @ Ad.T
+        cov = self._camera_cov + Ad @ grow @ Ad.T
+        # No angle is less known than a uniform one (std pi / sqrt(3); a user test: a gap of
+        # 100 s gave the held pose 287 deg of roll and pitch std): the rotation block is scaled
+        # down axis by axis (rows and columns alike, so it stays a covariance).
+        std = np.sqrt(np.maximum(np.diag(cov)[:3], 1e-300))
+        scale = np.ones(6)
+        scale[:3] = np.minimum(1.0, _UNIFORM_ANGLE_STD / std)
+        self._camera_cov = cov * np.outer(scale, scale)
 
     def _update_twist(self, keyframe: Keyframe, stamp: float, step_cov: np.ndarray) -> None:
         """The body-frame velocity over the step since the keyframe, with its covariance: the

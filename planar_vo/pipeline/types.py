@@ -29,7 +29,8 @@ class DropReason(str, enum.Enum):
     #                                        time base or a camera model change
     TIME_JUMP_AHEAD = 'time_jump_ahead'    # stamped implausibly far ahead (a clock glitch)
     TIME_JUMP_BACK = 'time_jump_back'      # stamped far back (looped bag, clock restart): reset
-    NO_CAMERA_INFO = 'no_camera_info'      # no intrinsics yet (and no focal self-calibration)
+    NO_CAMERA_INFO = 'no_camera_info'      # no usable intrinsics yet (none, refused, or of
+    #                                        another image size), no focal self-calibration
     BAD_IMAGE = 'bad_image'                # undecodable, unsupported encoding, wrong size
     BLANK_IMAGE = 'blank_image'            # black, saturated or textureless
     SIZE_CHANGED = 'size_changed'          # image size differs from the camera model

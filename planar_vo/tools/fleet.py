@@ -45,7 +45,6 @@ the summary of the complete results.
 from __future__ import annotations
 
 import contextlib
-import functools
 import hashlib
 import itertools
 import json
@@ -244,7 +243,6 @@ class FleetJob:
         return f'{Path(self.bag).name}:{_slug(self.config.name)}'
 
 
-@functools.lru_cache(maxsize=1)
 def bag_identity(path: str | Path) -> str:
     """The bag a path names, for finding the same bag under two spellings: symbolic links
     resolved, and a bag folder's only storage file (``bag/bag.mcap`` beside ``metadata.yaml``)
@@ -372,8 +370,8 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
     est, covariances = read_bag_odometry(odometry, EST_TOPIC, role='est-topic')
     ref = load_trajectory(odometry, GROUND_TRUTH_TOPIC, role='gt-topic')
     evaluation = evaluate(ref, est, align=ALIGN, covariances=covariances)
-    write_report(evaluation, work / EVALUATION, plots=False, estimate=odometry,
-                 reference=odometry, **evaluation_provenance(odometry))
+    write_report(evaluation, work / EVALUATION, plots=False, estimate=odometry.resolve(),
+                 reference=odometry.resolve(), **evaluation_provenance(odometry))
     metrics = evaluation.metrics()
     row.update(ate_sim3_m=metrics['ate_m']['rmse'],
                yaw_err_mean_deg=metrics['yaw_change_error_deg']['mean'],
@@ -417,7 +415,9 @@ def run_job(job: FleetJob, out_dir: str | Path) -> dict:
         try:
             thumbnail = _replay_and_evaluate(job, work, row)
         except PlanarVoError as err:
-            row.update(status='failed', reason=one_line(err))
+            # After the damaged storage it found, if any (the failure may be its consequence).
+            found = row['reason']
+            row.update(status='failed', reason=one_line(err) + (f'; {found}' if found else ''))
             partial = getattr(err, 'replay_summary', None)
             if partial is not None:
                 # What replay did before the bag failed (a user test: 0 frames, 0 odometry

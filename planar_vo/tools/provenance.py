@@ -5,6 +5,7 @@ test: an odometry bag evaluated later could not be traced to the camera height i
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from pathlib import Path
@@ -12,6 +13,7 @@ from pathlib import Path
 __all__ = ['bag_custom_data', 'code_digest', 'evaluation_provenance', 'provenance']
 
 
+@functools.lru_cache(maxsize=1)
 def code_digest() -> str:
     """Digest of planar_vo's own source files (as installed): results computed by other code
     are stale (a user test: a fleet rerun after an upgrade reported the old numbers)."""

@@ -205,8 +205,8 @@ class ReplaySummary:
         if not self.gaps:
             return ''
         unreadable = self.unreadable.get(self.image_topic, 0)
-        also = (f'; the {plural(unreadable, "unreadable image")} leave gaps too'
-                if unreadable else '')
+        also = ('; the unreadable image leaves one too' if unreadable == 1 else
+                f'; the {unreadable} unreadable images leave gaps too' if unreadable else '')
         return (f' ({plural(self.missing_frames, "frame")} missing in '
                 f'{plural(self.gaps, "gap")} of the stamps{also})')
 
@@ -312,10 +312,16 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     from tqdm import tqdm
 
     start = time.perf_counter()
+    if not (isinstance(odom_topic, str) and odom_topic.startswith('/') and len(odom_topic) > 1
+            and not any(c.isspace() for c in odom_topic)):
+        raise BagError(f"odom_topic: expected an absolute topic name ('/odom'), got "
+                       f'{odom_topic!r}')
     if not str(out_path).strip():
         raise BagError('out: an empty path; expected the folder to write the bag to')
     out_path = Path(out_path)
     source = Path(os.path.realpath(Path(in_path).expanduser()))
+    if source.is_file() and (source.parent / 'metadata.yaml').is_file():
+        source = source.parent                  # a bag given by its storage file (a review)
     if source.is_dir() and source in Path(os.path.realpath(out_path.expanduser())).parents:
         # (a user test: the output went into the input bag's folder, which eval and fleet
         # refuse: a bag folder holds one bag)
@@ -390,6 +396,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         odometry = config.odometry if isinstance(config, PlanarVoConfig) else None
         gaps = GapCounter(odometry.max_frame_gap if odometry else 10.0,
                           odometry.max_time_jump_back if odometry else 1.0)
+        warned_gap = False
         bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
                    disable=not progress, leave=False)
         try:
@@ -407,7 +414,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                     summary.frames_in += 1
                     bar.update(1)
                     gap = gaps.note(frame.stamp_ns)
-                    if gap is not None and gaps.gaps == 1:
+                    if gap is not None and gap.rate_change is None and not warned_gap:
+                        warned_gap = True
                         log.warning('frame %d (%d ns): a gap of %.0f ms in the image stamps '
                                     '(about %s missing at %.1f Hz; further gaps are counted in '
                                     'the summary)', frame.index, frame.stamp_ns,
@@ -451,8 +459,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                 # What was replayed before the input stopped it (a user test: a bag corrupt
                 # mid-way printed no counts, and the fleet's row said 0 frames where 20 had
                 # odometry); not when the output failed (nothing may be kept then).
-                summary.dropped = dict(dropped)
-                summary.odometry_out = writer.count
+                summary.gaps, summary.missing_frames = gaps.gaps, gaps.missing
+                _fill(summary, processor, writer, copy, dropped, first, sources, decoder, start)
                 err.replay_summary = summary
             raise
         finally:
@@ -482,6 +490,15 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         # No motion: no file (the origin alone says nothing, and a file would block the next
         # run).
         summary.tum = None
+    _fill(summary, processor, writer, copy, dropped, first, sources, decoder, start)
+    return summary
+
+
+def _fill(summary: ReplaySummary, processor, writer, copy, dropped, first, sources, decoder,
+          start: float) -> None:
+    """The summary's counts and states from the replay's state (at its end, or where a bag
+    that failed mid-way stopped it)."""
+    summary.odometry_out = writer.count
     summary.dropped = dict(dropped)
     if not summary.motion_out:
         worst = max(dropped, key=dropped.__getitem__, default=None)
@@ -497,7 +514,6 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     top_ups = getattr(processor, 'road_top_ups', None)
     summary.road_top_ups = top_ups if isinstance(top_ups, int) else None
     summary.wall_time = time.perf_counter() - start
-    return summary
 
 
 class _Poses:

@@ -57,9 +57,11 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
             correlated (one surface, one segment). Default: cells of a
             ``config.covariance_grid`` grid over image 1, since neighbouring ACs share errors.
             Used only for the cluster-robust covariance.
-        covariance: False skips the covariance of the histogram method (``stats.covariance``
-            infinite, ``stats.residual_rms`` NaN) for a caller that uses only the motion, the
-            inliers and the noise scales; everything else is the same.
+        covariance: False skips the covariance of the histogram method's refinement
+            (``stats.covariance`` infinite, ``stats.residual_rms`` NaN; with
+            ``config.refine`` False the single selection still gives both) for a caller that
+            uses only the motion, the inliers and the noise scales; everything else is the
+            same.
 
     Returns:
         ``(motion, stats)``: a `PlanarMotion` and `VotingStats`. When ``stats.reliable`` is

@@ -74,8 +74,11 @@ def read_tum(path: str | Path) -> Trajectory:
             continue
         where = f'{path} line {lineno}'
         if len(tokens) != 8:
+            kitti = ('; a KITTI pose file? As the estimate it takes --est-times; as ground '
+                     'truth, import its sequence with planar_vo import-kitti'
+                     if len(tokens) == 12 else '')
             raise InputError(f"{where}: expected 8 values 'timestamp tx ty tz qx qy qz qw', "
-                             f'got {len(tokens)}')
+                             f'got {len(tokens)}{kitti}')
         try:
             stamp = _parse_stamp(tokens[0])
         except (InvalidOperation, ValueError):
@@ -233,19 +236,30 @@ def read_kitti_trajectory(path: str | Path, times: str | Path, start: float | st
     Raises:
         InputError: malformed files, or not one time per pose.
     """
-    from planar_vo.io.kitti import camera_to_vehicle, read_kitti_poses, read_kitti_times
+    from planar_vo.io.kitti import _seconds, camera_to_vehicle, read_kitti_poses, read_kitti_times
+    from planar_vo.io.writer import MAX_STAMP_NS
     from planar_vo.ros.messages import seconds_to_ns
 
     poses = read_kitti_poses(path)
     if not len(poses):
         raise InputError(f"EST: '{path}' contains no poses")
-    offsets = read_kitti_times(times)
+    if not Path(times).is_file():
+        raise InputError(f"--est-times: '{times}' does not exist or is not a file")
+    try:
+        offsets = read_kitti_times(times)
+    except InputError as err:
+        raise InputError(f'--est-times: {err}') from err
     if len(offsets) != len(poses):
         raise InputError(f"--est-times: '{times}' holds {len(offsets)} times for the "
                          f'{len(poses)} poses of {Path(path).name}; expected one per pose')
     start_ns = seconds_to_ns(start)
-    stamps = np.array([start_ns + seconds_to_ns(t) for t in offsets], dtype=np.int64)
-    return Trajectory(stamps, camera_to_vehicle(poses, camera_height))
+    stamps = [start_ns + seconds_to_ns(t) for t in offsets]
+    if min(stamps) < 0 or max(stamps) > MAX_STAMP_NS:
+        # (a review: a traceback from the int64 conversion; import-kitti refuses the same)
+        raise InputError(f'--est-start: {_seconds(start_ns)} s plus --est-times gives '
+                         f'{_seconds(min(stamps))} to {_seconds(max(stamps))} s, outside the '
+                         f'range of a ROS time stamp (1970 to 2038)')
+    return Trajectory(np.array(stamps, dtype=np.int64), camera_to_vehicle(poses, camera_height))
 
 
 def camera_trajectory_to_vehicle(trajectory: Trajectory, camera_height: float) -> Trajectory:
