@@ -1387,13 +1387,20 @@ def test_a_single_future_stamp_is_that_frames_problem_only():
     assert vo.tracking is TrackingState.TRACKING
 
 
-def test_a_confirmed_forward_gap_restarts_tracking():
+def _tracked_straight(frames: int = 4):
+    """The straight drive's first `frames` frames tracked: ``images, stamps, vo`` and the last
+    result."""
     trajectory, images, _ = _drive('straight')
     vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
     stamps = [float(s) for s in trajectory.stamps]
-    for i in range(4):
+    for i in range(frames):
         last = vo.process(images[i], stamps[i])
     assert last.ok
+    return images, stamps, vo, last
+
+
+def test_a_confirmed_forward_gap_restarts_tracking():
+    images, stamps, vo, last = _tracked_straight()
     later = 600.0                       # the driver restarted ten minutes later
     first = vo.process(images[4], stamps[4] + later)
     second = vo.process(images[5], stamps[5] + later)
@@ -1415,12 +1422,7 @@ def test_a_confirmed_forward_gap_restarts_tracking():
 def test_two_new_time_bases_without_an_output_grow_the_covariance_once():
     """A review: the second restart added the whole time since the last output again (x std
     224 m after 100 s and 200 s instead of 200 m) and the angles grew past the cap."""
-    trajectory, images, _ = _drive('straight')
-    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
-    stamps = [float(s) for s in trajectory.stamps]
-    for i in range(4):
-        last = vo.process(images[i], stamps[i])
-    assert last.ok
+    images, stamps, vo, last = _tracked_straight()
     results = [vo.process(images[4], stamps[4] + 100.0), vo.process(images[5], stamps[5] + 100.0),
                vo.process(images[6], stamps[6] + 200.0), vo.process(images[7], stamps[7] + 200.0)]
     assert [r.reason for r in results] == [DropReason.TIME_JUMP_AHEAD, DropReason.REINITIALISED,
