@@ -409,9 +409,9 @@ class OdometryConfig(Options):
         min_contrast: grey-level standard deviation below which a frame is blank.
         max_lost_frames: after this many frames in a row without an update, tracking is
             restarted at the next usable frame (the pose is extrapolated and its covariance
-            grows); after two frames in a row with too few correspondences with the keyframe
-            (they moved away from it, or it is garbled), the next usable frame that misses it
-            too starts the new chain itself.
+            grows); after two frames in a row with some but too few correspondences with the
+            keyframe (they moved away from it), the next frame that finds some but too few too
+            starts the new chain itself.
         max_frame_gap: the longest plausible interval between consecutive frames (s): a frame
             stamped further ahead is refused as a clock glitch unless the next frame confirms
             the new time, which then restarts tracking.

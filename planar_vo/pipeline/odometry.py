@@ -456,9 +456,10 @@ class VisualOdometry:
         acs = self._extractor.extract(keyframe.image, gray)
         timings['correspondences'] = time.perf_counter() - t
         if len(acs) < self.config.odometry.min_correspondences:
-            if self._miss_run >= _OUTGROWN_MISSES and not self._restart:
-                # The keyframe's last chance (`_lost_frame`) failed too: the frames have moved
-                # away from it, and this one starts a new chain.
+            if self._miss_run >= _OUTGROWN_MISSES and len(acs) and not self._restart:
+                # The keyframe's last chance (`_lost_frame`) failed too, and this frame, like
+                # the two before it, still sees some of the keyframe's scene: the frames have
+                # moved away from it, and this one starts a new chain.
                 self._keyframes.clear()
                 self._restart = 'lost tracking'
                 return self._start_chain(gray, stamp)
@@ -1082,9 +1083,9 @@ class VisualOdometry:
         failed frame itself never becomes the keyframe, since it may be the cause (a blank or
         garbled image would leave the next real frame without correspondences). A chain's first
         keyframe that the first two frames after it find too few correspondences with is
-        dropped then: it is the garbled one. After two frames in a row with too few
-        correspondences against any other keyframe, the next usable frame that misses it too
-        starts a new chain itself (`process`)."""
+        dropped then: it is the garbled one. After two frames in a row with some but too few
+        correspondences against any other keyframe (moving away from it), the next frame that
+        finds some but too few too starts a new chain itself (`process`)."""
         if self._keyframes.current is None and not self._restart:
             return self._drop(stamp, reason, message, count, inliers)
         self._lost += 1
@@ -1093,7 +1094,9 @@ class VisualOdometry:
             keyframe.age += 1
         self._state = TrackingState.LOST
         miss = reason is DropReason.TOO_FEW_CORRESPONDENCES
-        self._miss_run = self._miss_run + 1 if miss else 0
+        # Misses that still found some correspondences: the frame sees part of the keyframe's
+        # scene (moving away from it), where a garbled one finds none.
+        self._miss_run = self._miss_run + 1 if miss and count > 0 else 0
         if keyframe is not None and miss:
             keyframe.misses += 1
         # A keyframe that two frames in a row found no correspondences with is the garbled
@@ -1126,11 +1129,12 @@ class VisualOdometry:
         elif self._miss_run >= _OUTGROWN_MISSES and not self._restart:
             # Frames that move ever further from the keyframe find ever fewer correspondences
             # with it (a user test: after two lost frames 15, 10, 4, 4, 2 of them, six frames
-            # without odometry). After two misses in a row the next usable frame gets one try
-            # at the keyframe (two garbled frames do not cost a good keyframe: a review) and
-            # starts a new chain if it misses too (`process`).
+            # without odometry). After two such misses in a row the next frame gets one try at
+            # the keyframe (a frame that matches it keeps the chain: a review) and, if it too
+            # finds some but too few, starts a new chain itself (`process`). Garbled frames
+            # find none: they wait for odometry.max_lost_frames, and never become keyframes.
             message += ('; two frames in a row found too few correspondences with the keyframe: '
-                        'the next usable frame starts a new keyframe chain unless it matches it')
+                        'the next one starts a new keyframe chain unless it matches it')
         return self._drop(stamp, reason, message, count, inliers)
 
     def _start_chain(self, gray: np.ndarray, stamp: float) -> FrameResult:
