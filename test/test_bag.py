@@ -562,7 +562,8 @@ def test_messages_the_index_counts_but_reading_skips_are_counted(tmp_path, rng, 
     assert f'  dropped            {lost} (unreadable {lost})\n' in text
     other = next(t for t in bag.unread if t != '/cam/image_raw')
     assert (f'  unreadable         {" ".join(f"{t} {bag.unread[t]}," for t in sorted(bag.unread))}'
-            .rstrip(',') + ' (indexed in the bag, skipped by the reader: damaged storage)'
+            .rstrip(',') + " (counted by the bag's metadata, not read: damaged storage, or a "
+            'metadata.yaml that counts too many)'
             ) in text
     assert 'unreadable (damaged storage' in caplog.text and other in caplog.text
     caplog.clear()
@@ -605,3 +606,23 @@ def test_cli_replay_of_a_bag_corrupt_mid_way_prints_what_it_replayed(tmp_path, r
     assert 'nan' not in captured.out and 'wall time          0.00 s' not in captured.out
     assert 'camera             focal length 300.0 px (configured)' in captured.out
     assert 'corrupt or truncated, reading failed after' in captured.err
+
+
+def test_a_looped_bag_gives_a_tum_file_of_its_last_time_base(tmp_path, rng):
+    """A user test: replay --tum of a drive followed by itself (the same stamps again) failed
+    at the end on the repeated stamps, without a summary; a TUM file holds one time base."""
+    in_bag, _ = _big_image_bag(tmp_path / 'in', 'mcap', rng, n=5)
+    looped = tmp_path / 'looped'
+    with open_bag(in_bag) as bag:
+        messages = [(m.topic, m.log_time_ns, bag.deserialize(m)) for m in
+                    bag.messages(['/cam/image_raw'])]
+    write_bag(looped, 'mcap', [(t, IMAGE, log + k * 10**10, msg) for k in (0, 1)
+                               for t, log, msg in messages])
+    summary = replay_bag(looped, tmp_path / 'out', ConstantVelocityDouble(), progress=False,
+                         tum_path=tmp_path / 'vo.tum')
+    assert summary.odometry_out == 10
+    assert summary.format().splitlines()[-1] == (
+        f"  TUM trajectory     {tmp_path / 'vo.tum'} (the 5 poses after the stamps last jumped "
+        f'back; the bag holds all 10)')
+    assert read_tum(tmp_path / 'vo.tum').stamps_ns.tolist() == \
+        [T0 + i * 100_000_000 for i in range(5)]

@@ -706,10 +706,18 @@ def test_cli_eval_of_another_methods_kitti_or_camera_poses(tmp_path, rng, capsys
     option are warned about."""
     _camera_drive(rng, tmp_path)
     gt = str(tmp_path / 'gt.tum')
-    for est in (['other.txt', '--est-times', str(tmp_path / 'times.txt')],
-                ['cam.tum', '--est-frame', 'camera']):
+    lines = (tmp_path / 'other.txt').read_text().splitlines()
+    (tmp_path / 'commented.txt').write_text('# KITTI poses\n' + '\n'.join(lines) + '\n')
+    for k, est in enumerate((['other.txt', '--est-times', str(tmp_path / 'times.txt')],
+                             ['commented.txt', '--est-times', str(tmp_path / 'times.txt')],
+                             ['cam.tum', '--est-frame', 'camera'])):
+        out_dir = tmp_path / f'report{k}'
         assert main(['eval', str(tmp_path / est[0]), *est[1:], '--gt', gt,
-                     '--segments', '5']) == 0
+                     '--segments', '5', '--out-dir', str(out_dir)]) == 0
+        # How the files were read, to repeat it (a user test).
+        read_as = json.loads((out_dir / 'metrics.json').read_text())['read_as']
+        assert read_as['est_frame'] == 'camera' and read_as['camera_height_m'] == 1.65
+        assert read_as['est_times'] == (str(tmp_path / 'times.txt') if k < 2 else None)
         out = capsys.readouterr().out
         assert '| matched poses | 60 (unmatched: 0 estimated, 0 reference) |' in \
             ' '.join(out.split()).replace('| |', '|')
@@ -758,6 +766,11 @@ def test_cli_eval_kitti_pose_file_errors_are_one_line(tmp_path, rng, capsys, ext
         "expected 8 values 'timestamp tx ty tz qx qy qz qw', got 12; a KITTI pose file? As the "
         'estimate it takes --est-times; as ground truth, import its sequence with planar_vo '
         'import-kitti\n')
+    # --camera-height belongs to camera poses only (a user test: ignored without a word).
+    assert main(['eval', str(tmp_path / 'gt.tum'), '--gt', str(tmp_path / 'gt.tum'),
+                 '--camera-height', '1.5']) == 1
+    assert capsys.readouterr().err == ('planar_vo eval: error: --camera-height: only for camera '
+                                       'poses (--est-frame camera, or a KITTI pose file EST)\n')
     # --est-times belongs to a KITTI pose file only.
     assert main(['eval', str(tmp_path / 'cam.tum'), '--est-times', str(tmp_path / 'times.txt'),
                  '--gt', str(tmp_path / 'gt.tum')]) == 1

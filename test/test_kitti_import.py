@@ -180,6 +180,8 @@ def test_stamps_are_exact_decimal_times_and_rate_option(tmp_path, rng):
      r"the next there is '000003\.png'\)"),
     (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n1 2 3\n'),
      r"poses\.txt line 2: expected a 3x4 pose as 12 numbers, got '1 2 3'"),
+    (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n' + 'nan ' * 12 + '\n'),
+     r"poses\.txt line 2: expected a 3x4 pose as 12 finite numbers, got 'nan'"),
     (lambda d: (d / 'poses.txt').write_text('1 0 0 0 0 1 0 0 0 0 1 0\n'),
      r'poses\.txt: expected one pose per image \(4\), got 1'),
     # a scaled, a zero and a mirrored rotation block

@@ -112,6 +112,9 @@ def test_replay_refuses_to_overwrite_and_reports_bad_input(tmp_path, capsys, dri
     (['--odom-topic', 'odom'], "--odom-topic: expected an absolute topic name ('/odom'), got "
                                "'odom'"),
     (['--odom-topic', ''], "--odom-topic: expected an absolute topic name ('/odom'), got ''"),
+    (['--odom-topic', '/ground_truth/odom'],
+     "--odom-topic: '/ground_truth/odom' is the ground truth's topic; name the odometry "
+     'otherwise'),
 ])
 def test_replay_errors_name_the_options_as_typed(tmp_path, capsys, drive_bags, options, message):
     """--image-topic, not the library's image_topic (and so on): one line, exit code 1."""
@@ -551,7 +554,8 @@ def test_the_odometry_bag_and_the_evaluation_say_what_made_them(tmp_path, capsys
     assert made == {'planar_vo.version': planar_vo.__version__,
                     'planar_vo.source_digest': code_digest(),
                     'planar_vo.settings': '{"voting.bins": 360}',   # 1.5 m is the default
-                    'planar_vo.input': str(bags['mcap'].resolve())}
+                    'planar_vo.input': str(bags['mcap'].resolve()),
+                    'planar_vo.odom_topic': '/odom'}
     assert main(['eval', 'vo', '--out-dir', 'report']) == 0
     capsys.readouterr()
     metrics = json.loads((tmp_path / 'report' / 'metrics.json').read_text())
@@ -559,3 +563,9 @@ def test_the_odometry_bag_and_the_evaluation_say_what_made_them(tmp_path, capsys
     assert metrics['estimate_made_by'] == made
     assert metrics['evaluated_by'] == {k: made[k] for k in ('planar_vo.version',
                                                             'planar_vo.source_digest')}
+    # The odometry under another name is the one eval scores (a user test: it scored the copied
+    # /odom of the input, perfectly).
+    assert main(['replay', str(bags['mcap']), '--out', 'vo2', '--no-progress',
+                 '--odom-topic', '/vo/odom']) == 0
+    assert main(['eval', 'vo2']) == 0
+    assert 'estimate: vo2 (/vo/odom)\n' in capsys.readouterr().out

@@ -62,9 +62,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     parser.add_argument('--est-start', default=None, metavar='SEC',
                         help='seconds added to --est-times (default: import-kitti\'s start, '
                              f'{DEFAULT_START:g})')
-    parser.add_argument('--camera-height', type=float, default=1.65, metavar='M',
-                        help='camera height above the vehicle origin for --est-frame camera '
-                             '(default: 1.65, KITTI\'s; as given to import-kitti)')
+    parser.add_argument('--camera-height', type=float, default=None, metavar='M',
+                        help='camera height above the vehicle origin for camera poses (default: '
+                             '1.65, KITTI\'s; as given to import-kitti)')
     parser.add_argument('--align', choices=ALIGNMENTS, default='se3',
                         help='alignment of the estimate (default: se3)')
     parser.add_argument('--max-diff', type=float, default=0.02, metavar='SEC',
@@ -118,9 +118,16 @@ def _load_estimate(args: argparse.Namespace):
             if value is not None:
                 raise InputError(f"{option}: only for a KITTI pose file EST (12 numbers per "
                                  f"line); '{args.est}' is not one")
-    if not (math.isfinite(args.camera_height) and args.camera_height >= 0):
+    height = args.camera_height
+    if height is not None and not (kitti or args.est_frame == 'camera'):
+        # (a user test: it was ignored without a word)
+        raise InputError('--camera-height: only for camera poses (--est-frame camera, or a '
+                         'KITTI pose file EST)')
+    if height is None:
+        height = args.camera_height = 1.65
+    if not (math.isfinite(height) and height >= 0):
         raise InputError(f'--camera-height: expected a non-negative height in metres, got '
-                         f'{args.camera_height}')
+                         f'{height}')
     if kitti:
         if args.est_frame == 'base':
             raise InputError('--est-frame: a KITTI pose file holds camera poses (T_w_cam); '
@@ -216,6 +223,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out-dir: '{args.out_dir}' holds an earlier evaluation "
                          f'(metrics.json); refusing to overwrite it (give --force, or choose '
                          f'another folder)')
+    if args.est_topic == DEFAULT_EST_TOPIC and is_bag_path(args.est):
+        # The odometry's topic as replay recorded it (a user test: with --odom-topic
+        # /vo/odom, eval scored the copied wheel odometry on /odom, perfectly).
+        from planar_vo.tools.provenance import bag_custom_data
+
+        made = bag_custom_data(args.est).get('planar_vo.odom_topic')
+        if made and made != DEFAULT_EST_TOPIC:
+            args.est_topic = made
     # With the pose covariance the odometry published (Odometry, PoseWithCovarianceStamped):
     # its consistency with the errors is evaluated too.
     try:
@@ -260,8 +275,19 @@ def run(args: argparse.Namespace) -> int:
 
         # Absolute paths (a user test: relative to wherever eval ran), the planar_vo that
         # evaluated, and what produced the estimate when its bag says (replay records it).
+        # How the files were read (a user test: a KITTI pose file's times, the camera height
+        # and the topics were not recorded, so the evaluation could not be repeated).
+        options = {'est_topic': args.est_topic if is_bag_path(args.est) else None,
+                   'gt_topic': args.gt_topic if is_bag_path(gt_path) else None,
+                   'est_frame': args.est_frame or ('camera' if args.est_times else 'base'),
+                   'est_times': str(Path(args.est_times).resolve()) if args.est_times else None,
+                   'est_start': (str(args.est_start or DEFAULT_START) if args.est_times
+                                 else None),
+                   'camera_height_m': (args.camera_height if args.est_times
+                                       or args.est_frame == 'camera' else None),
+                   'max_diff_s': args.max_diff, 'segments_m': list(args.segments)}
         written = write_report(evaluation, args.out_dir, estimate=Path(args.est).resolve(),
-                               reference=Path(gt_path).resolve(),
+                               reference=Path(gt_path).resolve(), read_as=options,
                                **evaluation_provenance(args.est))
         print(f'wrote {written[0]}, ' + ', '.join(p.name for p in written[1:]))
     return 0

@@ -119,9 +119,14 @@ def _numbers(path: Path, lineno: int, line: str, count: int, what: str) -> np.nd
         values = np.array([float(t) for t in tokens], dtype=np.float64)
     except ValueError:
         values = np.array([])
-    if values.size != count or not np.all(np.isfinite(values)):
+    if values.size != count:
         raise InputError(f'{path.name} line {lineno}: expected {what} as {count} numbers, got '
                          f'{line.strip()[:80]!r}')
+    if not np.all(np.isfinite(values)):
+        # (a user test: twelve NaN were said not to be twelve numbers)
+        bad = tokens[int(np.flatnonzero(~np.isfinite(values))[0])]
+        raise InputError(f'{path.name} line {lineno}: expected {what} as {count} finite '
+                         f'numbers, got {bad!r}')
     return values
 
 
@@ -235,7 +240,8 @@ def read_kitti_poses(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     name = path.name
-    lines = _lines(path)
+    # (comment lines, as a TUM file may have them: a user test)
+    lines = [(i, line) for i, line in _lines(path) if not line.lstrip().startswith('#')]
     rows = [_numbers(path, i, line, 12, 'a 3x4 pose') for i, line in lines]
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     if rows:

@@ -396,13 +396,15 @@ class VisualOdometry:
         if check is StampCheck.FAR_BEHIND:
             return self._drop(stamp, DropReason.OUT_OF_ORDER,
                               f'timestamp {format_stamp(stamp)} is '
-                              f'{seconds_between(last, stamp):.3g} s before the previous frame '
+                              f'{_seconds(seconds_between(last, stamp))} s before the previous '
+                              f'frame '
                               f'(more than odometry.max_time_jump_back); refused unless the '
                               f'next frame confirms the older time (a looped bag, a restarted '
                               f'clock)')
         if check is StampCheck.JUMP_AHEAD:
             return self._drop(stamp, DropReason.TIME_JUMP_AHEAD,
-                              f'timestamp {format_stamp(stamp)} is {stamp - last:.3g} s after '
+                              f'timestamp {format_stamp(stamp)} is '
+                              f'{_seconds(seconds_between(stamp, last))} s after '
                               f'the previous frame (more than odometry.max_frame_gap); refused '
                               f'unless the next frame confirms the new time')
         if check is StampCheck.JUMP_BACK:
@@ -1485,6 +1487,13 @@ _DIM_KEYFRAME = 0.5
 # ACs whose ray is within this sine (about 3 deg) of the epipole carry no depth for
 # `_heading_nominal`.
 _EPIPOLE_SIN = 0.05
+
+
+def _seconds(value: float) -> str:
+    """A duration for messages: ``0.0213``, ``4.9``, ``997`` (not ``1e+03``: a user test)."""
+    return f'{value:.0f}' if abs(value) >= 100 else f'{value:.3g}'
+
+
 # The standard deviation of an angle uniform on the circle: no angle is less known.
 _UNIFORM_ANGLE_STD = math.pi / math.sqrt(3.0)
 # Steps of history before the excess variances are measured (`_yaw_excess`, `_heading_excess`).

@@ -42,6 +42,7 @@ from planar_vo.errors import (
     OutputError,
     plural,
 )
+from planar_vo.io.camera_bag import GROUND_TRUTH_TOPIC
 from planar_vo.io.images import CameraFrame, CameraFrameDecoder, resolve_camera_topics
 from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
@@ -116,6 +117,8 @@ class ReplaySummary:
             (damaged storage); the image topic's are also in ``frames_in`` and ``dropped``
             (``unreadable``).
         not_copied: an input topic of the output odometry's name, not copied (empty if none).
+        tum_note: what the TUM file leaves out (the poses before the stamps last jumped back: a
+            TUM file holds one time base), or empty.
         gaps, missing_frames: intervals of the image stamps far above the usual one, and
             about how many frames they lack (lost before the recording; `GapCounter`, as the
             node counts them).
@@ -145,6 +148,7 @@ class ReplaySummary:
     gaps: int = 0
     missing_frames: int = 0
     not_copied: str = ''
+    tum_note: str = ''
 
     @property
     def motion_out(self) -> int:
@@ -184,8 +188,9 @@ class ReplaySummary:
             f'  copied             {copied}' + (
                 f'; not {self.not_copied} (the output odometry\'s topic: --odom-topic names '
                 f'another)' if self.not_copied else ''),
-            *([f'  unreadable         {unreadable} (indexed in the bag, skipped by the reader: '
-               f'damaged storage)'] if self.unreadable else []),
+            *([f'  unreadable         {unreadable} (counted by the bag\'s metadata, not read: '
+               f'damaged storage, or a metadata.yaml that counts too many)']
+              if self.unreadable else []),
             f'  speed messages     {self.speed_messages}',
             f'  camera info errors {self.camera_info_errors}',
             f'  camera             {self.focal or "unknown"}',
@@ -197,7 +202,7 @@ class ReplaySummary:
             f'  throughput         {self.throughput:.1f} frames/s',
         ]
         if self.tum:
-            lines.append(f'  TUM trajectory     {self.tum}')
+            lines.append(f'  TUM trajectory     {self.tum}{self.tum_note}')
         return '\n'.join(lines)
 
     def _gaps_note(self) -> str:
@@ -316,6 +321,10 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             and not any(c.isspace() for c in odom_topic)):
         raise BagError(f"odom_topic: expected an absolute topic name ('/odom'), got "
                        f'{odom_topic!r}')
+    if odom_topic == GROUND_TRUTH_TOPIC:
+        # (a user test: the odometry then passed for the ground truth in eval)
+        raise BagError(f"odom_topic: '{odom_topic}' is the ground truth's topic; name the "
+                       f'odometry otherwise')
     if not str(out_path).strip():
         raise BagError('out: an empty path; expected the folder to write the bag to')
     out_path = Path(out_path)
@@ -350,7 +359,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     writer = OdometryBagWriter(out_path, storage=storage, topic=odom_topic,
                                odom_frame=odom_frame, base_frame=base_frame)
     writer.custom_data = provenance(config if isinstance(config, PlanarVoConfig) else None,
-                                    input=str(Path(in_path).resolve()))
+                                    input=str(Path(in_path).resolve()), odom_topic=odom_topic)
     with open_bag(in_path) as bag:
         image_topic, info_topic = resolve_camera_topics(bag, image_topic, camera_info_topic)
         if not bag.count(image_topic):
@@ -486,6 +495,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         except OutputError as err:
             err.add_note(writer.outcome)
             raise
+        summary.tum_note = poses.note
     elif tum_path is not None:
         # No motion: no file (the origin alone says nothing, and a file would block the next
         # run).
@@ -523,11 +533,23 @@ class _Poses:
         self.stamps_ns: list[int] = []
         self.poses: list[np.ndarray] = []
         self.moved = False              # a pose beyond the origin's (an estimated motion)
+        # Poses before the stamps last jumped back (a looped bag): a TUM file holds one time
+        # base, the latest (a user test: the whole write failed on the repeated stamps).
+        self.earlier = 0
 
     def add(self, stamp_ns: int, pose: np.ndarray, motion: bool) -> None:
+        if self.stamps_ns and stamp_ns <= self.stamps_ns[-1]:
+            self.earlier += len(self.stamps_ns)
+            self.stamps_ns, self.poses = [], []
         self.stamps_ns.append(stamp_ns)
         self.poses.append(np.asarray(pose, dtype=np.float64))
         self.moved = self.moved or motion
+
+    @property
+    def note(self) -> str:
+        """What the TUM file leaves out, if anything (empty otherwise)."""
+        return (f' (the {len(self.poses)} poses after the stamps last jumped back; the bag '
+                f'holds all {len(self.poses) + self.earlier})' if self.earlier else '')
 
     def write(self, path: str | Path) -> None:
         """Write them as a TUM file (complete or absent; `OutputError` if it cannot be)."""
