@@ -271,21 +271,22 @@ def run(args: argparse.Namespace) -> int:
     print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
     print(evaluation.format_table())
     if args.out_dir:
+        from planar_vo.tools.evaluation.report import read_as
         from planar_vo.tools.provenance import evaluation_provenance
 
         # Absolute paths (a user test: relative to wherever eval ran), the planar_vo that
         # evaluated, and what produced the estimate when its bag says (replay records it).
         # How the files were read (a user test: a KITTI pose file's times, the camera height
         # and the topics were not recorded, so the evaluation could not be repeated).
-        options = {'est_topic': args.est_topic if is_bag_path(args.est) else None,
-                   'gt_topic': args.gt_topic if is_bag_path(gt_path) else None,
-                   'est_frame': args.est_frame or ('camera' if args.est_times else 'base'),
-                   'est_times': str(Path(args.est_times).resolve()) if args.est_times else None,
-                   'est_start': (str(args.est_start or DEFAULT_START) if args.est_times
-                                 else None),
-                   'camera_height_m': (args.camera_height if args.est_times
-                                       or args.est_frame == 'camera' else None),
-                   'max_diff_s': args.max_diff, 'segments_m': list(args.segments)}
+        options = read_as(
+            est_topic=args.est_topic if is_bag_path(args.est) else None,
+            gt_topic=args.gt_topic if is_bag_path(gt_path) else None,
+            est_frame=args.est_frame or ('camera' if args.est_times else 'base'),
+            est_times=args.est_times,
+            est_start=(args.est_start or DEFAULT_START) if args.est_times else None,
+            camera_height=(args.camera_height if args.est_times or args.est_frame == 'camera'
+                           else None),
+            max_diff=args.max_diff, segments=args.segments)
         written = write_report(evaluation, args.out_dir, estimate=Path(args.est).resolve(),
                                reference=Path(gt_path).resolve(), read_as=options,
                                **evaluation_provenance(args.est))

@@ -344,6 +344,7 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.tools.evaluation import (evaluate, load_trajectory, read_bag_odometry,
                                             write_report)
+    from planar_vo.tools.evaluation.report import read_as
     from planar_vo.tools.replay import replay_bag
 
     config = job.config.build()
@@ -371,7 +372,9 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
     ref = load_trajectory(odometry, GROUND_TRUTH_TOPIC, role='gt-topic')
     evaluation = evaluate(ref, est, align=ALIGN, covariances=covariances)
     write_report(evaluation, work / EVALUATION, plots=False, estimate=odometry.resolve(),
-                 reference=odometry.resolve(), **evaluation_provenance(odometry))
+                 reference=odometry.resolve(),
+                 read_as=read_as(est_topic=EST_TOPIC, gt_topic=GROUND_TRUTH_TOPIC),
+                 **evaluation_provenance(odometry))
     metrics = evaluation.metrics()
     row.update(ate_sim3_m=metrics['ate_m']['rmse'],
                yaw_err_mean_deg=metrics['yaw_change_error_deg']['mean'],

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from planar_vo.errors import PlanarVoError
 from planar_vo.io.outputs import write_file
-from planar_vo.tools.evaluation.metrics import Evaluation
+from planar_vo.tools.evaluation.metrics import DEFAULT_SEGMENTS, Evaluation
 from planar_vo.tools.evaluation.plots import PLOTS
 
 __all__ = ['json_ready', 'write_report']
@@ -25,6 +25,21 @@ def json_ready(value):
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
+
+
+def read_as(*, est_topic: str | None = None, gt_topic: str | None = None,
+            est_frame: str = 'base', est_times: str | Path | None = None,
+            est_start: object = None, camera_height: float | None = None,
+            max_diff: float = 0.02, segments: tuple[float, ...] | list[float] = DEFAULT_SEGMENTS
+            ) -> dict:
+    """``metrics.json``'s record of how the estimate and reference were read (the topics of
+    bags, the estimate's frame, a KITTI pose file's times and start, the camera height of camera
+    poses, the association's and segments' parameters): enough to repeat the evaluation."""
+    return {'est_topic': est_topic, 'gt_topic': gt_topic, 'est_frame': est_frame,
+            'est_times': None if est_times is None else str(Path(est_times).resolve()),
+            'est_start': None if est_start is None else str(est_start),
+            'camera_height_m': camera_height, 'max_diff_s': max_diff,
+            'segments_m': [float(x) for x in segments]}
 
 
 def write_report(evaluation: Evaluation, out_dir: str | Path, *, plots: bool = True,
