@@ -1436,6 +1436,24 @@ def test_a_confirmed_forward_gap_restarts_tracking():
     assert np.all(angles > 1.0) and np.all(angles <= np.pi / np.sqrt(3.0) + 1e-9)
 
 
+def test_a_first_frame_stamped_far_early_leaves_the_drive_its_own_origin():
+    """A user test: one frame stamped 1000 s early (header and log time) came first and became
+    the origin; the drive's frames were then a jump ahead and a new time base with the pose
+    held and a std of 1000 m. Before any motion, a new time base starts the odometry afresh."""
+    trajectory, images, _ = _drive('straight')
+    stamps = [float(s) + 2000.0 for s in trajectory.stamps]
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    glitch = vo.process(images[0], stamps[0] - 1000.0)
+    assert glitch.reason is DropReason.FIRST_FRAME
+    results = [vo.process(images[i], stamps[i]) for i in range(0, 6)]
+    assert [r.reason for r in results[:2]] == [DropReason.TIME_JUMP_AHEAD, DropReason.FIRST_FRAME]
+    assert all(r.ok for r in results[2:])
+    np.testing.assert_allclose(results[1].pose, np.eye(4))
+    assert np.sqrt(results[-1].pose_covariance[0, 0]) < 1.0
+    truth = np.linalg.norm(trajectory.xy[5] - trajectory.xy[1])
+    assert abs(np.linalg.norm(results[-1].pose[:2, 3]) - truth) < 0.05 * truth
+
+
 def test_two_new_time_bases_without_an_output_grow_the_covariance_once():
     """A review: the second restart added the whole time since the last output again (x std
     224 m after 100 s and 200 s instead of 200 m) and the angles grew past the cap."""

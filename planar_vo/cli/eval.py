@@ -70,7 +70,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     parser.add_argument('--max-diff', type=float, default=0.02, metavar='SEC',
                         help='maximum stamp difference for association (default: 0.02)')
     parser.add_argument('--segments', type=float, nargs='+', default=[5.0, 10.0, 20.0],
-                        metavar='M', help='RPE segment lengths in metres (default: 5 10 20)')
+                        metavar='M', help='RPE segment lengths in metres (default: 5 10 20); a '
+                                          'segment spans at least its length, and its errors are '
+                                          "divided by the length, as KITTI's devkit does")
     parser.add_argument('--out-dir', metavar='DIR',
                         help='write metrics.json and trajectory/ate/yaw_heading PNGs here (a '
                              'folder holding an earlier evaluation only with --force)')

@@ -413,6 +413,14 @@ class VisualOdometry:
             self.reset()
             self._clock.check(stamp)
             self._time_reset = True
+        elif check is StampCheck.NEW_TIME_BASE and self._fresh_steps == 0:
+            # No motion was estimated on the old time base (a user test: one frame stamped
+            # 1000 s early came first, became the origin, and the drive after it was held
+            # there with a std of 1000 m): the odometry starts afresh on the new one.
+            log.warning('time moved on by %.3f s before any motion was estimated: the '
+                        'odometry starts afresh at the origin', self._clock.jump)
+            self.reset()
+            self._clock.check(stamp)
         elif check is StampCheck.NEW_TIME_BASE:
             log.warning('time moved on by %.3f s: tracking restarts, the pose held (the '
                         'motion across a new time base is unknown)', self._clock.jump)
