@@ -106,8 +106,9 @@ def _load_estimate(args: argparse.Namespace):
     vehicle's frame or the camera's (--est-frame), or a KITTI pose file with --est-times (a
     user test: KITTI's own poses as a TUM file scored 101 % t_rel, without a word)."""
     from planar_vo.errors import InputError
+    from planar_vo.core.trajectory import Trajectory
+    from planar_vo.io.kitti import camera_to_vehicle
     from planar_vo.tools.evaluation.files import (
-        camera_trajectory_to_vehicle,
         is_bag_path,
         is_kitti_pose_file,
         read_kitti_trajectory,
@@ -152,7 +153,7 @@ def _load_estimate(args: argparse.Namespace):
         if covariances is not None:
             raise InputError(f"--est-frame camera: '{args.est}' carries a pose covariance in "
                              f'its own frame; give camera poses as a TUM file')
-        est = camera_trajectory_to_vehicle(est, args.camera_height)
+        est = Trajectory(est.stamps_ns, camera_to_vehicle(est.poses, args.camera_height))
     elif args.est_frame is None and not is_bag_path(args.est):
         _warn_if_camera_frame(est, args.est)
     return est, covariances

@@ -402,9 +402,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         from planar_vo.pipeline import VisualOdometry
         takes_errors = isinstance(processor, VisualOdometry)
         decoder.prime()
-        odometry = config.odometry if isinstance(config, PlanarVoConfig) else None
-        gaps = GapCounter(odometry.max_frame_gap if odometry else 10.0,
-                          odometry.max_time_jump_back if odometry else 1.0)
+        odometry = (config if isinstance(config, PlanarVoConfig) else PlanarVoConfig()).odometry
+        gaps = GapCounter(odometry.max_frame_gap, odometry.max_time_jump_back)
         warned_gap = False
         bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
                    disable=not progress, leave=False)

@@ -418,11 +418,10 @@ def _minimize_form(G: np.ndarray, R: np.ndarray, t: np.ndarray, prior: PlanarPri
         Y = np.column_stack([Jp, p0])
         S += Y.T @ Y
     H, grad, f = S[:5, :5], S[:5, 5], float(S[5, 5])
-    none = np.zeros(5)
     try:
         step = -np.linalg.solve(H + (1e-12 * float(np.trace(H))) * _EYE5, grad)
     except np.linalg.LinAlgError:
-        return R, t, H, none
+        return R, t, H, np.zeros(5)
     for _ in range(5):
         Rn = so3_exp(step[:3]) @ R
         tn = t + B @ step[3:]
@@ -435,7 +434,7 @@ def _minimize_form(G: np.ndarray, R: np.ndarray, t: np.ndarray, prior: PlanarPri
         if fn <= f * (1.0 + 1e-12):
             return Rn, tn, H, step
         step = 0.5 * step
-    return R, t, H, none
+    return R, t, H, np.zeros(5)
 
 
 def refine_general_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, weights: np.ndarray,

@@ -262,14 +262,6 @@ def read_kitti_trajectory(path: str | Path, times: str | Path, start: float | st
     return Trajectory(np.array(stamps, dtype=np.int64), camera_to_vehicle(poses, camera_height))
 
 
-def camera_trajectory_to_vehicle(trajectory: Trajectory, camera_height: float) -> Trajectory:
-    """A trajectory of optical camera poses (x right, y down, z forward, the world the first
-    camera's frame) as a level vehicle's REP-103 poses (`planar_vo.io.kitti.camera_to_vehicle`)."""
-    from planar_vo.io.kitti import camera_to_vehicle
-
-    return Trajectory(trajectory.stamps_ns, camera_to_vehicle(trajectory.poses, camera_height))
-
-
 def load_trajectory(path: str | Path, topic: str | None = None, *, role: str = 'topic'
                     ) -> Trajectory:
     """A TUM file, or `topic` of a bag (see `is_bag_path`); `role` names the argument."""
