@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from planar_vo.core.conventions import so3_exp, so3_log
+from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.core.robust.general import (
     PlanarPrior,
     _cheirality_sign,
@@ -262,6 +263,13 @@ def test_wrong_arguments_are_typed_errors():
     with pytest.raises(InputError, match=rf'^level: expected the {len(level)} ACs of acs '
                                          rf'levelled, got 10$'):
         MotionEstimator().estimate(s.normalized, level.subset(np.arange(10)))
+    # A negative weight: the votes do not check the arrays again (the estimator does).
+    w = level.weights.copy()
+    w[3] = -0.5
+    bad = AffineCorrespondences(level.p1, level.p2, level.A, w)
+    with pytest.raises(InputError, match=r'^level: expected non-negative weights, got minimum '
+                                         r'-0.5$'):
+        MotionEstimator().estimate(s.normalized, bad)
 
 
 def test_history_sets_the_prior_from_the_measured_non_planarity():

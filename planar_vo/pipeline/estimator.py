@@ -47,6 +47,7 @@ sigmas) or generic.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -99,6 +100,19 @@ _SCREEN_MARGIN = 0.5
 # generic caps of the voting (5 x its default noise levels) apply.
 _MAX_SCALE_RATIO = 4.0
 _MAX_SCALES = (5e-3, 0.1)
+
+
+# The configurations are frozen: one default instance (and one screening variant per
+# configuration) serves every estimator; validating them costs more than a fresh estimator's
+# whole set-up otherwise.
+_DEFAULT_ESTIMATOR = EstimatorConfig()
+_DEFAULT_VOTING = VotingConfig()
+
+
+@functools.lru_cache(maxsize=8)
+def _screen_config(config: EstimatorConfig) -> EstimatorConfig:
+    """``config`` with at most ``_SCREEN_ROUNDS`` selection rounds (for the screening)."""
+    return dataclasses.replace(config, rounds=min(config.rounds, _SCREEN_ROUNDS))
 
 
 def lift_planar(alpha: float, beta: float, R_lc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -167,11 +181,10 @@ class MotionEstimator:
 
     def __init__(self, config: EstimatorConfig | None = None,
                  voting: VotingConfig | None = None) -> None:
-        self.config = EstimatorConfig() if config is None else config
-        self.voting = VotingConfig() if voting is None else voting
+        self.config = _DEFAULT_ESTIMATOR if config is None else config
+        self.voting = _DEFAULT_VOTING if voting is None else voting
         self.R_lc = np.eye(3)
-        self._screen_config = dataclasses.replace(
-            self.config, rounds=min(self.config.rounds, _SCREEN_ROUNDS))
+        self._screen_config = _screen_config(self.config)
         self.reset()
 
     def reset(self) -> None:
@@ -248,7 +261,8 @@ class MotionEstimator:
         the same ACs levelled by `R_lc` (``level``, same order and length).
 
         Raises:
-            InputError: either is not an `AffineCorrespondences`, or their lengths differ.
+            InputError: either is not an `AffineCorrespondences`, their lengths differ, or a
+                weight is negative.
         """
         for name, value in (('acs', acs), ('level', level)):
             if not isinstance(value, AffineCorrespondences):
@@ -257,9 +271,16 @@ class MotionEstimator:
         if len(acs) != len(level):      # (a user test: it gave 'no_vote', not why)
             raise InputError(f'level: expected the {len(acs)} ACs of acs levelled, got '
                              f'{len(level)}')
+        for name, value in (('acs', acs), ('level', level)):
+            # (AffineCorrespondences checks shapes and finiteness; the votes below skip their
+            # own checks of the same arrays)
+            if len(value) and not value.weights.min() >= 0:
+                raise InputError(f'{name}: expected non-negative weights, got minimum '
+                                 f'{value.weights.min()}')
         motion, vstats = vote_planar_motion(level.p1, level.p2, level.A, level.weights,
                                             self.voting,
-                                            covariance=self.config.model == 'planar')
+                                            covariance=self.config.model == 'planar',
+                                            check=False)
         vote = (motion.alpha, motion.beta, bool(vstats.reliable))
         if self.config.model == 'planar':
             return self._planar(acs, motion, vstats, vote)
@@ -383,9 +404,10 @@ class MotionEstimator:
         # the answer only by rounding (the fits' sums in another order) but adds to its cost.
         unexplained = np.flatnonzero(w * ~first.inliers > 0)
         if unexplained.size >= self.config.min_inliers:
-            rest, w_rest = level.subset(unexplained), w[unexplained]
-            m2, v2 = vote_planar_motion(rest.p1, rest.p2, rest.A, w_rest, self.voting,
-                                        covariance=False)
+            w_rest = w[unexplained]
+            m2, v2 = vote_planar_motion(level.p1[unexplained], level.p2[unexplained],
+                                        level.A[unexplained], w_rest, self.voting,
+                                        covariance=False, check=False)
             # The revote's inliers, counted at its own coarse scales, overstate the support
             # its motion would keep at the first answer's: one below the screen's bar cannot
             # matter (with random outliers, 0.09 of the first answer's support typically and

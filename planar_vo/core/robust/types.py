@@ -11,7 +11,8 @@ from planar_vo.core.robust.options import VotingConfig
 from planar_vo.core.solvers import _check_ac
 from planar_vo.errors import ConfigError, InputError
 
-__all__ = ['PlanarMotion', 'VotingStats', 'check_clusters', 'check_inputs', 'failed_estimate']
+__all__ = ['PlanarMotion', 'VotingStats', 'check_clusters', 'check_config', 'check_inputs',
+           'failed_estimate']
 
 
 @dataclass(frozen=True)
@@ -80,10 +81,15 @@ def check_inputs(q1, q2, A, weights, config):
         same_length(q1=q1, weights=w)
         if np.any(w < 0):
             raise InputError(f'weights: expected non-negative values, got minimum {w.min()}')
+    return q1, q2, A, w, check_config(config)
+
+
+def check_config(config) -> VotingConfig:
+    """``config``, or the defaults when None; a `ConfigError` when it is not a `VotingConfig`."""
     config = _DEFAULT_CONFIG if config is None else config
     if not isinstance(config, VotingConfig):
         raise ConfigError(f'config: expected VotingConfig, got {type(config).__name__}')
-    return q1, q2, A, w, config
+    return config
 
 
 def check_clusters(clusters, n: int) -> np.ndarray | None:

@@ -34,6 +34,7 @@ from planar_vo.core.robust.types import (
     PlanarMotion,
     VotingStats,
     check_clusters,
+    check_config,
     check_inputs,
     failed_estimate,
 )
@@ -44,8 +45,8 @@ __all__ = ['PlanarMotion', 'VotingStats', 'vote_planar_motion']
 
 def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
                        weights: np.ndarray | None = None, config: VotingConfig | None = None,
-                       *, clusters: np.ndarray | None = None, covariance: bool = True
-                       ) -> tuple[PlanarMotion, VotingStats]:
+                       *, clusters: np.ndarray | None = None, covariance: bool = True,
+                       check: bool = True) -> tuple[PlanarMotion, VotingStats]:
     """Robust planar motion from N affine correspondences (1AC + weighted histogram voting).
 
     Args:
@@ -62,6 +63,9 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
             ``config.refine`` False the single selection still gives both) for a caller that
             uses only the motion, the inliers and the noise scales; everything else is the
             same.
+        check: False skips the checks of ``q1, q2, A`` and the weights (a caller whose arrays
+            are checked already: `AffineCorrespondences` with non-negative weights, the
+            pipeline's estimator at every frame); the config is checked either way.
 
     Returns:
         ``(motion, stats)``: a `PlanarMotion` and `VotingStats`. When ``stats.reliable`` is
@@ -70,7 +74,11 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
     Raises:
         InputError: wrong shapes, non-finite or negative values; ConfigError: a bad config.
     """
-    q1, q2, A, w, config = check_inputs(q1, q2, A, weights, config)
+    if check:
+        q1, q2, A, w, config = check_inputs(q1, q2, A, weights, config)
+    else:
+        w = np.ones(q1.shape[0]) if weights is None else weights
+        config = check_config(config)
     clusters = check_clusters(clusters, q1.shape[0])
     if clusters is None and (covariance or config.method == 'ransac'):
         clusters = refine.spatial_clusters(q1, config.covariance_grid)
