@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import math
 import pickle
+import re
 
 import numpy as np
 import pytest
@@ -929,13 +930,18 @@ def test_stamps_1_ns_apart_are_different_frames_as_integer_nanoseconds():
     assert (copied, copied.ns) == (t0 / 1e9, t0 + 1)
     config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}})
     vo = VisualOdometry(config, CAMERA)
-    results = [vo.process(images[i], Stamp(t0 + ns))
-               for i, ns in ((0, 0), (1, 1), (2, 1), (2, 0), (2, 2), (2, 3))]
+    # (the last image is the third with one grey level changed: the same image again would be
+    # a frozen camera's at the speed of a step over 1 ns)
+    nudged = images[2].copy()
+    nudged[0, 0] ^= 1
+    results = [vo.process(image, Stamp(t0 + ns)) for image, ns in (
+        (images[0], 0), (images[1], 1), (images[2], 1), (images[2], 0), (images[2], 2),
+        (nudged, 3))]
     reasons = [r.reason for r in results]
     assert reasons[0] is DropReason.FIRST_FRAME
     assert reasons[1] is None and reasons[4] is None                  # odometry
-    # The same image again 1 ns later has not moved: standing still, with a finite speed
-    # bound (a user test: the float seconds' difference of 0 divided, a pipeline error).
+    # The image has not moved 1 ns later: standing still, with a finite speed bound (a user
+    # test: the float seconds' difference of 0 divided, a pipeline error).
     assert reasons[5] is None and results[5].scale_source == 'stationary', results[5].message
     assert np.all(results[5].twist == 0.0) and np.all(np.isfinite(results[5].twist_covariance))
     assert reasons[2:4] == [DropReason.DUPLICATE_STAMP, DropReason.OUT_OF_ORDER]
@@ -1284,6 +1290,50 @@ def test_lost_tracking_restarts_on_the_next_real_frame_with_inflated_covariance(
     true_step = np.linalg.norm(trajectory.xy[8] - trajectory.xy[7])
     step = np.linalg.norm(r8.pose[:2, 3] - r7.pose[:2, 3])
     assert abs(step - true_step) < 0.1 * true_step
+
+
+def test_a_frozen_camera_is_lost_tracking_not_a_stop():
+    """A driver republishing its last image while the car drives on at 8 m/s: the identical
+    frames are counted as frozen_image (before, they read as a stop: the pose held with a
+    confident speed of 0), tracking is lost after odometry.max_lost_frames of them, and the
+    next real frame carries the pose on at the last velocity. A simulator's standing car
+    renders identical frames too: those stay a stop (the stop-and-go drives above), since the
+    car could have stopped (odometry.max_deceleration)."""
+    trajectory, images, _ = _drive('straight')
+    stamps = trajectory.stamps
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    for i in range(4):
+        last = vo.process(images[i], float(stamps[i]))
+        assert i == 0 or last.ok
+    frozen = [vo.process(images[3].copy(), float(stamps[i])) for i in range(4, 9)]
+    assert [r.reason for r in frozen] == [DropReason.FROZEN_IMAGE] * 5
+    found = re.fullmatch(r"image identical to the previous frame's, pixel for pixel, at "
+                         r"(\S+) m/s \(odometry.max_deceleration 10 m/s\^2 stops no faster\): "
+                         r"a frozen camera republishing its image", frozen[0].message)
+    assert found and abs(float(found[1]) - 8.0) < 0.2, frozen[0].message
+    assert 'tracking lost' in frozen[-1].message
+    resumed = vo.process(images[9], float(stamps[9]))
+    assert resumed.reason is DropReason.REINITIALISED
+    assert abs(resumed.pose[0, 3] - (trajectory.xy[9, 0] - trajectory.xy[0, 0])) < 0.05
+    after = vo.process(images[10], float(stamps[10]))
+    assert after.ok and abs(after.twist[0] - 8.0) < 0.2
+    assert vo.counters['frozen_image'] == 5
+
+
+def test_a_capture_loop_refilling_one_buffer_is_tracked():
+    """The caller's array is not kept: a loop that refills one buffer per frame gives the
+    same odometry as new arrays (kept, the keyframe and the previous frame changed with it)."""
+    trajectory, images, _ = _drive('straight')
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}})
+    fresh, reused = VisualOdometry(config, CAMERA), VisualOdometry(config, CAMERA)
+    buffer = np.empty_like(images[0])
+    for i in range(8):
+        buffer[:] = images[i]
+        a = fresh.process(images[i], float(trajectory.stamps[i]))
+        b = reused.process(buffer, float(trajectory.stamps[i]))
+        assert b.reason is a.reason
+        assert np.array_equal(a.pose, b.pose)
+    assert b.ok and b.pose[0, 3] > 4.0
 
 
 @pytest.mark.parametrize('after_loss', [False, True])

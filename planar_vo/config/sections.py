@@ -428,6 +428,14 @@ class OdometryConfig(Options):
             turn rate (rad/s) per second of the gap.
         turn_rate_time_constant: the extrapolated turn rate decays with this time constant
             (s): a long gap does not spin the pose.
+        max_deceleration: the hardest braking of the vehicle (m/s^2; about 1 g for a car on
+            dry asphalt). A real sensor's noise differs from frame to frame, so a frame
+            identical to the one before it, pixel for pixel, shows a vehicle that stands (a
+            simulator renders those alike) only if it could have stopped: a frame identical to
+            the previous one while the last metric speed, less three standard deviations,
+            exceeds this deceleration times the time since it is a frozen camera's (a stalled
+            driver republishing its last image) or a duplicated video frame, counted as
+            ``frozen_image`` and lost for tracking, and so are the identical frames after it.
         window_lags: keyframe pairs measured per new keyframe: 1 tracks frame to frame; D > 1
             also matches each new keyframe against the D - 1 kept keyframes before the
             previous one (a front-end run and a refinement each) and solves the orientations of
@@ -455,6 +463,8 @@ class OdometryConfig(Options):
                                         expected='a positive turn rate (rad/s)')
     turn_rate_time_constant: float = bounded(2.0, 0.0, 1e4, low_open=True, high_open=True,
                                              expected='a positive duration (s)')
+    max_deceleration: float = bounded(10.0, 0.0, 1e4, low_open=True, high_open=True,
+                                      expected='a positive deceleration (m/s^2)')
     window_lags: int = bounded(1, 1, 5)
     window_size: int = bounded(6, 2, 50)
 

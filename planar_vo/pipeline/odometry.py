@@ -213,6 +213,10 @@ class VisualOdometry:
         # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
         self._last_twist: tuple[float, float, np.ndarray] | None = None
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
+        # The last frame that reached tracking, and the speed (m/s) at which the run of frames
+        # identical to it began, when that run is a frozen camera's (`_frozen`).
+        self._previous_gray: np.ndarray | None = None
+        self._frozen_speed: float | None = None
         # The distance (m) standing frames may have moved unseen, until the next motion step.
         self._crept = 0.0
         # The position error (m, camera world frame) one standard deviation of the steps'
@@ -459,6 +463,13 @@ class VisualOdometry:
             # lens), but it never becomes a keyframe.
             return self._lost_frame(stamp, DropReason.BLANK_IMAGE,
                                     'image is blank (black, saturated or without texture)', 0)
+        frozen = self._frozen(gray, stamp)
+        self._previous_gray = gray
+        if frozen:
+            # Like a blank frame: it counts towards lost tracking and never becomes a keyframe
+            # (before, a republished image read as a stop: the pose held with a confident speed
+            # of 0 while the car drove on).
+            return self._lost_frame(stamp, DropReason.FROZEN_IMAGE, frozen, 0)
         timings['decode'] = time.perf_counter() - t
         keyframe = self._keyframes.current
         if keyframe is None:
@@ -1053,6 +1064,36 @@ class VisualOdometry:
         var = rs.std ** 2 + float(d @ est.cov[:3, :3] @ d)
         return rs.scale, var, shared * math.hypot(*rs.d_normal) / rs.scale
 
+    def _frozen(self, gray: np.ndarray, stamp: float) -> str:
+        """Why ``gray`` is a frozen camera's frame, or ``''``.
+
+        A real sensor's noise differs from frame to frame: a frame identical to the previous
+        one, pixel for pixel, is the same image again (a stalled driver republishing it), unless
+        the vehicle stands (a simulator renders a standing vehicle's frames alike). It can
+        stand only if it could have stopped since the last metric speed was measured
+        (``odometry.max_deceleration``); without a metric speed nothing tells, and the frame
+        goes on as a stop. A run of identical frames that began frozen stays frozen (a
+        duplicated frame of a video converted to a constant frame rate is one too: it adds
+        nothing, and as a stop it held the pose and halved the next step's time)."""
+        previous = self._previous_gray
+        if previous is None or not _same_image(previous, gray):
+            self._frozen_speed = None
+            return ''
+        if self._frozen_speed is None:
+            if self._held is None:
+                return ''
+            speed, std, when, _ = self._held
+            dt = seconds_between(stamp, when)
+            # (three standard deviations below the speed: a car slowing to a stop whose last
+            # step was measured fast does not lose its stop)
+            if not speed - 3.0 * std > self.config.odometry.max_deceleration * dt:
+                return ''
+            self._frozen_speed = speed
+        return (f'image identical to the previous frame\'s, pixel for pixel, at '
+                f'{self._frozen_speed:.3g} m/s (odometry.max_deceleration '
+                f'{self.config.odometry.max_deceleration:g} m/s^2 stops no faster): a frozen '
+                f'camera republishing its image')
+
     def _stationary(self, keyframe: Keyframe, stamp: float, count: int) -> FrameResult:
         """The image has not moved: neither has the vehicle (no new keyframe, no drift). The
         keyframe's stamp follows, since nothing moved since it (a speed source then integrates
@@ -1537,7 +1578,17 @@ def _gray(image) -> np.ndarray:
     `VisualOdometry.process`)."""
     if isinstance(image, ImageError):
         raise image
-    return as_gray('image', image)
+    gray = as_gray('image', image)
+    # The pipeline keeps it (the keyframe, the previous frame): a copy when it is the caller's
+    # own memory, which a capture loop refilling one buffer would change under it.
+    return gray.copy() if np.may_share_memory(gray, image) else gray
+
+
+def _same_image(a: np.ndarray, b: np.ndarray) -> bool:
+    """``a`` and ``b`` are the same image, pixel for pixel (a subsample first: frames of a
+    real camera differ there already)."""
+    return (a.shape == b.shape and np.array_equal(a[::8, ::8], b[::8, ::8])
+            and np.array_equal(a, b))
 
 
 def _is_blank(gray: np.ndarray, min_contrast: float) -> bool:

@@ -33,6 +33,8 @@ class DropReason(str, enum.Enum):
     #                                        another image size), no focal self-calibration
     BAD_IMAGE = 'bad_image'                # undecodable, unsupported encoding, wrong size
     BLANK_IMAGE = 'blank_image'            # black, saturated or textureless
+    FROZEN_IMAGE = 'frozen_image'          # the previous frame again, pixel for pixel, while
+    #                                        moving (a stalled camera republishing its image)
     SIZE_CHANGED = 'size_changed'          # image size differs from the camera model
     DUPLICATE_STAMP = 'duplicate_stamp'    # same timestamp as the previous frame, or far sooner
     #                                        after it than the usual interval (mis-stamped)
