@@ -282,11 +282,11 @@ def _robust_mean(s: np.ndarray, w: np.ndarray, clusters: np.ndarray
     dev = np.abs(s - med)
     keep = dev <= 3.0 * (MAD_TO_SIGMA * median(dev) + 1e-12)
     sk, wk, ck = s[keep], w[keep], clusters[keep]
-    wsum = float(np.sum(wk))
-    mean = float(np.sum(wk * sk) / wsum)
+    wsum = float(wk.sum())
+    mean = float((wk * sk).sum() / wsum)
     e = np.bincount(ck, weights=wk * (sk - mean))
     g = np.count_nonzero(np.bincount(ck))
-    var = float(np.sum(e * e)) / wsum ** 2 * (g / max(g - 1, 1))
+    var = float((e * e).sum()) / wsum ** 2 * (g / max(g - 1, 1))
     return mean, math.sqrt(var), keep
 
 
@@ -331,7 +331,7 @@ def _sensitivities(wn, lam, r, b, bb, u2, v2, s_i, q1, dn, n):
     # e x Y for e = x, y, z: (0, -Yz, Yy), (Yz, 0, -Yx), (-Yy, Yx, 0); then Q2 x (e x Y).
     for k, (ex, ey, ez) in enumerate(((zero, -Yz, Yy), (Yz, zero, -Yx), (-Yy, Yx, zero))):
         da_b = (v2 * ez - ey) * bx + (ex - u2 * ez) * by + (u2 * ey - v2 * ex) * bz
-        d_rot[k] = -float(np.sum(wn * da_b / bb))
+        d_rot[k] = -float((wn * da_b / bb).sum())
     J = normal_tilt_jacobian(*tilt_from_normal(n))
     Q1 = np.column_stack([q1, np.ones(len(q1))])
     d_normal = -(wn * s_i / dn) @ (Q1 @ J)
@@ -544,7 +544,7 @@ def road_scale(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, R: np.ndarray, t: 
     sel = sel[keep]
     mask = np.zeros(count, bool)
     mask[below[sel]] = True
-    d_rot, d_normal = _sensitivities(ws[sel] / float(np.sum(ws[sel])), lam[sel],
+    d_rot, d_normal = _sensitivities(ws[sel] / float(ws[sel].sum()), lam[sel],
                                      [x[sel] for x in r], [x[sel] for x in b], bb[sel],
                                      u2[sel], v2[sel], s_i[sel], q1[below[sel]], dn[sel], n)
     std_rot = sigma_rot * math.hypot(d_rot[0], d_rot[2])

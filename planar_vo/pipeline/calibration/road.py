@@ -223,20 +223,22 @@ class RoadNormalCalibrator:
             spread = MAD_TO_SIGMA * median(np.abs(e[front])) + 1e-12 if front.any() else 1.0
             w = w0 * front / (1.0 + (e / (_CAUCHY_SCALE * spread)) ** 2)
             we = w * e
-            # The 2x2 normal equations in plain floats (numpy's per-call overhead would cost
-            # more than the arithmetic).
-            h00 = float(np.sum(w * J[0] * J[0]))
-            h01 = float(np.sum(w * J[0] * J[1]))
-            h11 = float(np.sum(w * J[1] * J[1]))
+            # The 2x2 normal equations as dot products of the flattened arrays (no temporaries;
+            # the sums in plain floats: numpy's per-call overhead would cost more than the
+            # arithmetic).
+            j0, j1 = J[0].ravel(), J[1].ravel()
+            wj0, wj1 = w.ravel() * j0, w.ravel() * j1
+            h00, h01, h11 = float(wj0 @ j0), float(wj0 @ j1), float(wj1 @ j1)
             fitted = True
             det = h00 * h11 - h01 ** 2
             if not det > 1e-12 * max(h00 * h11, 1e-300):
                 return None
             i00, i01, i11 = h11 / det, -h01 / det, h00 / det
-            g0, g1 = float(np.sum(we * J[0])), float(np.sum(we * J[1]))
+            wer = we.ravel()
+            g0, g1 = float(wer @ j0), float(wer @ j1)
             s0, s1 = i00 * g0 + i01 * g1, i01 * g0 + i11 * g1
             p, r = p - s0, r - s1
-            factor = float(np.sum(we * e) / max(np.sum(w), 1e-300))
+            factor = float(wer @ e.ravel()) / max(float(w.sum()), 1e-300)
             if (abs(s0) <= max(1e-7, 0.01 * math.sqrt(max(i00 * factor, 0.0)))
                     and abs(s1) <= max(1e-7, 0.01 * math.sqrt(max(i11 * factor, 0.0)))):
                 break
