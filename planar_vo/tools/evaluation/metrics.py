@@ -453,9 +453,18 @@ def evaluate(ref: Trajectory, est: Trajectory, *, align: str = 'se3', max_diff: 
     if len(ie) < 2:
         def span(t: Trajectory) -> str:
             return f'{t.stamps[0]:.3f}..{t.stamps[-1]:.3f} s' if len(t) else 'empty'
+        hint = ''
+        if len(est) and len(ref) and (est.stamps[-1] < ref.stamps[0]
+                                      or ref.stamps[-1] < est.stamps[0]):
+            # Disjoint ranges: another clock or stamps relative to the start (a user test: a
+            # TUM file from 0 s against a bag of import-kitti from 1.7e9 s).
+            offset = float(ref.stamps[0] - est.stamps[0])
+            hint = (f'; the ranges do not overlap: the estimate starts {abs(offset):.3f} s '
+                    f'{"before" if offset > 0 else "after"} the reference (stamps of another '
+                    f'clock, or relative to the start?)')
         raise InputError(f'association: expected at least 2 poses matched within {max_diff} s, '
                          f'got {len(ie)} (estimate {len(est)} poses {span(est)}, reference '
-                         f'{len(ref)} poses {span(ref)})')
+                         f'{len(ref)} poses {span(ref)}){hint}')
     est_m, ref_m = est.subset(ie), ref.subset(ir)
     aligned, alignment = align_trajectory(est_m, ref_m, align,
                                           names=(name['est'], name['ref']))
