@@ -254,7 +254,7 @@ def test_garbage_is_flagged_not_answered():
 def test_wrong_arguments_are_typed_errors():
     """Arrays instead of ACs, and levelled ACs of another length (a user test: an
     AttributeError, and 'no_vote' without saying why)."""
-    from planar_vo.errors import InputError
+    from planar_vo.errors import ConfigError, InputError
 
     s = street_pair(np.random.default_rng(11), 100)
     level = s.normalized.mapped(s.level)
@@ -270,6 +270,14 @@ def test_wrong_arguments_are_typed_errors():
     with pytest.raises(InputError, match=r'^level: expected non-negative weights, got minimum '
                                          r'-0.5$'):
         MotionEstimator().estimate(s.normalized, bad)
+    with pytest.raises(InputError, match=r'^acs: expected non-negative weights'):
+        MotionEstimator().estimate(bad, level)
+    # A configuration of another type (a review: a dict gave an unhashable-type TypeError).
+    with pytest.raises(ConfigError, match=r'^config: expected EstimatorConfig or None, got dict$'):
+        MotionEstimator(config={'rounds': 3})
+    with pytest.raises(ConfigError, match=r'^voting: expected VotingConfig or None, got '
+                                          r'EstimatorConfig$'):
+        MotionEstimator(voting=EstimatorConfig())
 
 
 def test_history_sets_the_prior_from_the_measured_non_planarity():

@@ -716,7 +716,8 @@ def test_tracking_states_lost_and_reinitialised_are_logged_once_each(local_node,
     lines = []
     logger = node.get_logger()
     node.get_logger = lambda: _Recorder(logger, lines)
-    noise = rng.integers(0, 256, (480, 640), dtype=np.uint8)
+    # (a new noise image each: the same image again would be a frozen camera's)
+    noise = rng.integers(0, 256, (5, 480, 640), dtype=np.uint8)
 
     def swap(i):
         if 10 <= i < 15:
@@ -724,7 +725,8 @@ def test_tracking_states_lost_and_reinitialised_are_logged_once_each(local_node,
 
             def once(msg):
                 node._on_image = original
-                noisy = to_rclpy(image_msg(noise, 'mono8', stamp_to_ns(msg.header.stamp)), Image)
+                noisy = to_rclpy(image_msg(noise[i - 10], 'mono8',
+                                           stamp_to_ns(msg.header.stamp)), Image)
                 original(noisy)
             node._on_image = once
 

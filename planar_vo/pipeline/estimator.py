@@ -73,7 +73,7 @@ from planar_vo.core.robust.general import (
 )
 from planar_vo.core.robust.options import EstimatorConfig
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, median
-from planar_vo.errors import InputError
+from planar_vo.errors import ConfigError, InputError
 
 __all__ = ['FrameEstimate', 'MotionEstimator', 'lift_planar']
 
@@ -175,12 +175,20 @@ class MotionEstimator:
         config: `EstimatorConfig`.
         voting: `VotingConfig` of the planar vote.
 
+    Raises:
+        ConfigError: ``config`` or ``voting`` of another type.
+
     Attributes:
         R_lc: the levelling rotation (camera -> level camera) the pipeline keeps up to date.
     """
 
     def __init__(self, config: EstimatorConfig | None = None,
                  voting: VotingConfig | None = None) -> None:
+        for name, value, kind in (('config', config, EstimatorConfig),
+                                  ('voting', voting, VotingConfig)):
+            if value is not None and not isinstance(value, kind):
+                raise ConfigError(f'{name}: expected {kind.__name__} or None, got '
+                                  f'{type(value).__name__}')
         self.config = _DEFAULT_ESTIMATOR if config is None else config
         self.voting = _DEFAULT_VOTING if voting is None else voting
         self.R_lc = np.eye(3)
@@ -259,6 +267,8 @@ class MotionEstimator:
                  ) -> FrameEstimate:
         """The motion of one pair from its ACs in normalised camera coordinates (``acs``) and
         the same ACs levelled by `R_lc` (``level``, same order and length).
+
+        Too few ACs (none at all included) give an unreliable estimate whose flag says why.
 
         Raises:
             InputError: either is not an `AffineCorrespondences`, their lengths differ, or a

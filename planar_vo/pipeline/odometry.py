@@ -3,7 +3,8 @@
 Per frame (see `VisualOdometry.process`):
 
 1. checks: the stamp against the stream's time base (`planar_vo.pipeline.clock`), the camera
-   model, an image of the camera's size that is not blank;
+   model, an image of the camera's size that is not blank, nor the previous image again while
+   the vehicle moves (a frozen camera: `VisualOdometry._frozen`);
 2. affine correspondences from the current keyframe to this frame (`planar_vo.frontend`);
 3. if the median parallax is below ``keyframe.stationary_parallax`` the vehicle stands still;
 4. otherwise the ACs are undistorted and normalised, levelled by the mount tilt (configured or
@@ -213,10 +214,12 @@ class VisualOdometry:
         # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
         self._last_twist: tuple[float, float, np.ndarray] | None = None
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
-        # The last frame that reached tracking, and the speed (m/s) at which the run of frames
-        # identical to it began, when that run is a frozen camera's (`_frozen`).
+        # The last frame that reached tracking and its stamp, and why the run of frames
+        # identical to it is a frozen camera's ('' while it is not; `_frozen`).
         self._previous_gray: np.ndarray | None = None
-        self._frozen_speed: float | None = None
+        self._previous_stamp: float | None = None
+        self._frozen_why = ''
+        self._frozen_run = 0                     # frozen frames in a row
         # The distance (m) standing frames may have moved unseen, until the next motion step.
         self._crept = 0.0
         # The position error (m, camera world frame) one standard deviation of the steps'
@@ -464,12 +467,17 @@ class VisualOdometry:
             return self._lost_frame(stamp, DropReason.BLANK_IMAGE,
                                     'image is blank (black, saturated or without texture)', 0)
         frozen = self._frozen(gray, stamp)
-        self._previous_gray = gray
+        self._previous_gray, self._previous_stamp = gray, stamp
         if frozen:
             # Like a blank frame: it counts towards lost tracking and never becomes a keyframe
             # (before, a republished image read as a stop: the pose held with a confident speed
-            # of 0 while the car drove on).
-            return self._lost_frame(stamp, DropReason.FROZEN_IMAGE, frozen, 0)
+            # of 0 while the car drove on). One repeated frame alone (a duplicated video frame)
+            # adds nothing and loses nothing: the tracking state changes from the second on (a
+            # review: each duplicate of a video flipped it to lost and back, a warning each).
+            self._frozen_run += 1
+            return self._lost_frame(stamp, DropReason.FROZEN_IMAGE, frozen, 0,
+                                    keep_state=self._frozen_run == 1)
+        self._frozen_run = 0
         timings['decode'] = time.perf_counter() - t
         keyframe = self._keyframes.current
         if keyframe is None:
@@ -1068,31 +1076,49 @@ class VisualOdometry:
         """Why ``gray`` is a frozen camera's frame, or ``''``.
 
         A real sensor's noise differs from frame to frame: a frame identical to the previous
-        one, pixel for pixel, is the same image again (a stalled driver republishing it), unless
-        the vehicle stands (a simulator renders a standing vehicle's frames alike). It can
-        stand only if it could have stopped since the last metric speed was measured
-        (``odometry.max_deceleration``); without a metric speed nothing tells, and the frame
-        goes on as a stop. A run of identical frames that began frozen stays frozen (a
-        duplicated frame of a video converted to a constant frame rate is one too: it adds
-        nothing, and as a stop it held the pose and halved the next step's time)."""
+        one, pixel for pixel, is the same image again (a stalled driver republishing it, a
+        duplicated frame of a raw or losslessly coded video), unless the vehicle stands (a
+        simulator renders a standing vehicle's frames alike). It cannot stand while the wheel
+        speed (`add_speed`) says it moved since the previous frame, nor right after a motion
+        step too fast to have stopped since (`_moving`). A run of identical frames stays
+        frozen once one of them is; without either evidence (no wheel speed, the run began at
+        a stop), the frames go on as a stop."""
         previous = self._previous_gray
         if previous is None or not _same_image(previous, gray):
-            self._frozen_speed = None
+            self._frozen_why = ''
+        elif not self._frozen_why:
+            self._frozen_why = self._moving(stamp)
+        return self._frozen_why
+
+    def _moving(self, stamp: float) -> str:
+        """Why the vehicle cannot be standing at ``stamp``, the previous frame's image
+        unchanged, or ``''``: the wheel speed's distance since the previous frame beyond three
+        of its standard deviations (``scale.speed_std``); else the last motion step's velocity
+        (the mean over its interval, the speed at its middle), less three standard deviations,
+        more than braking at ``odometry.max_deceleration`` takes off since that middle."""
+        cfg = self.config
+        dt = seconds_between(stamp, self._previous_stamp)
+        d = self._speed.distance(self._previous_stamp, stamp)
+        if d is not None and d > 3.0 * cfg.scale.speed_std * dt:
+            return (f'image identical to the previous frame\'s, pixel for pixel, while the wheel '
+                    f'speed gives {d:.3g} m travelled since it: a frozen camera or a repeated '
+                    f'frame')
+        if self._last_twist is None:
+            return ''                   # standing, or no motion since start-up or a reset
+        end, length, twist = self._last_twist
+        v = float(np.linalg.norm(twist[:3]))
+        if not v > 0.0:
             return ''
-        if self._frozen_speed is None:
-            if self._held is None:
-                return ''
-            speed, std, when, _ = self._held
-            dt = seconds_between(stamp, when)
-            # (three standard deviations below the speed: a car slowing to a stop whose last
-            # step was measured fast does not lose its stop)
-            if not speed - 3.0 * std > self.config.odometry.max_deceleration * dt:
-                return ''
-            self._frozen_speed = speed
-        return (f'image identical to the previous frame\'s, pixel for pixel, at '
-                f'{self._frozen_speed:.3g} m/s (odometry.max_deceleration '
-                f'{self.config.odometry.max_deceleration:g} m/s^2 stops no faster): a frozen '
-                f'camera republishing its image')
+        u = twist[:3] / v
+        std = math.sqrt(max(float(u @ self._twist_cov[:3, :3] @ u), 0.0))
+        since = seconds_between(stamp, end) + 0.5 * length
+        a = cfg.odometry.max_deceleration
+        if not v - 3.0 * std > a * since:
+            return ''
+        return (f'image identical to the previous frame\'s, pixel for pixel, {since:.3g} s after '
+                f'moving at {v:.3g} +- {std:.2g} m/s (the last step\'s mean), too fast to stop '
+                f'since at odometry.max_deceleration {a:g} m/s^2: a frozen camera or a repeated '
+                f'frame')
 
     def _stationary(self, keyframe: Keyframe, stamp: float, count: int) -> FrameResult:
         """The image has not moved: neither has the vehicle (no new keyframe, no drift). The
@@ -1104,6 +1130,7 @@ class VisualOdometry:
         self._tilt_gain = keyframe.tilt_gain.copy()
         self._focal_sums = keyframe.focal_sums.copy()
         self._last_twist = None         # the keyframe's stamp moves: a new interval begins
+        since = keyframe.stamp
         keyframe.stamp = stamp
         keyframe.age += 1
         if self._held is not None:
@@ -1115,8 +1142,11 @@ class VisualOdometry:
         # motion (odometry.lost_speed_std, as across a gap in tracking).
         # (Stamps 1 ns apart are distinct frames: the interval is exact and positive; a user
         # test's 1 ns repeat divided by a float difference of 0.)
-        interval = (seconds_between(stamp, self._last_out[0]) if self._last_out is not None
-                    else math.nan)
+        # (the displacement is the keyframe's: over the time since it or since the last
+        # output, whichever is shorter; a user test: the first such frame after lost tracking
+        # divided by the whole gap, a speed std of 4 mm/s)
+        interval = (min(seconds_between(stamp, self._last_out[0]), seconds_between(stamp, since))
+                    if self._last_out is not None else math.nan)
         crept = self.config.keyframe.stationary_parallax / self._px_per_metre
         self._crept = crept if math.isfinite(crept) else 0.0
         bound = crept / interval if interval > 0 else math.nan
@@ -1131,7 +1161,7 @@ class VisualOdometry:
                             num_correspondences=count, alpha=0.0, beta=float('nan'))
 
     def _lost_frame(self, stamp: float, reason: DropReason, message: str, count: int,
-                    inliers: int = 0) -> FrameResult:
+                    inliers: int = 0, keep_state: bool = False) -> FrameResult:
         """No update from this frame. After ``odometry.max_lost_frames`` in a row the keyframe
         is dropped: the next usable frame starts a new keyframe chain (`_start_chain`). The
         failed frame itself never becomes the keyframe, since it may be the cause (a blank or
@@ -1146,7 +1176,8 @@ class VisualOdometry:
         keyframe = self._keyframes.current
         if keyframe is not None:
             keyframe.age += 1
-        self._state = TrackingState.LOST
+        if not keep_state:
+            self._state = TrackingState.LOST
         miss = reason is DropReason.TOO_FEW_CORRESPONDENCES
         # Misses that still found some correspondences: the frame sees part of the keyframe's
         # scene (moving away from it), where a garbled one finds none.
@@ -1222,9 +1253,11 @@ class VisualOdometry:
         return self._result(stamp, False, reason=reason, message=message, keyframe=True)
 
     def _extrapolate(self, stamp: float, hold: bool = False) -> None:
-        """The pose across a gap in tracking: the last velocity carried on, its turn rate
-        decaying (a long gap does not spin the pose), and the covariance grown with the time
-        of the gap (not with the frames in it). With ``hold`` (the time base moved on: the
+        """The pose across a gap in tracking: the last velocity carried on (over the distance
+        the wheel speed gives, when it covers the gap), its turn rate decaying (a long gap does
+        not spin the pose), and the covariance grown with the time of the gap (not with the
+        frames in it): ``odometry.lost_speed_std`` and ``lost_turn_rate_std`` per second, and,
+        without the wheels' distance, braking at up to ``odometry.max_deceleration``. With ``hold`` (the time base moved on: the
         stamps before and after belong to different clocks or a pause of unknown length, so
         the last velocity says nothing about the motion across it) the pose is held and only
         the covariance grows."""
@@ -1232,11 +1265,20 @@ class VisualOdometry:
         last_stamp, last_pose = self._last_out if self._last_out else (stamp, self.camera_pose)
         dt = max(seconds_between(stamp, last_stamp), 0.0)
         T_bc = self._T_base_camera
+        wheels = None
         if hold:
             self.camera_pose = last_pose.copy()
         else:
             yaw = yaw_rate_decay(float(self._twist[5]), dt, cfg.turn_rate_time_constant)
-            step_base = se3(rotation_rpy(0.0, 0.0, yaw), self._twist[:3] * dt)
+            travel = self._twist[:3] * dt
+            wheels = self._speed.distance(last_stamp, stamp) if dt > 0 else None
+            if wheels is not None:
+                # The wheel speed measured the distance across the gap: along the last velocity,
+                # or straight ahead from a standstill (a user test: a camera stalled at a stop
+                # while the car drove off held the pose there, 10 m behind).
+                speed = float(np.linalg.norm(travel))
+                travel = (travel / speed if speed > 0 else np.array([1.0, 0.0, 0.0])) * wheels
+            step_base = se3(rotation_rpy(0.0, 0.0, yaw), travel)
             self.camera_pose = last_pose @ (invert(T_bc) @ step_base @ T_bc)
             # The levelling's orientation error carried along tilts the extrapolated step too
             # (`_tilt_gain`; the step's own turn is assumed, not estimated about the levelled
@@ -1257,8 +1299,15 @@ class VisualOdometry:
         before = self._grown[1] if self._grown and self._grown[0] == last_stamp else 0.0
         self._grown = (last_stamp, dt)
         share = max(dt * dt - before * before, 0.0)
-        grow = np.diag([cfg.lost_turn_rate_std ** 2 * share] * 3
-                       + [cfg.lost_speed_std ** 2 * share] * 3)
+        along = cfg.lost_speed_std ** 2 * share
+        if not hold and wheels is None:
+            # The speed itself may change across the gap: by up to the hardest braking (three
+            # standard deviations of the acceleration), a position error of a t^2 / 2 (a user
+            # test: a camera frozen for 3 s while the car braked, carried on at its speed, ended
+            # 16 m ahead at 3.6 standard deviations).
+            accel = cfg.max_deceleration / 3.0
+            along += accel * accel * max(dt ** 4 - before ** 4, 0.0) / 4.0
+        grow = np.diag([cfg.lost_turn_rate_std ** 2 * share] * 3 + [along] * 3)
         Ad = adjoint(invert(T_bc))
         cov = self._camera_cov + Ad @ grow @ Ad.T
         # No angle is less known than a uniform one (std pi / sqrt(3); a user test: a gap of

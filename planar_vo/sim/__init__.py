@@ -27,7 +27,7 @@ from __future__ import annotations
 from planar_vo.core.trajectory import Trajectory, concatenate
 from planar_vo.sim.ground_truth import backproject, cast_rays, exact_acs, relative_planar_motion
 from planar_vo.sim.renderer import RenderedFrame, render
-from planar_vo.sim.trajectories import reverse, s_curve, stop_and_go, straight, turn
+from planar_vo.sim.trajectories import hard_stop, reverse, s_curve, stop_and_go, straight, turn
 from planar_vo.sim.world import FACADE_KIND, GROUND_KIND, OBSTACLE_KIND, StreetWorld
 
 __all__ = [
@@ -41,6 +41,7 @@ __all__ = [
     'cast_rays',
     'concatenate',
     'exact_acs',
+    'hard_stop',
     'relative_planar_motion',
     'render',
     'reverse',

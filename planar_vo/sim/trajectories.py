@@ -29,6 +29,7 @@ from planar_vo.core.trajectory import Trajectory
 from planar_vo.errors import InputError
 
 __all__ = [
+    'hard_stop',
     'reverse',
     's_curve',
     'stop_and_go',
@@ -131,6 +132,24 @@ def reverse(distance: float = 10.0, speed: float = 2.0, rate: float = 10.0) -> T
     n = _frame_count(distance / speed, rate)
     v = distance / (n / rate)
     return _sample(lambda t: -v * t, np.zeros_like, n, rate)
+
+
+def hard_stop(distance: float = 8.0, speed: float = 8.0, deceleration: float = 3.0,
+              stop_duration: float = 1.5, rate: float = 30.0) -> Trajectory:
+    """Cruise ``distance`` metres, brake at a constant ``deceleration`` (m/s^2) to a full stop
+    and stand for ``stop_duration`` seconds: a simulator's brake, which does not ease off
+    before the stop as a driver does (`stop_and_go`); the standing poses are exactly
+    identical."""
+    _check_positive(distance=distance, speed=speed, deceleration=deceleration,
+                    stop_duration=stop_duration, rate=rate)
+    cruise, braking = distance / speed, speed / deceleration
+    n = _frame_count(cruise + braking + stop_duration, rate)
+
+    def s_of_t(t: np.ndarray) -> np.ndarray:
+        u = np.clip(t - cruise, 0.0, braking)
+        return speed * np.minimum(t, cruise) + speed * u - 0.5 * deceleration * u * u
+
+    return _sample(s_of_t, np.zeros_like, n, rate)
 
 
 def stop_and_go(distance: float = 20.0, speed: float = 8.0, stop_duration: float = 1.0,

@@ -223,9 +223,9 @@ class RoadNormalCalibrator:
             spread = MAD_TO_SIGMA * median(np.abs(e[front])) + 1e-12 if front.any() else 1.0
             w = w0 * front / (1.0 + (e / (_CAUCHY_SCALE * spread)) ** 2)
             we = w * e
-            # The 2x2 normal equations as dot products of the flattened arrays (no temporaries;
-            # the sums in plain floats: numpy's per-call overhead would cost more than the
-            # arithmetic).
+            # The 2x2 normal equations as dot products of the flattened arrays (two weighted
+            # arrays instead of one per sum; the results in plain floats: numpy's per-call
+            # overhead would cost more than the arithmetic).
             j0, j1 = J[0].ravel(), J[1].ravel()
             wj0, wj1 = w.ravel() * j0, w.ravel() * j1
             h00, h01, h11 = float(wj0 @ j0), float(wj0 @ j1), float(wj1 @ j1)
