@@ -1257,10 +1257,10 @@ class VisualOdometry:
         the wheel speed gives, when it covers the gap), its turn rate decaying (a long gap does
         not spin the pose), and the covariance grown with the time of the gap (not with the
         frames in it): ``odometry.lost_speed_std`` and ``lost_turn_rate_std`` per second, and,
-        without the wheels' distance, braking at up to ``odometry.max_deceleration``. With ``hold`` (the time base moved on: the
-        stamps before and after belong to different clocks or a pause of unknown length, so
-        the last velocity says nothing about the motion across it) the pose is held and only
-        the covariance grows."""
+        without the wheels' distance, braking at up to ``odometry.max_deceleration``. With
+        ``hold`` (the time base moved on: the stamps before and after belong to different
+        clocks or a pause of unknown length, so the last velocity says nothing about the motion
+        across it) the pose is held and only the covariance grows."""
         cfg = self.config.odometry
         last_stamp, last_pose = self._last_out if self._last_out else (stamp, self.camera_pose)
         dt = max(seconds_between(stamp, last_stamp), 0.0)
