@@ -52,6 +52,12 @@ def test_every_parameter_has_a_description():
     docs = describe()
     assert set(docs) == set(flatten(PlanarVoConfig()))
     assert all(docs.values())
+    # Whole sentences: a continuation line reading 'word: ...' is not a new entry (a review:
+    # two descriptions ended at 'standing' and at 'one standard deviation of the').
+    assert all(v.endswith(('.', ')')) for v in docs.values()), \
+        [k for k, v in docs.items() if not v.endswith(('.', ')'))]
+    assert docs['keyframe.stationary_parallax'].endswith('standing still: zero motion is output '
+                                                         'and no keyframe is made.')
 
 
 def test_flat_round_trip():

@@ -1298,7 +1298,7 @@ def test_lost_tracking_restarts_on_the_next_real_frame_with_inflated_covariance(
 
 _FROZEN = (r"image identical to the previous frame's, pixel for pixel, (\S+) s after moving at "
            r"(\S+) \+- (\S+) m/s \(the last step's mean\), too fast to stop since at "
-           r"odometry.max_deceleration (\S+) m/s\^2: a frozen camera or a repeated frame")
+           r"odometry\.max_deceleration (\S+) m/s\^2: a frozen camera or a repeated frame")
 
 
 def test_a_frozen_camera_is_lost_tracking_not_a_stop():
@@ -1341,7 +1341,7 @@ def test_a_run_of_frozen_frames_stays_frozen_beyond_the_time_to_stop():
     frozen = [vo.process(images[3].copy(), float(stamps[i])) for i in range(4, 9)]
     assert [r.reason for r in frozen] == [DropReason.FROZEN_IMAGE] * 5
     found = re.fullmatch(_FROZEN, frozen[-1].message)      # the first frame's reason
-    assert float(found[1]) < 0.2 and float(found[4]) == 40.0
+    assert found and float(found[1]) < 0.2 and float(found[4]) == 40.0, frozen[-1].message
     resumed = vo.process(images[9], float(stamps[9]))
     assert resumed.ok
     assert abs(resumed.pose[0, 3] - (trajectory.xy[9, 0] - trajectory.xy[0, 0])) < 0.05
@@ -1358,6 +1358,70 @@ def test_a_simulated_car_braking_hard_to_a_stop_stands():
     assert all(results[i].scale_source == 'stationary' for i in still[3:])
     pos, _, distance = _errors(trajectory, results)
     assert pos < 0.01 * distance
+
+
+@pytest.mark.parametrize('case', ['fixed_speed', 'wheels_at_3_hz', 'wheels_late'])
+def test_a_stop_stays_a_stop_without_evidence_of_motion(case):
+    """The simulator's hard stop with an assumed fixed speed (an assumption is no evidence of
+    motion) and with wheel speed samples at 3 Hz or arriving 0.2 s after their frames (not
+    extrapolated past the last sample: a braking car's last sample is not the stop's speed):
+    the standing frames are a stop (a review: the whole stop was lost as frozen)."""
+    trajectory, images, twists = _drive('hard_stop')
+    speeds = np.hypot(twists[:, 0], twists[:, 1])
+    scale = {'source': 'fixed', 'fixed_speed': 12.0} if case == 'fixed_speed' else \
+        {'source': 'speed'}
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}, 'scale': scale}),
+                        CAMERA)
+    stamps = [float(t) for t in trajectory.stamps]
+    every = 10 if case == 'wheels_at_3_hz' else 1
+    results = []
+    for i, stamp in enumerate(stamps):
+        if case == 'wheels_late' and i >= 6:
+            vo.add_speed(stamps[i - 6], float(speeds[i - 6]))       # 0.2 s late at 30 Hz
+        elif case != 'fixed_speed' and case != 'wheels_late' and i % every == 0:
+            vo.add_speed(stamp, float(speeds[i]))
+        results.append(vo.process(images[i], stamp))
+    assert vo.counters.get('frozen_image', 0) == 0, [r.message for r in results
+                                                     if r.reason is DropReason.FROZEN_IMAGE][:1]
+
+
+def test_a_single_repeated_frame_is_only_counted():
+    """One duplicated frame (a video converted to a constant frame rate) is counted, and
+    neither changes the tracking state nor counts towards lost tracking, even with
+    odometry.max_lost_frames 1 (a review: it restarted the chain)."""
+    trajectory, images, _ = _drive('straight')
+    stamps = trajectory.stamps
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                                  'odometry': {'max_lost_frames': 1}}), CAMERA)
+    for i in range(4):
+        vo.process(images[i], float(stamps[i]))
+    repeated = vo.process(images[3].copy(), float(stamps[4]))
+    assert repeated.reason is DropReason.FROZEN_IMAGE
+    assert repeated.tracking is TrackingState.TRACKING and 'tracking lost' not in repeated.message
+    after = vo.process(images[5], float(stamps[5]))
+    assert after.ok and after.tracking is TrackingState.TRACKING
+    assert abs(after.pose[0, 3] - (trajectory.xy[5, 0] - trajectory.xy[0, 0])) < 0.05
+
+
+def test_a_long_gap_widens_the_travel_by_braking_only_until_the_stop():
+    """2.2 s without an update at 8 m/s: braking at odometry.max_deceleration (10 m/s^2) would
+    stop the car after 0.8 s and fall short of the extrapolated travel by 8 x 2.2 - 8^2 / 20 =
+    14.4 m (three standard deviations, along the travel), not by 10 x 2.2^2 / 2 = 24.2 m (a
+    review: that grew as t^4 without bound)."""
+    trajectory, images, _ = _drive('straight')
+    stamps = trajectory.stamps
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    for i in range(4):
+        last = vo.process(images[i], float(stamps[i]))
+    for i in range(4, 25):
+        assert vo.process(np.zeros_like(images[i]), float(stamps[i])).reason is \
+            DropReason.BLANK_IMAGE
+    resumed = vo.process(images[25], float(stamps[25]))
+    assert resumed.reason is DropReason.REINITIALISED
+    gap = float(stamps[25] - stamps[3])
+    grown = resumed.pose_covariance - last.pose_covariance
+    assert grown[0, 0] == pytest.approx(gap ** 2 + ((8.0 * gap - 3.2) / 3.0) ** 2, rel=0.02)
+    assert grown[1, 1] == pytest.approx(gap ** 2, rel=0.02)                 # across: no braking
 
 
 def test_the_wheel_speed_tells_a_frozen_camera_from_a_stop():

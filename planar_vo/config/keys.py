@@ -21,6 +21,7 @@ def describe(section: type[Options] = None, prefix: str = '') -> dict[str, str]:
     docs: dict[str, str] = {}
     current: list[str] = []
     lines = (section.__doc__ or '').splitlines()
+    fields = {f.name for f in dataclasses.fields(section)}
     in_attrs = False
     for line in lines:
         stripped = line.strip()
@@ -30,7 +31,9 @@ def describe(section: type[Options] = None, prefix: str = '') -> dict[str, str]:
         if not in_attrs or not stripped:
             continue
         head, sep, text = stripped.partition(': ')
-        if sep and all(part.strip().isidentifier() for part in head.split(',')):
+        # A new entry names fields; a continuation line that reads 'word: ...' is text (a
+        # review: 'acceleration: ...' cut a description short).
+        if sep and all(part.strip() in fields for part in head.split(',')):
             current = [part.strip() for part in head.split(',')]
             for name in current:
                 docs[name] = text

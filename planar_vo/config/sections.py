@@ -424,24 +424,26 @@ class OdometryConfig(Options):
         flat_z_std, flat_tilt_std: with ``output: flat``, the standard deviations (m, rad)
             given to the dropped z and roll/pitch.
         lost_speed_std, lost_turn_rate_std: while tracking is lost the pose is extrapolated
-            at the last velocity (over the wheel speed's distance when there is one); its
-            standard deviation grows by this much speed (m/s) and turn rate (rad/s) per second
-            of the gap, and, without the wheels' distance, by the braking
-            ``max_deceleration`` allows (a third of it one standard deviation of the
-            acceleration: ``a t^2 / 2``).
+            at the last velocity (over the wheel speed's distance when there is one, straight
+            ahead from a standstill); its standard deviation grows by this much speed (m/s) and
+            turn rate (rad/s) per second of the gap, and, without the wheels' distance, along
+            the last velocity by a third of what braking at ``max_deceleration`` would fall
+            short of the extrapolated travel (a t^2 / 2 until the stop).
         turn_rate_time_constant: the extrapolated turn rate decays with this time constant
             (s): a long gap does not spin the pose.
         max_deceleration: the hardest braking of the vehicle (m/s^2; about 1 g for a car on
             dry asphalt). A real sensor's noise differs from frame to frame, so a frame
             identical to the one before it, pixel for pixel, shows a vehicle that stands (a
-            simulator renders those alike) only if it could have stopped: while the wheel
-            speed says it moved since the previous frame, or when the last motion step's
-            velocity (the mean over its interval, the speed at its middle), less three standard
-            deviations, exceeds this deceleration times the time since that middle, the frame
+            simulator renders those alike) only if it could have stopped: while wheel speed
+            samples up to the frame say it moved since the previous frame, or when the last
+            measured motion step's velocity (the mean over its interval, the speed at its
+            middle), less three standard deviations, exceeds this deceleration times the time
+            since that middle, the frame
             is a frozen camera's (a stalled driver republishing its last image, a duplicated
             frame of a raw or losslessly coded video; a lossy codec's duplicates differ and
             read as a stop), counted as ``frozen_image`` and lost for tracking, and so are the
-            identical frames after it. A higher value judges fewer frames frozen.
+            identical frames after it. A higher value judges fewer frames frozen and widens
+            the pose's covariance across lost frames more (``lost_speed_std``).
         window_lags: keyframe pairs measured per new keyframe: 1 tracks frame to frame; D > 1
             also matches each new keyframe against the D - 1 kept keyframes before the
             previous one (a front-end run and a refinement each) and solves the orientations of

@@ -208,7 +208,7 @@ class VisualOdometry:
         self._last_out: tuple[float, np.ndarray] | None = None   # stamp, camera pose
         # (the last output's stamp, the seconds since it that `_extrapolate` has grown the
         # covariance by)
-        self._grown: tuple[float, float] | None = None
+        self._grown: tuple[float, float, float] | None = None
         self._twist = np.zeros(6)
         self._twist_cov = np.eye(6) * _UNKNOWN
         # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
@@ -220,6 +220,7 @@ class VisualOdometry:
         self._previous_stamp: float | None = None
         self._frozen_why = ''
         self._frozen_run = 0                     # frozen frames in a row
+        self._step_source = ''                   # the last motion step's scale source
         # The distance (m) standing frames may have moved unseen, until the next motion step.
         self._crept = 0.0
         # The position error (m, camera world frame) one standard deviation of the steps'
@@ -475,8 +476,11 @@ class VisualOdometry:
             # adds nothing and loses nothing: the tracking state changes from the second on (a
             # review: each duplicate of a video flipped it to lost and back, a warning each).
             self._frozen_run += 1
-            return self._lost_frame(stamp, DropReason.FROZEN_IMAGE, frozen, 0,
-                                    keep_state=self._frozen_run == 1)
+            if self._frozen_run == 1:
+                return self._drop(stamp, DropReason.FROZEN_IMAGE, frozen)
+            if self._frozen_run == 2:
+                self._lost += 1         # the run's first frame counts towards lost tracking now
+            return self._lost_frame(stamp, DropReason.FROZEN_IMAGE, frozen, 0)
         self._frozen_run = 0
         timings['decode'] = time.perf_counter() - t
         keyframe = self._keyframes.current
@@ -537,6 +541,7 @@ class VisualOdometry:
                     est.R, est.t, scale, ground, min(self._focal.relative_std, 1.0),
                     self._focal.pp_std / camera.fx)
         self._update_twist(keyframe, stamp, step_cov)
+        self._step_source = source
         self._twist_cov[:3, :3] += bias * bias * np.outer(self._twist[:3], self._twist[:3])
         new_keyframe = (parallax >= self.config.keyframe.min_parallax
                         or keyframe.age + 1 >= self.config.keyframe.max_interval)
@@ -1078,33 +1083,49 @@ class VisualOdometry:
         A real sensor's noise differs from frame to frame: a frame identical to the previous
         one, pixel for pixel, is the same image again (a stalled driver republishing it, a
         duplicated frame of a raw or losslessly coded video), unless the vehicle stands (a
-        simulator renders a standing vehicle's frames alike). It cannot stand while the wheel
-        speed (`add_speed`) says it moved since the previous frame, nor right after a motion
-        step too fast to have stopped since (`_moving`). A run of identical frames stays
-        frozen once one of them is; without either evidence (no wheel speed, the run began at
-        a stop), the frames go on as a stop."""
+        simulator renders a standing vehicle's frames alike). Wheel speed samples that cover
+        the time since the previous frame settle it, frame by frame (`_wheels_moved`); without
+        them, the vehicle cannot stand right after a measured motion step too fast to have
+        stopped since (`_moving`), and a run of identical frames that began so stays frozen.
+        Without either evidence (no wheel speed, the run began at a stop) the frames go on as
+        a stop."""
         previous = self._previous_gray
         if previous is None or not _same_image(previous, gray):
             self._frozen_why = ''
+            return ''
+        moved = self._wheels_moved(stamp)
+        if moved is not None:
+            self._frozen_why = moved
         elif not self._frozen_why:
             self._frozen_why = self._moving(stamp)
         return self._frozen_why
 
+    def _wheels_moved(self, stamp: float) -> str | None:
+        """From the wheel speed (`add_speed`), why the vehicle moved since the previous frame
+        (``''``: it did not: the distance within three standard deviations, ``scale.speed_std``
+        over the interval, of none), or None when no samples at or after ``stamp`` cover the
+        interval (the speed is not extrapolated: a braking car's last sample is not the stop's
+        speed; a review: late samples lost a whole stop as frozen)."""
+        latest = self._speed.latest
+        if latest is None or latest < stamp:
+            return None
+        d = self._speed.distance(self._previous_stamp, stamp)
+        if d is None:
+            return None
+        if not d > 3.0 * self.config.scale.speed_std * seconds_between(stamp,
+                                                                       self._previous_stamp):
+            return ''
+        return (f'image identical to the previous frame\'s, pixel for pixel, while the wheel '
+                f'speed gives {d:.3g} m travelled since it: a frozen camera or a repeated frame')
+
     def _moving(self, stamp: float) -> str:
         """Why the vehicle cannot be standing at ``stamp``, the previous frame's image
-        unchanged, or ``''``: the wheel speed's distance since the previous frame beyond three
-        of its standard deviations (``scale.speed_std``); else the last motion step's velocity
-        (the mean over its interval, the speed at its middle), less three standard deviations,
+        unchanged, or ``''``: the last motion step's velocity, measured (scale from the road,
+        the wheels or a speed held from them; an assumed fixed speed says nothing), its mean
+        over the step being the speed at the step's middle, less three standard deviations, is
         more than braking at ``odometry.max_deceleration`` takes off since that middle."""
-        cfg = self.config
-        dt = seconds_between(stamp, self._previous_stamp)
-        d = self._speed.distance(self._previous_stamp, stamp)
-        if d is not None and d > 3.0 * cfg.scale.speed_std * dt:
-            return (f'image identical to the previous frame\'s, pixel for pixel, while the wheel '
-                    f'speed gives {d:.3g} m travelled since it: a frozen camera or a repeated '
-                    f'frame')
-        if self._last_twist is None:
-            return ''                   # standing, or no motion since start-up or a reset
+        if self._last_twist is None or self._step_source not in ('ground', 'speed', 'hold'):
+            return ''                   # standing, nothing measured, or no motion since a reset
         end, length, twist = self._last_twist
         v = float(np.linalg.norm(twist[:3]))
         if not v > 0.0:
@@ -1112,7 +1133,7 @@ class VisualOdometry:
         u = twist[:3] / v
         std = math.sqrt(max(float(u @ self._twist_cov[:3, :3] @ u), 0.0))
         since = seconds_between(stamp, end) + 0.5 * length
-        a = cfg.odometry.max_deceleration
+        a = self.config.odometry.max_deceleration
         if not v - 3.0 * std > a * since:
             return ''
         return (f'image identical to the previous frame\'s, pixel for pixel, {since:.3g} s after '
@@ -1161,7 +1182,7 @@ class VisualOdometry:
                             num_correspondences=count, alpha=0.0, beta=float('nan'))
 
     def _lost_frame(self, stamp: float, reason: DropReason, message: str, count: int,
-                    inliers: int = 0, keep_state: bool = False) -> FrameResult:
+                    inliers: int = 0) -> FrameResult:
         """No update from this frame. After ``odometry.max_lost_frames`` in a row the keyframe
         is dropped: the next usable frame starts a new keyframe chain (`_start_chain`). The
         failed frame itself never becomes the keyframe, since it may be the cause (a blank or
@@ -1176,8 +1197,7 @@ class VisualOdometry:
         keyframe = self._keyframes.current
         if keyframe is not None:
             keyframe.age += 1
-        if not keep_state:
-            self._state = TrackingState.LOST
+        self._state = TrackingState.LOST
         miss = reason is DropReason.TOO_FEW_CORRESPONDENCES
         # Misses that still found some correspondences: the frame sees part of the keyframe's
         # scene (moving away from it), where a garbled one finds none.
@@ -1296,18 +1316,26 @@ class VisualOdometry:
         # The variance grows with the square of the time since the last output; a second
         # restart before the next output adds only what the first did not (a review: it added
         # the whole time again).
-        before = self._grown[1] if self._grown and self._grown[0] == last_stamp else 0.0
-        self._grown = (last_stamp, dt)
+        again = self._grown is not None and self._grown[0] == last_stamp
+        before, braked = self._grown[1:] if again else (0.0, 0.0)
         share = max(dt * dt - before * before, 0.0)
-        along = cfg.lost_speed_std ** 2 * share
-        if not hold and wheels is None:
-            # The speed itself may change across the gap: by up to the hardest braking (three
-            # standard deviations of the acceleration), a position error of a t^2 / 2 (a user
-            # test: a camera frozen for 3 s while the car braked, carried on at its speed, ended
-            # 16 m ahead at 3.6 standard deviations).
-            accel = cfg.max_deceleration / 3.0
-            along += accel * accel * max(dt ** 4 - before ** 4, 0.0) / 4.0
-        grow = np.diag([cfg.lost_turn_rate_std ** 2 * share] * 3 + [along] * 3)
+        grow = np.diag([cfg.lost_turn_rate_std ** 2 * share] * 3
+                       + [cfg.lost_speed_std ** 2 * share] * 3)
+        # The speed itself may have changed across the gap: braking at up to
+        # odometry.max_deceleration (three standard deviations) falls short of the extrapolated
+        # travel by a t^2 / 2, until the stop (v t - v^2 / (2 a) after it), along the last
+        # velocity (a user test: a camera frozen for 3 s while the car braked, carried on at
+        # its speed, ended 16 m ahead at 3.6 standard deviations). Not when the wheels measured
+        # the travel, nor for a held pose.
+        total = 0.0
+        v = float(np.linalg.norm(self._twist[:3]))
+        if not hold and wheels is None and v > 0.0:
+            a = cfg.max_deceleration
+            short = 0.5 * a * dt * dt if dt <= v / a else v * dt - v * v / (2.0 * a)
+            total = (short / 3.0) ** 2
+            u = self._twist[:3] / v
+            grow[3:, 3:] += max(total - braked, 0.0) * np.outer(u, u)
+        self._grown = (last_stamp, dt, max(total, braked))
         Ad = adjoint(invert(T_bc))
         cov = self._camera_cov + Ad @ grow @ Ad.T
         # No angle is less known than a uniform one (std pi / sqrt(3); a user test: a gap of

@@ -76,6 +76,11 @@ class SpeedIntegrator:
     def __len__(self) -> int:
         return self._n
 
+    @property
+    def latest(self) -> float | None:
+        """The stamp of the latest sample (s), or None before the first."""
+        return float(self._t[self._n - 1]) if self._n else None
+
     def add(self, stamp: float, speed: float) -> None:
         """Add a speed sample (m/s, non-negative; the direction comes from vision).
 
