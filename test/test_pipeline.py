@@ -1424,6 +1424,54 @@ def test_a_long_gap_widens_the_travel_by_braking_only_until_the_stop():
     assert grown[1, 1] == pytest.approx(gap ** 2, rel=0.02)                 # across: no braking
 
 
+def test_an_older_image_republished_is_not_a_step_back():
+    """A B A: frame 4's image again after frame 5's (a driver republishing an old buffer) is
+    counted as frozen_image, not a step back at -8 m/s (a user test: a permanent 2 m error at
+    10 standard deviations), and the next real frame is tracked."""
+    trajectory, images, _ = _drive('straight')
+    stamps = trajectory.stamps
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    for i in range(6):
+        vo.process(images[i], float(stamps[i]))
+    old = vo.process(images[4].copy(), float(stamps[6]))
+    assert old.reason is DropReason.FROZEN_IMAGE, (old.reason, old.message)
+    assert old.message == ('image identical, pixel for pixel, to the frame 2 frames before it, '
+                           'with other images between: a camera republishing an old image')
+    after = vo.process(images[7], float(stamps[7]))
+    assert after.ok and abs(after.pose[0, 3] - (trajectory.xy[7, 0] - trajectory.xy[0, 0])) < 0.05
+    assert abs(after.twist[0] - 8.0) < 0.3
+    # Standing, a simulator's scene may repeat (a blinking light): A A' A is a stop.
+    trajectory, images, _ = _drive('hard_stop')
+    still = np.flatnonzero(np.all(np.diff(trajectory.poses, axis=0) == 0, axis=(1, 2))) + 1
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    for i in range(still[5] + 1):
+        vo.process(images[i], float(trajectory.stamps[i]))
+    blink = images[still[5]].copy()
+    blink[200:210, 300:310] = 255 - blink[200:210, 300:310]
+    for i, image in ((still[6], blink), (still[7], images[still[7]])):
+        result = vo.process(image, float(trajectory.stamps[i]))
+        assert result.ok and result.scale_source == 'stationary', (result.reason, result.message)
+
+
+@pytest.mark.parametrize('mode', ['auto', 'frozen'])
+def test_repeated_images_frozen_for_a_real_camera(mode):
+    """With odometry.max_deceleration so high that any car could have stopped, 'auto' takes a
+    frozen camera for a stop; 'frozen' (a real camera: its noise never repeats an image) does
+    not."""
+    trajectory, images, _ = _drive('straight')
+    stamps = trajectory.stamps
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}, 'odometry': {
+        'max_deceleration': 1000.0, 'repeated_images': mode}}), CAMERA)
+    for i in range(4):
+        vo.process(images[i], float(stamps[i]))
+    repeated = vo.process(images[3].copy(), float(stamps[4]))
+    if mode == 'auto':
+        assert repeated.ok and repeated.scale_source == 'stationary'
+    else:
+        assert repeated.reason is DropReason.FROZEN_IMAGE
+        assert 'odometry.repeated_images: frozen' in repeated.message
+
+
 def test_the_wheel_speed_tells_a_frozen_camera_from_a_stop():
     """With wheel speed: frames frozen from start-up while driving are frozen_image (nothing
     visual says the car moves yet), and a camera that stalls during a stop, the car driving

@@ -431,6 +431,14 @@ class OdometryConfig(Options):
             short of the extrapolated travel (a t^2 / 2 until the stop).
         turn_rate_time_constant: the extrapolated turn rate decays with this time constant
             (s): a long gap does not spin the pose.
+        repeated_images: an image identical to the previous one, pixel for pixel, is
+            ``'auto'``: a stop when the vehicle could have stopped (below; a simulator renders
+            a standing vehicle's frames alike), else a frozen camera's; ``'frozen'``: always a
+            frozen camera's (a real camera, whose noise never repeats an image: catches a
+            freeze at low speed, or while the speed is uncertain, e.g. the focal length still
+            being calibrated, which ``'auto'`` takes for a stop). An image identical to one of
+            the 8 frames before the previous one is a republished old image, with ``'auto'``
+            after a motion step (a simulator's scene may repeat while the vehicle stands).
         max_deceleration: the hardest braking of the vehicle (m/s^2; about 1 g for a car on
             dry asphalt). A real sensor's noise differs from frame to frame, so a frame
             identical to the one before it, pixel for pixel, shows a vehicle that stands (a
@@ -471,6 +479,7 @@ class OdometryConfig(Options):
                                         expected='a positive turn rate (rad/s)')
     turn_rate_time_constant: float = bounded(2.0, 0.0, 1e4, low_open=True, high_open=True,
                                              expected='a positive duration (s)')
+    repeated_images: typing.Literal['auto', 'frozen'] = 'auto'
     max_deceleration: float = bounded(10.0, 0.0, 1e4, low_open=True, high_open=True,
                                       expected='a deceleration (m/s^2) between 0 and 1e4')
     window_lags: int = bounded(1, 1, 5)

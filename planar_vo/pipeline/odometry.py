@@ -218,6 +218,8 @@ class VisualOdometry:
         # identical to it is a frozen camera's ('' while it is not; `_frozen`).
         self._previous_gray: np.ndarray | None = None
         self._previous_stamp: float | None = None
+        # The frames before it (newest last), to catch an older image republished.
+        self._older: deque[np.ndarray] = deque(maxlen=_OLDER_FRAMES)
         self._frozen_why = ''
         self._frozen_run = 0                     # frozen frames in a row
         self._step_source = ''                   # the last motion step's scale source
@@ -468,6 +470,8 @@ class VisualOdometry:
             return self._lost_frame(stamp, DropReason.BLANK_IMAGE,
                                     'image is blank (black, saturated or without texture)', 0)
         frozen = self._frozen(gray, stamp)
+        if self._previous_gray is not None:
+            self._older.append(self._previous_gray)
         self._previous_gray, self._previous_stamp = gray, stamp
         if frozen:
             # Like a blank frame: it counts towards lost tracking and never becomes a keyframe
@@ -1092,7 +1096,23 @@ class VisualOdometry:
         previous = self._previous_gray
         if previous is None or not _same_image(previous, gray):
             self._frozen_why = ''
-            return ''
+            # An older frame again, the frames since it different, while moving: the camera
+            # republished an old image (a user test: A B A at 10 m/s was a step back at -10
+            # m/s). Standing, a simulator's scene may repeat (a blinking light).
+            moving = (self._last_twist is not None
+                      or self.config.odometry.repeated_images == 'frozen')
+            for age, older in enumerate(reversed(self._older) if moving else (), start=2):
+                if _same_image(older, gray):
+                    self._frozen_why = (f'image identical, pixel for pixel, to the frame {age} '
+                                        f'frames before it, with other images between: a '
+                                        f'camera republishing an old image')
+                    break
+            return self._frozen_why
+        if self.config.odometry.repeated_images == 'frozen':
+            self._frozen_why = ('image identical to the previous frame\'s, pixel for pixel '
+                                '(odometry.repeated_images: frozen): a frozen camera or a '
+                                'repeated frame')
+            return self._frozen_why
         moved = self._wheels_moved(stamp)
         if moved is not None:
             self._frozen_why = moved
@@ -1622,6 +1642,9 @@ def _seconds(value: float) -> str:
 
 # The standard deviation of an angle uniform on the circle: no angle is less known.
 _UNIFORM_ANGLE_STD = math.pi / math.sqrt(3.0)
+# Frames before the previous one kept to catch an older image republished (A B A): 8 frames of
+# 1241x376 are 3.7 MB.
+_OLDER_FRAMES = 8
 # Steps of history before the excess variances are measured (`_yaw_excess`, `_heading_excess`).
 _EXCESS_MIN_STEPS = 10
 # The road normal before its first fit is the mount's tilt (configured or estimated), trusted to
