@@ -430,7 +430,9 @@ class OdometryConfig(Options):
             the last velocity by a third of what braking at ``max_deceleration`` would fall
             short of the extrapolated travel (a t^2 / 2 until the stop).
         turn_rate_time_constant: the extrapolated turn rate decays with this time constant
-            (s): a long gap does not spin the pose.
+            (s): a long gap does not spin the pose; the yaw's standard deviation grows by the
+            turn the decay leaves out (the rate going on), the lateral position's by the
+            offset that turn makes (at most its circle's diameter).
         repeated_images: an image identical to the previous one, pixel for pixel, is
             ``'auto'``: a stop when the vehicle could have stopped (below; a simulator renders
             a standing vehicle's frames alike), else a frozen camera's; ``'frozen'``: always a

@@ -208,7 +208,7 @@ class VisualOdometry:
         self._last_out: tuple[float, np.ndarray] | None = None   # stamp, camera pose
         # (the last output's stamp, the seconds since it that `_extrapolate` has grown the
         # covariance by)
-        self._grown: tuple[float, float, float] | None = None
+        self._grown: tuple[float, ...] | None = None
         self._twist = np.zeros(6)
         self._twist_cov = np.eye(6) * _UNKNOWN
         # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
@@ -1337,7 +1337,7 @@ class VisualOdometry:
         # restart before the next output adds only what the first did not (a review: it added
         # the whole time again).
         again = self._grown is not None and self._grown[0] == last_stamp
-        before, braked = self._grown[1:] if again else (0.0, 0.0)
+        before, braked, turned, drifted = self._grown[1:] if again else (0.0, 0.0, 0.0, 0.0)
         share = max(dt * dt - before * before, 0.0)
         grow = np.diag([cfg.lost_turn_rate_std ** 2 * share] * 3
                        + [cfg.lost_speed_std ** 2 * share] * 3)
@@ -1355,7 +1355,22 @@ class VisualOdometry:
             total = (short / 3.0) ** 2
             u = self._twist[:3] / v
             grow[3:, 3:] += max(total - braked, 0.0) * np.outer(u, u)
-        self._grown = (last_stamp, dt, max(total, braked))
+        # The turn rate may persist where the extrapolation lets it decay: a standard deviation
+        # of the yaw the continuing turn adds beyond the decayed one, and of the lateral offset
+        # that makes (at most the turn's circle, 2 v / w), about base z and along base y (a
+        # user test: a 3 s gap in a 90-deg turn was 35 deg off at a yaw std of 8.9 deg).
+        yaw_total = lateral_total = 0.0
+        w = abs(float(self._twist[5]))
+        if not hold and w > 0.0:
+            tau = cfg.turn_rate_time_constant
+            decayed = tau * (1.0 - math.exp(-dt / tau))          # yaw per unit rate, decaying
+            yaw_total = (w * (dt - decayed)) ** 2
+            lateral_total = min(v * w * (0.5 * dt * dt - tau * (dt - decayed)),
+                                2.0 * v / w) ** 2
+            grow[2, 2] += max(yaw_total - turned, 0.0)
+            grow[4, 4] += max(lateral_total - drifted, 0.0)
+        self._grown = (last_stamp, dt, max(total, braked), max(yaw_total, turned),
+                       max(lateral_total, drifted))
         Ad = adjoint(invert(T_bc))
         cov = self._camera_cov + Ad @ grow @ Ad.T
         # No angle is less known than a uniform one (std pi / sqrt(3); a user test: a gap of
