@@ -1476,7 +1476,8 @@ def test_repeated_images_frozen_for_a_real_camera(mode):
 def test_a_gap_in_a_turn_widens_the_yaw_by_the_turn_that_may_go_on():
     """3 s without an update in a 90-deg turn at 0.4 rad/s: the extrapolated turn rate decays
     (2 s), the car turns on; the yaw's standard deviation covers the turn the decay leaves out
-    (a user test: 35 deg off at a std of 8.9 deg, 4 standard deviations)."""
+    (a user test: 35 deg off at a std of 8.9 deg, 4 standard deviations), and the position's
+    the offset of that turn."""
     trajectory, images, _ = _drive('long_turn')
     stamps = trajectory.stamps
     vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
@@ -1491,6 +1492,11 @@ def test_a_gap_in_a_turn_widens_the_yaw_by_the_turn_that_may_go_on():
     std = math.sqrt(resumed.pose_covariance[5, 5])
     assert error > math.radians(20)                    # the decay left much of the turn out
     assert error < 1.5 * std, (math.degrees(error), math.degrees(std))
+    # The position follows the decaying turn (a review: straight ahead, 14.9 m off), and its
+    # covariance covers the turn going on.
+    e = resumed.pose[:2, 3] - truth[:2, 3]
+    assert np.linalg.norm(e) < 7.0, e
+    assert float(e @ np.linalg.solve(resumed.pose_covariance[:2, :2], e)) < 3.0 ** 2
 
 
 def test_the_wheel_speed_tells_a_frozen_camera_from_a_stop():

@@ -430,17 +430,18 @@ class OdometryConfig(Options):
             the last velocity by a third of what braking at ``max_deceleration`` would fall
             short of the extrapolated travel (a t^2 / 2 until the stop).
         turn_rate_time_constant: the extrapolated turn rate decays with this time constant
-            (s): a long gap does not spin the pose; the yaw's standard deviation grows by the
-            turn the decay leaves out (the rate going on), the lateral position's by the
-            offset that turn makes (at most its circle's diameter).
+            (s): a long gap does not spin the pose; the travel follows the decaying turn, the
+            yaw's standard deviation grows by the turn the decay leaves out (the rate going
+            on), the position's by the offset of the travel if the turn went on.
         repeated_images: an image identical to the previous one, pixel for pixel, is
             ``'auto'``: a stop when the vehicle could have stopped (below; a simulator renders
             a standing vehicle's frames alike), else a frozen camera's; ``'frozen'``: always a
             frozen camera's (a real camera, whose noise never repeats an image: catches a
             freeze at low speed, or while the speed is uncertain, e.g. the focal length still
             being calibrated, which ``'auto'`` takes for a stop). An image identical to one of
-            the 8 frames before the previous one is a republished old image, with ``'auto'``
-            after a motion step (a simulator's scene may repeat while the vehicle stands).
+            the 8 frames before the previous one, within their usual time, is a republished old
+            image, with ``'auto'`` after a motion step (a simulator's scene may repeat while the
+            vehicle stands).
         max_deceleration: the hardest braking of the vehicle (m/s^2; about 1 g for a car on
             dry asphalt). A real sensor's noise differs from frame to frame, so a frame
             identical to the one before it, pixel for pixel, shows a vehicle that stands (a
@@ -453,7 +454,7 @@ class OdometryConfig(Options):
             frame of a raw or losslessly coded video; a lossy codec's duplicates differ and
             read as a stop), counted as ``frozen_image`` and lost for tracking, and so are the
             identical frames after it. A higher value judges fewer frames frozen and widens
-            the pose's covariance across lost frames more (``lost_speed_std``).
+            the pose's covariance across lost frames more (see ``lost_speed_std``).
         window_lags: keyframe pairs measured per new keyframe: 1 tracks frame to frame; D > 1
             also matches each new keyframe against the D - 1 kept keyframes before the
             previous one (a front-end run and a refinement each) and solves the orientations of

@@ -219,7 +219,7 @@ class VisualOdometry:
         self._previous_gray: np.ndarray | None = None
         self._previous_stamp: float | None = None
         # The frames before it (newest last), to catch an older image republished.
-        self._older: deque[np.ndarray] = deque(maxlen=_OLDER_FRAMES)
+        self._older: deque[tuple[np.ndarray, float]] = deque(maxlen=_OLDER_FRAMES)
         self._frozen_why = ''
         self._frozen_run = 0                     # frozen frames in a row
         self._step_source = ''                   # the last motion step's scale source
@@ -471,7 +471,7 @@ class VisualOdometry:
                                     'image is blank (black, saturated or without texture)', 0)
         frozen = self._frozen(gray, stamp)
         if self._previous_gray is not None:
-            self._older.append(self._previous_gray)
+            self._older.append((self._previous_gray, self._previous_stamp))
         self._previous_gray, self._previous_stamp = gray, stamp
         if frozen:
             # Like a blank frame: it counts towards lost tracking and never becomes a keyframe
@@ -1101,8 +1101,13 @@ class VisualOdometry:
             # m/s). Standing, a simulator's scene may repeat (a blinking light).
             moving = (self._last_twist is not None
                       or self.config.odometry.repeated_images == 'frozen')
-            for age, older in enumerate(reversed(self._older) if moving else (), start=2):
-                if _same_image(older, gray):
+            # ... and recently: the same images after a gap are a replay, not a stale buffer
+            # (within the kept frames' usual time, half as much again).
+            usual = self._clock.usual_interval or 0.1
+            recent = 1.5 * (_OLDER_FRAMES + 1) * usual
+            for age, (older, when) in enumerate(reversed(self._older) if moving else (),
+                                                start=2):
+                if seconds_between(stamp, when) <= recent and _same_image(older, gray):
                     self._frozen_why = (f'image identical, pixel for pixel, to the frame {age} '
                                         f'frames before it, with other images between: a '
                                         f'camera republishing an old image')
@@ -1306,19 +1311,29 @@ class VisualOdometry:
         dt = max(seconds_between(stamp, last_stamp), 0.0)
         T_bc = self._T_base_camera
         wheels = None
+        going_on = np.zeros(3)      # the travel if the turn rate persists, less the extrapolated
         if hold:
             self.camera_pose = last_pose.copy()
         else:
-            yaw = yaw_rate_decay(float(self._twist[5]), dt, cfg.turn_rate_time_constant)
-            travel = self._twist[:3] * dt
+            tau = cfg.turn_rate_time_constant
+            rate = float(self._twist[5])
+            yaw = yaw_rate_decay(rate, dt, tau)
+            velocity = self._twist[:3]
             wheels = self._speed.distance(last_stamp, stamp) if dt > 0 else None
+            if wheels is not None and not float(np.linalg.norm(velocity)) > 0:
+                velocity = np.array([1.0, 0.0, 0.0])          # straight ahead from a standstill
+            # Along the decaying turn (the heading turns as the yaw does; a review: the travel
+            # went straight, a turn's whole sideways offset left out of the mean).
+            travel = _arc_travel(velocity, rate, tau, dt, decaying=True)
+            going_on = _arc_travel(velocity, rate, tau, dt, decaying=False) - travel
             if wheels is not None:
-                # The wheel speed measured the distance across the gap: along the last velocity,
-                # or straight ahead from a standstill (a user test: a camera stalled at a stop
-                # while the car drove off held the pose there, 10 m behind).
-                speed = float(np.linalg.norm(travel))
-                travel = (travel / speed if speed > 0 else np.array([1.0, 0.0, 0.0])) * wheels
+                # The wheel speed measured the distance across the gap (a user test: a camera
+                # stalled at a stop while the car drove off held the pose there, 10 m behind).
+                factor = wheels / max(float(np.linalg.norm(velocity)) * dt, 1e-300)
+                travel, going_on = travel * factor, going_on * factor
             step_base = se3(rotation_rpy(0.0, 0.0, yaw), travel)
+            # (the persisting turn's offset in the extrapolated pose's own frame)
+            going_on = rotation_rpy(0.0, 0.0, yaw)[:3, :3].T @ going_on
             self.camera_pose = last_pose @ (invert(T_bc) @ step_base @ T_bc)
             # The levelling's orientation error carried along tilts the extrapolated step too
             # (`_tilt_gain`; the step's own turn is assumed, not estimated about the levelled
@@ -1355,20 +1370,21 @@ class VisualOdometry:
             total = (short / 3.0) ** 2
             u = self._twist[:3] / v
             grow[3:, 3:] += max(total - braked, 0.0) * np.outer(u, u)
-        # The turn rate may persist where the extrapolation lets it decay: a standard deviation
-        # of the yaw the continuing turn adds beyond the decayed one, and of the lateral offset
-        # that makes (at most the turn's circle, 2 v / w), about base z and along base y (a
-        # user test: a 3 s gap in a 90-deg turn was 35 deg off at a yaw std of 8.9 deg).
+        # The turn rate may persist where the extrapolation lets it decay: one standard
+        # deviation is the yaw the persisting turn adds beyond the decayed one, about base z,
+        # and the offset of its travel from the extrapolated one (a user test: a 3 s gap in a
+        # 90-deg turn was 35 deg off at a yaw std of 8.9 deg).
         yaw_total = lateral_total = 0.0
         w = abs(float(self._twist[5]))
         if not hold and w > 0.0:
             tau = cfg.turn_rate_time_constant
             decayed = tau * (1.0 - math.exp(-dt / tau))          # yaw per unit rate, decaying
             yaw_total = (w * (dt - decayed)) ** 2
-            lateral_total = min(v * w * (0.5 * dt * dt - tau * (dt - decayed)),
-                                2.0 * v / w) ** 2
             grow[2, 2] += max(yaw_total - turned, 0.0)
-            grow[4, 4] += max(lateral_total - drifted, 0.0)
+            lateral_total = float(going_on @ going_on)
+            if lateral_total > 0.0:
+                grow[3:, 3:] += (max(lateral_total - drifted, 0.0) / lateral_total
+                                 * np.outer(going_on, going_on))
         self._grown = (last_stamp, dt, max(total, braked), max(yaw_total, turned),
                        max(lateral_total, drifted))
         Ad = adjoint(invert(T_bc))
@@ -1697,6 +1713,20 @@ def _gray(image) -> np.ndarray:
     # The pipeline keeps it (the keyframe, the previous frame): a copy when it is the caller's
     # own memory, which a capture loop refilling one buffer would change under it.
     return gray.copy() if np.may_share_memory(gray, image) else gray
+
+
+def _arc_travel(velocity: np.ndarray, rate: float, tau: float, dt: float, decaying: bool,
+                steps: int = 64) -> np.ndarray:
+    """The travel (m, the start's base frame) over ``dt`` seconds at the body velocity
+    ``velocity`` (m/s) while the heading turns at ``rate`` (rad/s), decaying with the time
+    constant ``tau`` (s) or not (midpoint rule in ``steps`` steps; straight for ``rate`` 0)."""
+    h = dt / steps
+    s = (np.arange(steps) + 0.5) * h
+    psi = rate * tau * (1.0 - np.exp(-s / tau)) if decaying else rate * s
+    c, sn = np.cos(psi), np.sin(psi)
+    vx, vy, vz = (float(x) for x in velocity)
+    return np.array([float(np.sum(c * vx - sn * vy)) * h, float(np.sum(sn * vx + c * vy)) * h,
+                     vz * dt])
 
 
 def _same_image(a: np.ndarray, b: np.ndarray) -> bool:
