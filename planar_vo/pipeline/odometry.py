@@ -218,8 +218,10 @@ class VisualOdometry:
         # identical to it is a frozen camera's ('' while it is not; `_frozen`).
         self._previous_gray: np.ndarray | None = None
         self._previous_stamp: float | None = None
-        # The frames before it (newest last), to catch an older image republished.
-        self._older: deque[tuple[np.ndarray, float]] = deque(maxlen=_OLDER_FRAMES)
+        self._previous_key: int | None = None   # its `_fingerprint`
+        # The frames before it (newest last: image, stamp, fingerprint), to catch an older
+        # image republished.
+        self._older: deque[tuple[np.ndarray, float, int]] = deque(maxlen=_OLDER_FRAMES)
         self._frozen_why = ''
         self._frozen_run = 0                     # frozen frames in a row
         self._step_source = ''                   # the last motion step's scale source
@@ -469,10 +471,11 @@ class VisualOdometry:
             # lens), but it never becomes a keyframe.
             return self._lost_frame(stamp, DropReason.BLANK_IMAGE,
                                     'image is blank (black, saturated or without texture)', 0)
-        frozen = self._frozen(gray, stamp)
+        key = _fingerprint(gray)
+        frozen = self._frozen(gray, stamp, key)
         if self._previous_gray is not None:
-            self._older.append((self._previous_gray, self._previous_stamp))
-        self._previous_gray, self._previous_stamp = gray, stamp
+            self._older.append((self._previous_gray, self._previous_stamp, self._previous_key))
+        self._previous_gray, self._previous_stamp, self._previous_key = gray, stamp, key
         if frozen:
             # Like a blank frame: it counts towards lost tracking and never becomes a keyframe
             # (before, a republished image read as a stop: the pose held with a confident speed
@@ -1081,7 +1084,7 @@ class VisualOdometry:
         var = rs.std ** 2 + float(d @ est.cov[:3, :3] @ d)
         return rs.scale, var, shared * math.hypot(*rs.d_normal) / rs.scale
 
-    def _frozen(self, gray: np.ndarray, stamp: float) -> str:
+    def _frozen(self, gray: np.ndarray, stamp: float, key: int) -> str:
         """Why ``gray`` is a frozen camera's frame, or ``''``.
 
         A real sensor's noise differs from frame to frame: a frame identical to the previous
@@ -1094,7 +1097,7 @@ class VisualOdometry:
         Without either evidence (no wheel speed, the run began at a stop) the frames go on as
         a stop."""
         previous = self._previous_gray
-        if previous is None or not _same_image(previous, gray):
+        if previous is None or key != self._previous_key or not np.array_equal(previous, gray):
             self._frozen_why = ''
             # An older frame again, the frames since it different, while moving: the camera
             # republished an old image (a user test: A B A at 10 m/s was a step back at -10
@@ -1105,9 +1108,10 @@ class VisualOdometry:
             # (within the kept frames' usual time, half as much again).
             usual = self._clock.usual_interval or 0.1
             recent = 1.5 * (_OLDER_FRAMES + 1) * usual
-            for age, (older, when) in enumerate(reversed(self._older) if moving else (),
-                                                start=2):
-                if seconds_between(stamp, when) <= recent and _same_image(older, gray):
+            for age, (older, when, older_key) in enumerate(reversed(self._older) if moving
+                                                           else (), start=2):
+                if (older_key == key and seconds_between(stamp, when) <= recent
+                        and np.array_equal(older, gray)):
                     self._frozen_why = (f'image identical, pixel for pixel, to the frame {age} '
                                         f'frames before it, with other images between: a '
                                         f'camera republishing an old image')
@@ -1710,9 +1714,10 @@ def _gray(image) -> np.ndarray:
     if isinstance(image, ImageError):
         raise image
     gray = as_gray('image', image)
-    # The pipeline keeps it (the keyframe, the previous frame): a copy when it is the caller's
-    # own memory, which a capture loop refilling one buffer would change under it.
-    return gray.copy() if np.may_share_memory(gray, image) else gray
+    # The pipeline keeps it (the keyframe, the previous frames): a copy when it is the caller's
+    # own writeable memory, which a capture loop refilling one buffer would change under it (a
+    # read-only one, a message's bytes, cannot change).
+    return gray.copy() if gray.flags.writeable and np.may_share_memory(gray, image) else gray
 
 
 def _arc_travel(velocity: np.ndarray, rate: float, tau: float, dt: float, decaying: bool,
@@ -1729,11 +1734,11 @@ def _arc_travel(velocity: np.ndarray, rate: float, tau: float, dt: float, decayi
                      vz * dt])
 
 
-def _same_image(a: np.ndarray, b: np.ndarray) -> bool:
-    """``a`` and ``b`` are the same image, pixel for pixel (a subsample first: frames of a
-    real camera differ there already)."""
-    return (a.shape == b.shape and np.array_equal(a[::8, ::8], b[::8, ::8])
-            and np.array_equal(a, b))
+def _fingerprint(gray: np.ndarray) -> int:
+    """A hash of a grey image's subsample (every 8th pixel) and size: equal images have equal
+    fingerprints, and frames of a real camera differ there already, so the whole images are
+    compared only when they match."""
+    return hash((gray.shape, gray[::8, ::8].tobytes()))
 
 
 def _is_blank(gray: np.ndarray, min_contrast: float) -> bool:
