@@ -207,7 +207,8 @@ class VisualOdometry:
         self.pose = self._T_base_camera @ invert(self._T_base_camera)
         self._last_out: tuple[float, np.ndarray] | None = None   # stamp, camera pose
         # (the last output's stamp, the seconds since it that `_extrapolate` has grown the
-        # covariance by)
+        # covariance by, and the variances of its braking, persisting-turn yaw and offset terms
+        # it added: a second restart from the same output adds only the rest)
         self._grown: tuple[float, ...] | None = None
         self._twist = np.zeros(6)
         self._twist_cov = np.eye(6) * _UNKNOWN
@@ -1304,9 +1305,11 @@ class VisualOdometry:
     def _extrapolate(self, stamp: float, hold: bool = False) -> None:
         """The pose across a gap in tracking: the last velocity carried on (over the distance
         the wheel speed gives, when it covers the gap), its turn rate decaying (a long gap does
-        not spin the pose), and the covariance grown with the time of the gap (not with the
-        frames in it): ``odometry.lost_speed_std`` and ``lost_turn_rate_std`` per second, and,
-        without the wheels' distance, braking at up to ``odometry.max_deceleration``. With
+        not spin the pose) and the travel following that turn, and the covariance grown with
+        the time of the gap (not with the frames in it): ``odometry.lost_speed_std`` and
+        ``lost_turn_rate_std`` per second; without the wheels' distance, braking at up to
+        ``odometry.max_deceleration``; in a turn, the yaw and the travel of the turn going on
+        where the extrapolation lets it decay. With
         ``hold`` (the time base moved on: the stamps before and after belong to different
         clocks or a pause of unknown length, so the last velocity says nothing about the motion
         across it) the pose is held and only the covariance grows."""
