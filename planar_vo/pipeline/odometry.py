@@ -1105,14 +1105,14 @@ class VisualOdometry:
             # m/s). Standing, a simulator's scene may repeat (a blinking light).
             moving = (self._last_twist is not None
                       or self.config.odometry.repeated_images == 'frozen')
-            # ... and recently: the same images after a gap are a replay, not a stale buffer
-            # (within the kept frames' usual time, half as much again).
-            usual = self._clock.usual_interval or 0.1
-            recent = 1.5 * (_OLDER_FRAMES + 1) * usual
             for age, (older, when, older_key) in enumerate(reversed(self._older) if moving
                                                            else (), start=2):
-                if (older_key == key and seconds_between(stamp, when) <= recent
-                        and np.array_equal(older, gray)):
+                # ... and recently: the same images after a gap are a replay, not a stale
+                # buffer (within the kept frames' usual time, half as much again).
+                if older_key != key:
+                    continue
+                recent = 1.5 * (_OLDER_FRAMES + 1) * (self._clock.usual_interval or 0.1)
+                if seconds_between(stamp, when) <= recent and np.array_equal(older, gray):
                     self._frozen_why = (f'image identical, pixel for pixel, to the frame {age} '
                                         f'frames before it, with other images between: a '
                                         f'camera republishing an old image')
@@ -1317,12 +1317,12 @@ class VisualOdometry:
         last_stamp, last_pose = self._last_out if self._last_out else (stamp, self.camera_pose)
         dt = max(seconds_between(stamp, last_stamp), 0.0)
         T_bc = self._T_base_camera
+        tau = cfg.turn_rate_time_constant
         wheels = None
         going_on = np.zeros(3)      # the travel if the turn rate persists, less the extrapolated
         if hold:
             self.camera_pose = last_pose.copy()
         else:
-            tau = cfg.turn_rate_time_constant
             rate = float(self._twist[5])
             yaw = yaw_rate_decay(rate, dt, tau)
             velocity = self._twist[:3]
@@ -1331,8 +1331,7 @@ class VisualOdometry:
                 velocity = np.array([1.0, 0.0, 0.0])          # straight ahead from a standstill
             # Along the decaying turn (the heading turns as the yaw does; a review: the travel
             # went straight, a turn's whole sideways offset left out of the mean).
-            travel = _arc_travel(velocity, rate, tau, dt, decaying=True)
-            going_on = _arc_travel(velocity, rate, tau, dt, decaying=False) - travel
+            travel, going_on = _arc_travels(velocity, rate, tau, dt)
             if wheels is not None:
                 # The wheel speed measured the distance across the gap (a user test: a camera
                 # stalled at a stop while the car drove off held the pose there, 10 m behind).
@@ -1384,9 +1383,7 @@ class VisualOdometry:
         yaw_total = lateral_total = 0.0
         w = abs(float(self._twist[5]))
         if not hold and w > 0.0:
-            tau = cfg.turn_rate_time_constant
-            decayed = tau * (1.0 - math.exp(-dt / tau))          # yaw per unit rate, decaying
-            yaw_total = (w * (dt - decayed)) ** 2
+            yaw_total = (w * (dt - yaw_rate_decay(1.0, dt, tau))) ** 2
             grow[2, 2] += max(yaw_total - turned, 0.0)
             lateral_total = float(going_on @ going_on)
             if lateral_total > 0.0:
@@ -1723,18 +1720,23 @@ def _gray(image) -> np.ndarray:
     return gray.copy() if gray.flags.writeable and np.may_share_memory(gray, image) else gray
 
 
-def _arc_travel(velocity: np.ndarray, rate: float, tau: float, dt: float, decaying: bool,
-                steps: int = 64) -> np.ndarray:
+def _arc_travels(velocity: np.ndarray, rate: float, tau: float, dt: float, steps: int = 64
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """The travel (m, the start's base frame) over ``dt`` seconds at the body velocity
-    ``velocity`` (m/s) while the heading turns at ``rate`` (rad/s), decaying with the time
-    constant ``tau`` (s) or not (midpoint rule in ``steps`` steps; straight for ``rate`` 0)."""
+    ``velocity`` (m/s) while the heading turns at ``rate`` (rad/s) decaying with the time
+    constant ``tau`` (s) as `yaw_rate_decay` has it, and how much the travel at the undecaying
+    rate differs from it (midpoint rule in ``steps`` steps; straight and 0 for ``rate`` 0)."""
     h = dt / steps
     s = (np.arange(steps) + 0.5) * h
-    psi = rate * tau * (1.0 - np.exp(-s / tau)) if decaying else rate * s
-    c, sn = np.cos(psi), np.sin(psi)
     vx, vy, vz = (float(x) for x in velocity)
-    return np.array([float(np.sum(c * vx - sn * vy)) * h, float(np.sum(sn * vx + c * vy)) * h,
-                     vz * dt])
+
+    def travel(psi: np.ndarray) -> np.ndarray:
+        c, sn = np.cos(psi), np.sin(psi)
+        return np.array([float(np.sum(c * vx - sn * vy)) * h,
+                         float(np.sum(sn * vx + c * vy)) * h, vz * dt])
+
+    decaying = travel(rate * tau * (1.0 - np.exp(-s / tau)))
+    return decaying, travel(rate * s) - decaying
 
 
 def _fingerprint(gray: np.ndarray) -> int:
