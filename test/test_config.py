@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -16,6 +17,7 @@ from planar_vo.config import (
     read_config,
     to_ros_yaml,
 )
+from planar_vo.core.options import Options
 from planar_vo.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,6 +60,26 @@ def test_every_parameter_has_a_description():
         [k for k, v in docs.items() if not v.endswith(('.', ')'))]
     assert docs['keyframe.stationary_parallax'].endswith('standing still: zero motion is output '
                                                          'and no keyframe is made.')
+
+
+def test_a_continuation_line_naming_a_field_is_text():
+    @dataclasses.dataclass(frozen=True)
+    class Section(Options):
+        """A section.
+
+        Attributes:
+            height: the camera's height above the road; with
+                depth: set, the depth below it counts too.
+            depth: how deep.
+        """
+
+        height: float = 1.0
+        depth: float = 0.0
+
+    docs = describe(Section)
+    assert docs == {'height': "the camera's height above the road; with depth: set, the "
+                              'depth below it counts too.',
+                    'depth': 'how deep.'}
 
 
 def test_flat_round_trip():

@@ -1402,6 +1402,21 @@ def test_a_single_repeated_frame_is_only_counted():
     after = vo.process(images[5], float(stamps[5]))
     assert after.ok and after.tracking is TrackingState.TRACKING
     assert abs(after.pose[0, 3] - (trajectory.xy[5, 0] - trajectory.xy[0, 0])) < 0.05
+    # A blank frame between two repeats ends the run: each repeat alone is only counted (the
+    # blank one counts towards lost tracking, by itself).
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                                  'odometry': {'max_lost_frames': 2}}), CAMERA)
+    for i in range(4):
+        vo.process(images[i], float(stamps[i]))
+    results = [vo.process(image, float(stamps[i])) for i, image in
+               ((4, images[3].copy()), (5, np.zeros_like(images[3])), (6, images[3].copy()))]
+    assert [r.reason for r in results] == [DropReason.FROZEN_IMAGE, DropReason.BLANK_IMAGE,
+                                           DropReason.FROZEN_IMAGE]
+    assert [r.tracking for r in results] == [TrackingState.TRACKING, TrackingState.LOST,
+                                             TrackingState.LOST]
+    assert all('tracking lost' not in r.message for r in results), [r.message for r in results]
+    after = vo.process(images[7], float(stamps[7]))
+    assert after.ok and after.tracking is TrackingState.TRACKING, (after.reason, after.message)
 
 
 def test_a_long_gap_widens_the_travel_by_braking_only_until_the_stop():

@@ -22,7 +22,7 @@ def describe(section: type[Options] = None, prefix: str = '') -> dict[str, str]:
     current: list[str] = []
     lines = (section.__doc__ or '').splitlines()
     fields = {f.name for f in dataclasses.fields(section)}
-    in_attrs = False
+    in_attrs, indent = False, None
     for line in lines:
         stripped = line.strip()
         if stripped == 'Attributes:':
@@ -31,9 +31,13 @@ def describe(section: type[Options] = None, prefix: str = '') -> dict[str, str]:
         if not in_attrs or not stripped:
             continue
         head, sep, text = stripped.partition(': ')
-        # A new entry names fields; a continuation line that reads 'word: ...' is text (a
-        # review: 'acceleration: ...' cut a description short).
-        if sep and all(part.strip() in fields for part in head.split(',')):
+        # A new entry names fields at the entries' indentation (the first entry's); a
+        # continuation line, indented further, is text even when it reads 'word: ...' (a
+        # review: 'acceleration: ...' cut a description short) or names a field.
+        depth = len(line) - len(line.lstrip())
+        if (sep and (indent is None or depth <= indent)
+                and all(part.strip() in fields for part in head.split(','))):
+            indent = depth if indent is None else indent
             current = [part.strip() for part in head.split(',')]
             for name in current:
                 docs[name] = text

@@ -469,7 +469,9 @@ class VisualOdometry:
         self._size_matched = True
         if _is_blank(gray, self.config.odometry.min_contrast):
             # Nothing to track: the frame counts towards lost tracking (a tunnel, a covered
-            # lens), but it never becomes a keyframe.
+            # lens), but it never becomes a keyframe. It is another image: a run of repeated
+            # ones ends (A, blank, A is one repeated frame, not a run of two).
+            self._frozen_run = 0
             return self._lost_frame(stamp, DropReason.BLANK_IMAGE,
                                     'image is blank (black, saturated or without texture)', 0)
         key = _fingerprint(gray)
