@@ -3,6 +3,7 @@ driven by a test double (the real pipeline is tested end to end elsewhere)."""
 
 from __future__ import annotations
 
+import logging
 import re
 import shutil
 
@@ -314,7 +315,7 @@ class ConstantVelocityDouble:
                            twist_covariance=np.eye(6) * 0.25)
 
 
-def _replay_input(path, storage, rng, n=10, bad=(4,)):
+def _replay_input(path, storage, rng, n=10, bad=(4,), nan_speeds=()):
     images = [rng.integers(0, 256, (24, 32), dtype=np.uint8) for _ in range(n)]
     entries = [('/note', 'std_msgs/msg/String', T0 - 5, TS.types['std_msgs/msg/String'](
         data='not copied'))]
@@ -328,8 +329,50 @@ def _replay_input(path, storage, rng, n=10, bad=(4,)):
                                                                 'mono8', stamp)))
         entries.append(('/ground_truth/odom', ODOM, log + 1, odometry_msg(stamp, 0.3 * i)))
         entries.append(('/vehicle/twist', 'geometry_msgs/msg/TwistStamped', log + 2,
-                        twist_msg(stamp + 50_000_000, 2.0 + i)))
+                        twist_msg(stamp + 50_000_000,
+                                  float('nan') if i in nan_speeds else 2.0 + i)))
     return write_bag(path, storage, entries), stamps
+
+
+def test_replay_counts_a_header_stamp_that_is_no_ros_time(tmp_path, rng):
+    """A user test: a first image stamped sec -1 aborted the replay when its odometry was
+    written (the 9 frames after it never ran), and nanosec 4e9 read as 4 s later. Each is a
+    bad_image now, seen neither by the pipeline nor by the gap counter."""
+    entries = []
+    for i in range(10):
+        stamp = T0 + i * 100_000_000
+        msg = image_msg(rng.integers(0, 256, (24, 32), dtype=np.uint8), 'mono8', stamp)
+        if i == 0:
+            msg.header.stamp.sec = -1
+        if i == 5:
+            msg.header.stamp.nanosec = 4_000_000_000
+        entries.append(('/cam/camera_info', INFO, stamp, camera_info_msg(stamp, 32, 24, 30.0)))
+        entries.append(('/cam/image_raw', IMAGE, stamp + 1, msg))
+    double = ConstantVelocityDouble()
+    summary = replay_bag(write_bag(tmp_path / 'in', 'mcap', entries), tmp_path / 'out', double,
+                         progress=False)
+    assert summary.frames_in == 10 and summary.dropped == {'bad_image': 2}
+    assert summary.odometry_out == 8 and summary.origins == 1
+    assert (summary.gaps, summary.missing_frames) == (0, 0)
+    assert len(double.calls) == 8
+
+
+def test_replay_skips_and_counts_a_bad_speed_sample(tmp_path, rng, caplog):
+    """A user test: one NaN wheel-speed sample aborted the whole replay; the node skips and
+    counts such a message, and so does replay."""
+    in_bag, stamps = _replay_input(tmp_path / 'in', 'mcap', rng, nan_speeds=(3, 6))
+    double = ConstantVelocityDouble()
+    with caplog.at_level(logging.WARNING, logger='planar_vo.tools.replay'):
+        summary = replay_bag(in_bag, tmp_path / 'out', double, speed_topic='/vehicle/twist',
+                             progress=False)
+    assert summary.frames_in == 10 and summary.odometry_out == 9
+    assert summary.speed_errors == 2 and summary.speed_messages == 7
+    assert [s for _, s in double.speeds] == [2.0 + i for i in range(9) if i not in (3, 6)]
+    assert summary.speed_error.startswith(f'at {stamps[3] + 50_000_000} ns: ')
+    line = next(x for x in summary.format().splitlines() if 'speed messages' in x)
+    assert line.startswith('  speed messages     7 (2 refused, the first at ')
+    assert 'nan' in line
+    assert sum('speed_topic' in r.getMessage() for r in caplog.records) == 1
 
 
 @pytest.mark.parametrize('in_storage, out_storage', [('mcap', 'sqlite3'), ('sqlite3', 'mcap')])

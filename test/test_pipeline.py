@@ -1033,6 +1033,53 @@ def test_frame_clock_needs_a_second_frame_to_jump_in_time():
     assert verdicts == [S.OK, S.FAR_BEHIND, S.JUMP_AHEAD, S.FAR_BEHIND, S.OK]
 
 
+def test_a_frame_stamped_ahead_within_the_max_gap_is_confirmed_mis_stamped():
+    """A frame stamped 3 s ahead (under max_frame_gap) opens what looks like a gap; the first
+    frame inside it is refused, the second confirms that the one before them was mis-stamped:
+    the time goes on from them (not a looped bag), and the gap counter takes the gap back."""
+    from planar_vo.pipeline.clock import FrameClock, GapCounter, StampCheck
+
+    S = StampCheck
+    clock = FrameClock(10.0, 1.0)
+    verdicts = [clock.check(t) for t in (100.0, 100.1, 100.2, 100.3, 103.4, 100.5, 100.6,
+                                         100.7)]
+    assert verdicts == [S.OK] * 5 + [S.INSIDE_GAP, S.REWOUND, S.OK]
+    assert clock.mis_stamped == (103.4, pytest.approx(100.4))     # midway to the first inside
+    assert clock.last == 100.7 and clock.usual_interval == pytest.approx(0.1)
+    # A real gap with one frame delivered late inside it: refused, then the stream goes on.
+    verdicts = [clock.check(t) for t in (101.5, 101.0, 101.6)]
+    assert verdicts == [S.OK, S.INSIDE_GAP, S.OK]
+    ms, t0 = 1_000_000, 1_700_000_000 * 10 ** 9
+    gaps = GapCounter(10.0, 1.0)
+    for i in (0, 1, 2, 3, 34, 5, 6, 7):             # frame 4 stamped 3 s ahead
+        gaps.note(t0 + 100 * ms * i)
+    assert (gaps.gaps, gaps.missing) == (0, 0)
+    for i in (8, 9, 11, 10, 12):                    # frame 10 delivered after frame 11
+        gaps.note(t0 + 100 * ms * i)
+    assert (gaps.gaps, gaps.missing) == (0, 0)
+
+
+@pytest.mark.parametrize('ahead', [0.8, 3.0])
+def test_one_frame_stamped_ahead_costs_one_frame_not_the_drive(ahead):
+    """A user test: a frame stamped 0.8 s ahead refused the 7 frames after it as older, one 3 s
+    ahead (under odometry.max_frame_gap) made the next ones a looped bag and reset the pose to
+    the origin. Now the first frame after it is refused, the second restarts tracking from the
+    mis-stamped frame's pose, extrapolated over the time it more likely had."""
+    trajectory, images, _ = _drive('straight')
+    stamps = [float(s) for s in trajectory.stamps]
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    results = [vo.process(images[i], stamps[i] + (ahead if i == 6 else 0.0)) for i in range(16)]
+    reasons = [r.reason for r in results]
+    assert reasons[7] is DropReason.OUT_OF_ORDER and 'stamped ahead' in results[7].message
+    assert reasons[8] is DropReason.REINITIALISED, (reasons[8], results[8].message)
+    assert all(r.ok for i, r in enumerate(results[1:], 1) if i not in (7, 8)), reasons
+    assert vo.counters.get('time_jump_back', 0) == 0
+    for i in (8, 15):
+        true_x = trajectory.xy[i, 0] - trajectory.xy[0, 0]
+        assert abs(results[i].pose[0, 3] - true_x) < 0.1 * 0.8, (i, results[i].pose[0, 3])
+    assert abs(results[15].twist[0] - 8.0) < 0.3
+
+
 def test_undecodable_frames_count_towards_lost_tracking():
     """As blank ones do (a user test: after five undecodable frames the stale keyframe cost five
     good frames more): odometry.max_lost_frames of them in a row, and the next good frame

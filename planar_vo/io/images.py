@@ -16,6 +16,7 @@ import numpy as np
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import BagError, CameraModelError, ImageError
 from planar_vo.io.reader import BagMessage, BagReader
+from planar_vo.io.writer import MAX_STAMP_NS
 from planar_vo.pipeline.clock import Stamp
 from planar_vo.ros.messages import compressed_to_array, image_to_array, stamp_to_ns
 
@@ -50,6 +51,8 @@ class CameraFrame:
         camera: the latest valid camera model from the CameraInfo topic (before the first
             CameraInfo message: the first valid one; None if the bag has none).
         camera_error: a CameraInfo received since the previous frame that could not be parsed.
+        bad_stamp: the header stamp is not a ROS time (negative, ``nanosec`` of a second or
+            more, beyond 2038): ``error`` says so and ``image`` is None.
     """
 
     index: int
@@ -61,6 +64,7 @@ class CameraFrame:
     error: str | None = None
     camera: CameraModel | None = None
     camera_error: str | None = None
+    bad_stamp: bool = False
 
     @property
     def stamp(self) -> Stamp:
@@ -126,10 +130,17 @@ class CameraFrameDecoder:
 
     def _decode(self, message: BagMessage) -> CameraFrame:
         stamp_ns, frame_id = message.log_time_ns, ''
-        image, error = None, None
+        image, error, bad_stamp = None, None, False
         try:
             msg = self.bag.deserialize(message)
             stamp_ns, frame_id = stamp_to_ns(msg.header.stamp), str(msg.header.frame_id)
+            sec, nanosec = int(msg.header.stamp.sec), int(msg.header.stamp.nanosec)
+            if not (0 <= nanosec < 1_000_000_000 and 0 <= stamp_ns <= MAX_STAMP_NS):
+                # (a user test: a first frame stamped -1 s aborted the replay when its odometry
+                # was written; nanosec 4e9 read as 4 s later)
+                bad_stamp = True
+                raise BagError(f'header stamp sec {sec}, nanosec {nanosec} is not a ROS time '
+                               f'(0 <= nanosec < 1e9, from 1970 to 2038)')
             if message.msgtype == COMPRESSED_IMAGE_TYPE:
                 image = compressed_to_array(msg, mono16_shift=self.mono16_shift)
             else:
@@ -137,7 +148,7 @@ class CameraFrameDecoder:
         except (BagError, ImageError) as err:
             error = str(err)
         frame = CameraFrame(self._index, message.topic, message.log_time_ns, stamp_ns, frame_id,
-                            image, error, self.camera, self._pending_camera_error)
+                            image, error, self.camera, self._pending_camera_error, bad_stamp)
         self._index += 1
         self._pending_camera_error = None
         return frame

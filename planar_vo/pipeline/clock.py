@@ -13,7 +13,13 @@ long real gap). None of them may stop the odometry for good:
   to the origin) unless the next frame confirms the older time (it follows it within
   ``max_gap`` and is still that far behind): a looped bag or a restarted clock
   (`StampCheck.JUMP_BACK`), and tracking is reset there; a smaller step back is a frame out
-  of order.
+  of order;
+- a frame stamped ahead of its time by less than ``max_gap`` opens what looks like a gap of
+  lost frames, and the frames after it are older: the first of them that falls inside that gap
+  is refused (`StampCheck.INSIDE_GAP`), and a second one after it confirms that the frame
+  before them was mis-stamped (`StampCheck.REWOUND`): the time goes on from the frames' own
+  stamps (a user test: a frame stamped 0.8 s ahead refused the 7 frames after it, one 3 s
+  ahead reset the pose to the origin as a looped bag).
 
 Stamps are float seconds. A float holds about 0.24 us at 1.7e9 s, so two stamps 1 ns apart may
 be the same float: where the source has integer nanoseconds (ROS header stamps, bag times), a
@@ -76,6 +82,14 @@ class StampCheck(str, enum.Enum):
     NEW_TIME_BASE = 'new_time_base'      # the second frame after a forward jump: accepted
     FAR_BEHIND = 'far_behind'            # far in the past: refused, time base kept
     JUMP_BACK = 'jump_back'              # the second frame far in the past: a new time base
+    INSIDE_GAP = 'inside_gap'            # older than the last accepted frame, inside the gap
+    #                                      that frame opened: refused
+    REWOUND = 'rewound'                  # the second such frame: the last accepted one was
+    #                                      stamped ahead of its time; accepted
+
+
+# An interval this many times the usual one is a gap (frames lost, or a frame stamped ahead).
+GAP_FACTOR = 1.8
 
 
 class FrameClock:
@@ -108,11 +122,20 @@ class FrameClock:
         self._ahead: float | None = None
         self._behind: float | None = None
         self._intervals: collections.deque[float] = collections.deque(maxlen=self.INTERVALS)
+        # The accepted stamp before the last, when the last one's interval was a gap; the
+        # first frame refused inside that gap.
+        self._gap_start: float | None = None
+        self._inside: float | None = None
+        # After `StampCheck.REWOUND`: the mis-stamped frame's stamp and the time it was more
+        # likely taken at (midway between the frame before it and the first frame refused
+        # inside its gap, the slot it left).
+        self.mis_stamped: tuple[float, float] | None = None
 
     def reset(self) -> None:
         """Forget the time base (the next stamp is accepted as is)."""
         self.last = None
         self._ahead = self._behind = None
+        self._gap_start = self._inside = None
         self._intervals.clear()
 
     @property
@@ -132,6 +155,21 @@ class FrameClock:
         step = seconds_between(stamp, last)
         if step == 0.0:
             return StampCheck.DUPLICATE
+        start = self._gap_start
+        if step < 0.0 and start is not None and seconds_between(stamp, start) > 0.0:
+            # Inside the gap the last frame opened (before the jump-back rules: a frame stamped
+            # 3 s ahead is not a looped bag).
+            inside = self._inside
+            if inside is not None and seconds_between(stamp, inside) > 0.0:
+                self.jump = step
+                self.mis_stamped = (last, start + 0.5 * seconds_between(inside, start))
+                self.last, self._ahead, self._behind = stamp, None, None
+                self._gap_start = self._inside = None
+                if self._intervals:
+                    self._intervals.pop()           # the mis-stamped frame's interval
+                return StampCheck.REWOUND
+            self._inside, self._ahead, self._behind = stamp, None, None
+            return StampCheck.INSIDE_GAP
         if step < 0.0:
             if -step <= self.max_jump_back:
                 return StampCheck.OUT_OF_ORDER
@@ -153,6 +191,8 @@ class FrameClock:
         usual = self.usual_interval
         if usual is not None and step < min(self.TOO_CLOSE_SHARE * usual, self.TOO_CLOSE_S):
             return StampCheck.TOO_CLOSE
+        self._gap_start = last if usual is not None and step > GAP_FACTOR * usual else None
+        self._inside = None
         self.last, self._ahead, self._behind = stamp, None, None
         self._intervals.append(step)
         return StampCheck.OK
@@ -164,6 +204,7 @@ class FrameClock:
 
     def _new_base(self, stamp: float) -> None:
         self.last, self._ahead, self._behind = stamp, None, None
+        self._gap_start = self._inside = None
         self._intervals.clear()
 
 
@@ -203,10 +244,13 @@ class GapCounter:
     median of the last `PERIOD_WINDOW` ones; `RATE_CHANGE_GAPS` gaps in a row of about one
     length are the camera's new frame rate (a driver reconfigured, auto-exposure at dusk, a
     throttled topic), not lost frames: the nominal period becomes theirs and they are taken
-    off the counts.
+    off the counts. A frame refused inside the last gap (`StampCheck.INSIDE_GAP`: delivered out
+    of order, or the frame that opened the gap was stamped ahead) fills one of its slots (a user
+    test: a frame out of order counted as missing too), and a confirmed mis-stamped frame
+    (`StampCheck.REWOUND`) takes its whole gap off the counts.
     """
 
-    GAP_FACTOR = 1.8            # an interval this many times the nominal period is a gap
+    GAP_FACTOR = GAP_FACTOR     # an interval this many times the nominal period is a gap
     PERIOD_WINDOW = 20
     RATE_CHANGE_GAPS = 3
     RATE_CHANGE_SPREAD = 0.2    # ... gaps in a row within this share of their median
@@ -218,8 +262,14 @@ class GapCounter:
         self._run: collections.deque[tuple[int, int]] = collections.deque(
             maxlen=self.RATE_CHANGE_GAPS)
         self._glitched = 0      # frames refused as far ahead or behind since the last one
+        self._open = 0          # frames the gap before the last accepted frame still counts
         self.gaps = 0
         self.missing = 0
+
+    def refused(self) -> None:
+        """A frame came whose stamp is no time at all (replay: not a ROS time): like one
+        stamped far ahead or behind, it fills a slot of the interval it came in."""
+        self._glitched += 1
 
     def note(self, stamp_ns: int) -> Gap | None:
         """Judge one frame's stamp (integer ns): the gap before it, or None."""
@@ -227,10 +277,27 @@ class GapCounter:
         if check in (StampCheck.JUMP_AHEAD, StampCheck.FAR_BEHIND):
             self._glitched += 1
             return None
-        if check in (StampCheck.DUPLICATE, StampCheck.TOO_CLOSE, StampCheck.OUT_OF_ORDER):
+        if check is StampCheck.INSIDE_GAP and self._open > 0:
+            self._open -= 1
+            self.missing -= 1
+            if self._open == 0:             # filled: no gap
+                self.gaps -= 1
+                if self._run:
+                    self._run.pop()
+            return None
+        if check is StampCheck.REWOUND:
+            self.missing -= self._open
+            self.gaps -= 1 if self._open > 0 else 0
+            if self._open > 0 and self._run:
+                self._run.pop()
+            self._open, self._last_ns = 0, stamp_ns
+            return None
+        if check in (StampCheck.DUPLICATE, StampCheck.TOO_CLOSE, StampCheck.OUT_OF_ORDER,
+                     StampCheck.INSIDE_GAP):
             return None
         last, self._last_ns = self._last_ns, stamp_ns
         glitched, self._glitched = self._glitched, 0
+        self._open = 0
         if check in (StampCheck.JUMP_BACK, StampCheck.NEW_TIME_BASE) or last is None:
             self._intervals.clear()
             self._run.clear()
@@ -244,7 +311,9 @@ class GapCounter:
                     return None     # the refused frames filled it: no gap, no new period
                 self.gaps += 1
                 self.missing += missing
-                return Gap(dt, missing, period, self._rate_change(dt, missing, period))
+                change = self._rate_change(dt, missing, period)
+                self._open = 0 if change is not None else missing
+                return Gap(dt, missing, period, change)
         self._run.clear()
         self._intervals.append(dt)
         return None

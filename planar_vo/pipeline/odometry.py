@@ -402,6 +402,11 @@ class VisualOdometry:
                               f'frame, under {1e3 * FrameClock.TOO_CLOSE_S:g} ms and a quarter of '
                               f'the usual {1e3 * usual:.3g} ms: a duplicated or mis-stamped '
                               f'frame')
+        if check is StampCheck.INSIDE_GAP:
+            return self._drop(stamp, DropReason.OUT_OF_ORDER,
+                              f'timestamp {format_stamp(stamp)} is older than the previous '
+                              f'{format_stamp(last)}, which came after a gap: if the next '
+                              f'frame is older too, that one was stamped ahead of its time')
         if check is StampCheck.OUT_OF_ORDER:
             return self._drop(stamp, DropReason.OUT_OF_ORDER,
                               f'timestamp {format_stamp(stamp)} is older than the previous '
@@ -426,6 +431,8 @@ class VisualOdometry:
             self.reset()
             self._clock.check(stamp)
             self._time_reset = True
+        elif check is StampCheck.REWOUND:
+            self._rewind(*self._clock.mis_stamped)
         elif check is StampCheck.NEW_TIME_BASE and self._fresh_steps == 0:
             # No motion was estimated on the old time base (a user test: one frame stamped
             # 1000 s early came first, became the origin, and the drive after it was held
@@ -1303,6 +1310,35 @@ class VisualOdometry:
         # The frame is the chain's keyframe (a user test: the status said keyframe false
         # beside 'reference keyframe set').
         return self._result(stamp, False, reason=reason, message=message, keyframe=True)
+
+    def _rewind(self, wrong: float, likely: float) -> None:
+        """The last accepted frame was stamped ahead of its time (``wrong``; it was more likely
+        taken at ``likely``, `FrameClock.mis_stamped`): its pose stands (it comes from its
+        image), what its stamp timed is restamped (the last output, the last step's velocity:
+        its displacement over the shorter interval), and a new keyframe chain starts from it,
+        extrapolated to the frame that confirmed it (a user test: a frame stamped 0.8 s ahead
+        refused the 7 frames after it; 3 s ahead, the pose went back to the origin)."""
+        log.warning('the frame stamped %s was stamped ahead of its time (the frames after it '
+                    'are older): tracking restarts from its pose', format_stamp(wrong))
+        if self._last_out is not None and self._last_out[0] == wrong:
+            self._last_out = (likely, self._last_out[1])
+        k = None
+        if self._last_twist is not None and self._last_twist[0] == wrong:
+            _, length, twist = self._last_twist
+            shorter = length - seconds_between(wrong, likely)
+            if shorter > 0:
+                k = length / shorter
+                self._twist, self._twist_cov = self._twist * k, self._twist_cov * (k * k)
+                self._last_twist = (likely, shorter, twist * k)
+            else:
+                self._last_twist = None
+        if self._held is not None and self._held[2] == wrong:
+            speed, std, _, bias = self._held
+            self._held = ((speed * k, std * k, likely, bias) if k is not None else None)
+        if self._previous_stamp == wrong:
+            self._previous_stamp = likely
+        self._keyframes.clear()
+        self._restart = 'a frame stamped ahead of its time'
 
     def _extrapolate(self, stamp: float, hold: bool = False) -> None:
         """The pose across a gap in tracking: the last velocity carried on (over the distance

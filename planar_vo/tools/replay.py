@@ -99,6 +99,8 @@ class ReplaySummary:
             undecodable messages).
         copied: messages copied per topic.
         speed_messages: speed messages fed to the processor.
+        speed_errors, speed_error: speed messages refused (a non-finite or implausible
+            velocity: skipped), and the first one's stamp and reason.
         camera_info_errors: CameraInfo messages that could not be parsed.
         camera_info_unused: why the bag's CameraInfo was not used (configured intrinsics or
             the focal self-calibration, as in the node); empty if it was.
@@ -136,6 +138,8 @@ class ReplaySummary:
     dropped: dict[str, int] = field(default_factory=dict)
     copied: dict[str, int] = field(default_factory=dict)
     speed_messages: int = 0
+    speed_errors: int = 0
+    speed_error: str = ''
     camera_info_errors: int = 0
     camera_info_unused: str = ''
     wall_time: float = 0.0
@@ -191,7 +195,9 @@ class ReplaySummary:
             *([f'  unreadable         {unreadable} (counted by the bag\'s metadata, not read: '
                f'damaged storage, or a metadata.yaml that counts too many)']
               if self.unreadable else []),
-            f'  speed messages     {self.speed_messages}',
+            f'  speed messages     {self.speed_messages}' + (
+                f' ({self.speed_errors} refused, the first {self.speed_error})'
+                if self.speed_errors else ''),
             f'  camera info errors {self.camera_info_errors}',
             f'  camera             {self.focal or "unknown"}',
             *([f'  scale              {self.scale}'] if self.scale else []),
@@ -249,16 +255,23 @@ def _own_intrinsics(config: PlanarVoConfig) -> str:
     return ''
 
 
-def _read_speeds(bag: BagReader, topic: str) -> tuple[list[int], list[float]]:
-    """Speed samples (stamp ns, m/s) of a speed topic, sorted by stamp."""
-    samples = []
+def _read_speeds(bag: BagReader, topic: str) -> tuple[list[int], list[float], int, str]:
+    """Speed samples (stamp ns, m/s) of a speed topic, sorted by stamp, and the messages
+    refused (a non-finite or implausible velocity: skipped, counted and the first one logged, as
+    the node does; a user test: one NaN sample of a long drive aborted its replay) with the
+    first one's reason."""
+    samples, refused, first = [], 0, ''
     for item in iter_messages(bag, topic, SPEED_TYPES, role='speed_topic'):
         try:
             samples.append((item.stamp_ns, speed_from_message(item.msg)))
         except InputError as err:
-            raise BagError(f"speed_topic: '{topic}' at {item.stamp_ns} ns: {err}") from err
+            refused += 1
+            if refused == 1:
+                first = f'at {item.stamp_ns} ns: {err}'
+                log.warning("speed_topic '%s': message %s (skipped; further ones are counted in "
+                            'the summary)', topic, first)
     samples.sort(key=lambda s: s[0])
-    return [s[0] for s in samples], [s[1] for s in samples]
+    return [s[0] for s in samples], [s[1] for s in samples], refused, first
 
 
 FIRST_FRAME = DropReason.FIRST_FRAME.value
@@ -387,7 +400,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         stamps_ns, speeds = [], []
         if speed_topic is not None:
             summary.speed_topic = speed_topic
-            stamps_ns, speeds = _read_speeds(bag, speed_topic)
+            stamps_ns, speeds, summary.speed_errors, summary.speed_error = _read_speeds(
+                bag, speed_topic)
         next_speed = 0
         dropped: Counter[str] = Counter()
         first: dict[str, str] = {}
@@ -421,6 +435,12 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                         continue
                     summary.frames_in += 1
                     bar.update(1)
+                    if frame.bad_stamp:
+                        # Not a time at all: the pipeline does not see it; it fills a slot
+                        # of the stamps' interval it came in.
+                        gaps.refused()
+                        _count_drop(dropped, BAD_IMAGE, frame, frame.error, first)
+                        continue
                     gap = gaps.note(frame.stamp_ns)
                     if gap is not None and gap.rate_change is None and not warned_gap:
                         warned_gap = True
