@@ -435,6 +435,37 @@ def test_focal_calibration_adopts_an_accurate_focal_from_exact_turning_pairs(rng
                             f'(self-calibrated at frame 31, updated at frame 42)')
 
 
+def test_an_adopted_focal_length_the_calibration_no_longer_supports_is_revoked(caplog):
+    """A review: blocks whose pixels say another focal length (here 1.4 times the adopted one:
+    a zoomed lens, or evidence that disagrees) moved the estimate far off, while the adopted
+    value, its standard deviation and 'self-calibrated' stayed. Now it is revoked: provisional
+    again, said in the status and the log."""
+    rng = np.random.default_rng(0)
+    cal = _calibrate(rng, 0.3)
+    adopted, adopted_std = cal.adopted, cal.adopted_std
+    assert adopted is not None and abs(adopted - FOCAL) <= 3.0 * adopted_std
+    with caplog.at_level('WARNING', logger='planar_vo.pipeline.calibration.focal'):
+        for b in range(4, 12):
+            for k in range(2):
+                frame = 10 * b + 3 * k + 1
+                p1, p2, A = _pair(rng, rng.uniform(5.0, 8.0) * rng.choice([-1, 1]), sigma=0.3)
+                assert cal.offer(frame, 1.4 * p1, 1.4 * p2, A)
+                cal.work(1000, frame)
+                if cal.adopted is not None:         # kept only while the estimate agrees
+                    f, std, _ = cal.estimate()
+                    assert abs(f - cal.adopted) <= std and cal.adopted_std >= std
+    f, std, _ = cal.estimate()
+    assert abs(f - adopted) > 3.0 * adopted_std
+    assert cal.adopted is None and cal.adopted_at is None and cal.revoked_at is not None
+    assert cal.provisional != adopted
+    assert cal.status().endswith(f'; an adopted value revoked at frame {cal.revoked_at})')
+    assert '(provisional, ' in cal.status()
+    revoked = [r.getMessage() for r in caplog.records if 'revoked' in r.getMessage()]
+    assert len(revoked) == 1 and revoked[0].startswith(
+        f'focal length self-calibration revoked at frame {cal.revoked_at}: the calibration now '
+        f'gives ')
+
+
 def test_focal_calibration_uncertainty_is_honest_on_noisy_pairs():
     rng = np.random.default_rng(8)
     for _ in range(4):

@@ -145,6 +145,8 @@ class VisualOdometry:
         self._size_matched = False                  # an image had the camera model's size
         self._camera_problem: str | None = None     # why the configured intrinsics are refused
         self._took_camera = False                   # a camera model replaced the calibration
+        self._warned_camera_size = False            # ... one of another size was refused
+        self._new_size: tuple[int, int] | None = None   # an image size not yet confirmed
         scale = self.config.scale
         self._speed = SpeedIntegrator(max_gap=scale.speed_max_gap)
         # Created at the first image (they need its size) when the focal length is unknown.
@@ -257,8 +259,8 @@ class VisualOdometry:
     @property
     def focal_calibrator(self) -> OnlineFocalCalibrator | None:
         """The online focal calibration (``camera.estimate_focal`` without intrinsics), else
-        None."""
-        return self._focal
+        None (also once a camera model replaced it)."""
+        return self._focal if self._camera is None else None
 
     @property
     def road_normal(self) -> tuple[float, float, float]:
@@ -366,7 +368,11 @@ class VisualOdometry:
                                 f'{type(err).__name__}: {err}')
         if self._focal is not None and self._camera is None:
             t = time.perf_counter()
-            self._focal.work(self.config.camera.focal_steps, self._frames)
+            try:
+                self._focal.work(self.config.camera.focal_steps, self._frames)
+            except Exception:               # noqa: BLE001 - a bug must not stop the odometry
+                # (the frame's result stands; the pair is lost from the calibration)
+                log.exception('focal self-calibration error at frame %d', self._frames)
             timings['focal'] = timings.get('focal', 0.0) + time.perf_counter() - t
         self._frames += 1
         timings['total'] = time.perf_counter() - start
@@ -469,10 +475,13 @@ class VisualOdometry:
                                   f'{camera.height} but the image is {gray.shape[1]}x'
                                   f'{gray.shape[0]}: intrinsics of another camera or resolution')
             # A stray frame of another size: drop it, keep tracking (a new camera model with
-            # the new size resets the keyframe in _resolve_camera).
+            # the new size resets the keyframe in _resolve_camera; self-calibrating, a second
+            # frame of the new size does).
+            again = (' (self-calibrating: a second image of this size in a row starts a new '
+                     'focal self-calibration)' if self._camera is None else '')
             return self._drop(stamp, DropReason.SIZE_CHANGED,
                               f'image is {gray.shape[1]}x{gray.shape[0]} but the camera model is '
-                              f'{camera.width}x{camera.height}')
+                              f'{camera.width}x{camera.height}{again}')
         self._size_matched = True
         if _is_blank(gray, self.config.odometry.min_contrast):
             # Nothing to track: the frame counts towards lost tracking (a tunnel, a covered
@@ -587,12 +596,29 @@ class VisualOdometry:
 
     def _resolve_camera(self, camera: CameraModel | None, shape: tuple[int, int]
                         ) -> CameraModel | None:
-        if camera is not None and self.config.camera.estimate_focal and not self._took_camera:
-            # A camera model (a CameraInfo that arrived late) replaces the self-calibration;
-            # said once (a user test: it happened without a word).
-            log.warning('a camera model arrived: it replaces the focal self-calibration '
-                        '(camera.estimate_focal) from frame %d on', self._frames)
-            self._took_camera = True
+        if camera is not None and self.config.camera.estimate_focal and self._camera is None:
+            height, width = shape
+            if camera.size != (width, height):
+                # A model of another resolution cannot replace the self-calibration of these
+                # images (a review: every frame was then refused as no_camera_info): it goes on
+                # until a model of their size comes.
+                if not self._warned_camera_size:
+                    log.warning('a camera model of %dx%d arrived for %dx%d images: the focal '
+                                'self-calibration goes on until one of their size comes',
+                                camera.width, camera.height, width, height)
+                    self._warned_camera_size = True
+                camera = None
+            elif not self._took_camera:
+                # A camera model (a CameraInfo that arrived late) replaces the self-calibration;
+                # said once (a user test: it happened without a word).
+                log.warning('a camera model arrived: it replaces the focal self-calibration '
+                            '(camera.estimate_focal) from frame %d on', self._frames)
+                self._took_camera = True
+                in_use = self._in_use
+                if in_use is not None and in_use.size == camera.size and in_use.fx != camera.fx:
+                    # What the image measured through the provisional focal length is carried
+                    # to the model's (a review: the levelling kept 3.2 deg where 4.0 was seen).
+                    self._refocus(in_use.fx / camera.fx)
         if camera is not None:
             if self._camera is not None and camera != self._camera:
                 shift = self._camera.pixel_shift(camera)
@@ -632,8 +658,19 @@ class VisualOdometry:
                 # Uncalibrated: the self-calibration's focal length, provisional (a prior at the
                 # camera's stated field of view, else 53 degrees, combined with the pairs so
                 # far) until adopted.
-                if self._focal is None or (self._focal.width, self._focal.height) != \
+                if self._focal is not None and (self._focal.width, self._focal.height) == \
                         (width, height):
+                    self._new_size = None
+                elif (self._focal is not None and self._size_matched and self._in_use is not None
+                      and self._new_size != (width, height)):
+                    # One image of another size (a stray frame) is dropped as a size change,
+                    # as with a camera model (`process`); a second one in a row is a new
+                    # resolution (a review: one stray frame threw the calibration away, and the
+                    # return to the old size the next one).
+                    self._new_size = (width, height)
+                    return self._in_use
+                else:
+                    self._new_size = None
                     if self._focal is not None:
                         # Another image size: a new calibration, and the keyframe's pixels do
                         # not mean what they did (a new chain, as for a new camera model); the

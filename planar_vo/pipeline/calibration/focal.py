@@ -278,6 +278,7 @@ class OnlineFocalCalibrator:
         self.adopted_std: float | None = None
         self.adopted_at: int | None = None
         self.updated_at: int | None = None  # the last frame that changed the adopted value
+        self.revoked_at: int | None = None  # the frame an adopted value was last revoked at
 
     # -- input and work ------------------------------------------------------------------------
 
@@ -442,15 +443,26 @@ class OnlineFocalCalibrator:
 
     @property
     def relative_std(self) -> float:
-        """Relative 1-sigma uncertainty of `provisional` (for the odometry covariance: the yaw
-        error is about ``alpha x`` this)."""
+        """Relative uncertainty of `provisional` (for the odometry covariance: the yaw error is
+        about ``alpha x`` this): once adopted, the calibration's standard deviation as
+        `estimate` reports it (sized so that the error stays within 3 of them despite few
+        blocks: at 4 blocks about twice the 1-sigma value, conservative); before, the 1-sigma
+        posterior of the prior and the calibration."""
         if self.adopted is not None:
             return self.adopted_std / self.adopted
         return math.exp(self._posterior()[1]) - 1.0
 
     def update_adoption(self, frame: int) -> bool:
         """Adopt (or update the adopted) estimate when its uncertainty allows (see the class
-        docstring); `adopted_at` is the frame of the first adoption."""
+        docstring); `adopted_at` is the frame of the adoption.
+
+        An adopted value that the calibration no longer supports is revoked (`revoked_at`, a
+        warning; provisional again): the estimate at the edge of its range, its standard
+        deviation above twice the tolerance, or the adopted value off the estimate by more than
+        that standard deviation (a review: blocks seen through another focal length moved the
+        estimate to 770.7 +- 51.3 px while 616.4 +- 8.5 px stayed adopted). Between the
+        tolerance and twice it the adopted value stays, with the estimate's standard deviation
+        when that is larger."""
         f, s, info = self.estimate()
         ok = (math.isfinite(f) and info.get('blocks', 0) >= self.min_blocks
               and not info.get('edge', True) and s / f <= self.tolerance)
@@ -462,6 +474,16 @@ class OnlineFocalCalibrator:
             elif (f, s) != (self.adopted, self.adopted_std):
                 self.updated_at = int(frame)
             self.adopted, self.adopted_std = f, s
+        elif self.adopted is not None:
+            if (not math.isfinite(f) or info.get('edge', True) or s > 2.0 * self.tolerance * f
+                    or abs(f - self.adopted) > s):
+                log.warning('focal length self-calibration revoked at frame %d: the calibration '
+                            'now gives %.1f +- %.1f px against the adopted %.1f +- %.1f px; '
+                            'provisional again', frame, f, s, self.adopted, self.adopted_std)
+                self.adopted = self.adopted_std = self.adopted_at = self.updated_at = None
+                self.revoked_at = int(frame)
+            elif s > self.adopted_std:
+                self.adopted_std, self.updated_at = s, int(frame)
         return ok
 
     def status(self) -> str:
@@ -490,4 +512,6 @@ class OnlineFocalCalibrator:
             why = ('the calibration at the edge of its range' if info.get('edge', True) else
                    f'calibration {estimate:.1f} +- {100.0 * std / estimate:.1f} %, adopted at '
                    f'{100.0 * self.tolerance:g} %')
+        if self.revoked_at is not None:
+            why += f'; an adopted value revoked at frame {self.revoked_at}'
         return f'focal length {f:.1f} +- {f * self.relative_std:.1f} px (provisional, {why})'
