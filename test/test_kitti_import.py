@@ -234,6 +234,10 @@ def test_argument_errors_and_existing_output(tmp_path, rng):
     with pytest.raises(InputError, match=r'camera_height: expected a positive height in metres, '
                                          r'got -1'):
         import_kitti(tmp_path / 'seq', tmp_path / 'bag', camera_height=-1.0)
+    # (a user test: 1e9 m was imported, and the replay command it suggests refused it)
+    with pytest.raises(InputError, match=r'camera_height: expected a height above the ground of '
+                                         r'0.01-100 m \(the range of mount.height\), got 1e\+09'):
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag', camera_height=1e9)
     with pytest.raises(InputError, match=r'rate_hz: expected a positive frame rate, got 0'):
         import_kitti(tmp_path / 'seq', tmp_path / 'bag', rate_hz=0.0)
     with pytest.raises(InputError, match=r"start: expected a number of seconds, got 'soon'"):

@@ -70,11 +70,16 @@ def test_a_folder_is_imported_exactly_in_natural_order_without_camera_info(tmp_p
     assert '(no CameraInfo: intrinsics not given)' in summary.format()
 
 
-def test_every_and_max_width_keep_the_timing_and_scale_the_intrinsics(tmp_path, rng):
+def test_every_and_max_width_keep_the_timing_and_scale_the_intrinsics(tmp_path, rng, caplog):
     images = _folder(tmp_path / 'imgs', rng, n=5)
     camera = CameraModel.pinhole(40, 30, 50.0, 52.0, 19.5, 14.5)
-    summary = import_video(tmp_path / 'imgs', tmp_path / 'bag', rate_hz=10.0, every=2,
-                           max_width=20, camera=camera, storage='sqlite3', start=5)
+    with caplog.at_level('WARNING', logger='planar_vo.io.video'):
+        summary = import_video(tmp_path / 'imgs', tmp_path / 'bag', rate_hz=10.0, every=2,
+                               max_width=20, camera=camera, storage='sqlite3', start=5)
+    # Frames the odometry cannot use are said to be so (a user test: written without a word).
+    assert [r.getMessage() for r in caplog.records] == [
+        'frames of 20x15 pixels (max_width 20 shrinks the 40x30 source): the odometry needs at '
+        'least 32x32, so replay will drop every one as bad_image']
     assert (summary.frames, summary.read, summary.width, summary.height) == (3, 5, 20, 15)
     topics, frames = _read(tmp_path / 'bag')
     assert '/camera/camera_info' in topics

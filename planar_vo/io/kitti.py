@@ -326,6 +326,10 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
 
     camera_height = positive_number('camera_height', camera_height,
                                     'a positive height in metres')
+    if not 0.01 <= camera_height <= 100.0:
+        # (a user test: 1e9 m was imported, and the replay command it suggests refused it)
+        raise InputError(f'camera_height: expected a height above the ground of 0.01-100 m '
+                         f'(the range of mount.height), got {camera_height:g}')
     if rate_hz is not None:
         rate_hz = positive_number('rate_hz', rate_hz, 'a positive frame rate')
     try:

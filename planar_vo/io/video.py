@@ -12,6 +12,7 @@ subsampled import (``every``) keeps the source's timing.
 
 from __future__ import annotations
 
+import logging
 import dataclasses
 import math
 import os
@@ -27,7 +28,7 @@ import numpy as np
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.checks import positive_number
 from planar_vo.errors import CameraModelError, ImageError, InputError, plural
-from planar_vo.frontend.images import read_image
+from planar_vo.frontend.images import MIN_IMAGE_SIZE, read_image
 from planar_vo.io.camera_bag import (
     CAMERA_INFO_TOPIC,
     DEFAULT_START,
@@ -36,6 +37,8 @@ from planar_vo.io.camera_bag import (
 )
 from planar_vo.io.writer import MAX_STAMP_NS
 from planar_vo.ros.messages import seconds_to_ns
+
+log = logging.getLogger(__name__)
 
 __all__ = ['IMAGE_SUFFIXES', 'VideoImportSummary', 'frame_size', 'import_video']
 
@@ -360,6 +363,14 @@ def _first_frame(image: np.ndarray, max_width: int | None, camera: CameraModel |
     """The shrink factor for the source's size and the intrinsics at the written size."""
     height, width = image.shape
     scale = 1.0 if max_width is None or width <= max_width else max_width / width
+    new_w, new_h = _shrunk(image.shape, scale)
+    if min(new_w, new_h) < MIN_IMAGE_SIZE:
+        # (a user test: --max-width 40 wrote 40x12 frames that replay drops, without a word)
+        shrunk = f' (max_width {max_width} shrinks the {width}x{height} source)' \
+            if scale != 1.0 else ''
+        log.warning('frames of %dx%d pixels%s: the odometry needs at least %dx%d, so replay '
+                    'will drop every one as bad_image', new_w, new_h, shrunk, MIN_IMAGE_SIZE,
+                    MIN_IMAGE_SIZE)
     if camera is None:
         return scale, None
     if (camera.width, camera.height) != (width, height):
@@ -367,7 +378,6 @@ def _first_frame(image: np.ndarray, max_width: int | None, camera: CameraModel |
                          f'images, the source is {width}x{height}')
     if scale == 1.0:
         return scale, camera
-    new_w, new_h = _shrunk(image.shape, scale)
     sx, sy = new_w / width, new_h / height
     K = camera.K.copy()
     # Pixel centres: x' + 0.5 = s (x + 0.5).
