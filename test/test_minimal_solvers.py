@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from decimal import Decimal
 
 import numpy as np
@@ -180,6 +181,16 @@ def test_1acf_straight_driving_is_not_a_confident_focal(rng):
     assert np.all(np.isnan(focal) | (weight < 1e-6))
     wrong = np.isfinite(focal) & (np.abs(focal / t.focal - 1.0) > 0.01)
     assert np.all(weight[wrong] < 1e-6)
+
+
+def test_1acf_degenerate_acs_give_nan_without_warnings():
+    # Identical points and identity affines carry no motion: NaN, no RuntimeWarning (a review:
+    # 0 x inf warned from inside the solver).
+    p = np.random.default_rng(0).normal(size=(5, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        alpha, beta, focal = solve_1acf(p, p, np.tile(np.eye(2), (5, 1, 1)))
+    assert np.isnan(alpha).all() and np.isnan(beta).all() and np.isnan(focal).all()
 
 
 def test_1acf_weight_tracks_yaw(rng):

@@ -326,7 +326,8 @@ def solve_1acf(p1: np.ndarray, p2: np.ndarray, A: np.ndarray, *, return_weight: 
     with np.errstate(divide='ignore', invalid='ignore'):
         f2 = (n3 - n1) / (n2 - n4)
     positive = np.isfinite(f2) & (f2 > 0.0)
-    f = np.sqrt(np.where(positive, f2, 1.0))                   # focal in scaled units
+    f2 = np.where(positive, f2, 1.0)          # (the others are NaN below; 0 x inf warned)
+    f = np.sqrt(f2)                                            # focal in scaled units
     x = np.stack([n[:, 0] * f, n[:, 1] * f2, n[:, 2] * f, n[:, 3] * f2], axis=-1)
     half1 = np.hypot(x[:, 0], x[:, 1])
     half2 = np.hypot(x[:, 2], x[:, 3])

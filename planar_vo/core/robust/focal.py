@@ -52,7 +52,9 @@ def _log_focal_modes(log_f: np.ndarray, weights: np.ndarray, lo: float, hi: floa
     idx = np.clip(((log_f - lo) / width).astype(np.intp), 0, bins - 1)
     hist = np.convolve(np.bincount(idx, weights=weights, minlength=bins),
                        circular_kernel(bins, 4.0), mode='same')
-    peaks = np.flatnonzero((hist > 0) & (hist >= np.roll(hist, 1)) & (hist >= np.roll(hist, -1)))
+    # (the log-focal axis is not circular: its ends have one neighbour each; a review)
+    line = np.concatenate([[-np.inf], hist, [-np.inf]])
+    peaks = np.flatnonzero((hist > 0) & (hist >= line[:-2]) & (hist >= line[2:]))
     peaks = peaks[np.argsort(hist[peaks])[::-1]]
     modes: list[float] = []
     bandwidth = 4.0 * width
