@@ -422,7 +422,8 @@ class OdometryConfig(Options):
             ``'flat'`` (x, y and yaw; z, roll and pitch zero, and their rates in the twist:
             for ground robots).
         flat_z_std, flat_tilt_std: with ``output: flat``, the standard deviations (m, rad)
-            given to the dropped z and roll/pitch.
+            of the flat-world assumption given to the dropped z and roll/pitch (their
+            estimates' variances and squares are added: the zero is off by that much).
         lost_speed_std, lost_turn_rate_std: while tracking is lost the pose is extrapolated
             at the last velocity (over the wheel speed's distance when there is one, straight
             ahead from a standstill); its standard deviation grows by this much speed (m/s) and
