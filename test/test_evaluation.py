@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 
 import cv2
 import numpy as np
 import pytest
+import yaml
 from evo_tools import evo_ape_stats, run_evo
 
 from planar_vo.cli import main
@@ -409,6 +411,31 @@ def test_cli_eval_bag_with_both_topics(tmp_path, rng, capsys):
     assert f'reference: {path} (/ground_truth/odom)' in printed
     row = next(line for line in printed.splitlines() if line.startswith('| ATE (m)'))
     assert row.split('|')[2].split('/')[0].strip() == '0.500000'      # the known offset
+
+
+def test_cli_eval_says_when_the_ground_truth_is_another_drives(tmp_path, rng, capsys, caplog):
+    """A user test: one drive's odometry scored against another's ground truth (their stamps
+    matched) without a word. A replayed bag names its input: a reference that is neither that
+    bag nor replayed from it is warned about."""
+    path, _, _ = _bag_with(tmp_path, rng)
+    meta = path / 'metadata.yaml'
+    text = meta.read_text()
+    for name, source in (('a_vo', tmp_path / 'a'), ('b_vo', tmp_path / 'b')):
+        shutil.copytree(path, tmp_path / name)
+        info = yaml.safe_load(text)
+        info['rosbag2_bagfile_information']['custom_data'] = {'planar_vo.input': str(source)}
+        (tmp_path / name / 'metadata.yaml').write_text(yaml.safe_dump(info))
+    shutil.copytree(path, tmp_path / 'a')                  # a's own bag (it holds no images)
+    for gt, warned in (('b_vo', True), ('a_vo', False), ('a', False), (None, False)):
+        caplog.clear()
+        extra = ['--gt', str(tmp_path / gt)] if gt else []
+        assert main(['eval', str(tmp_path / 'a_vo'), *extra, '--align', 'none']) == 0
+        capsys.readouterr()
+        found = [r.getMessage() for r in caplog.records if 'two drives' in r.getMessage()]
+        assert found == ([f"EST was replayed from '{tmp_path / 'a'}' and GT is "
+                          f"'{tmp_path / 'b_vo'}', replayed from '{tmp_path / 'b'}': two "
+                          f'drives? Their stamps can match (import-kitti starts every drive at '
+                          f'the same time)'] if warned else []), gt
 
 
 def _with_known_errors(rng, ref: Trajectory):

@@ -194,6 +194,29 @@ def _is_camera_bag(path: str) -> bool:
         return False
 
 
+def _another_drive(est: str, gt: str) -> str | None:
+    """Why EST and GT look like two drives' bags, or None: a replayed estimate names the bag it
+    was replayed from (`planar_vo replay` records ``planar_vo.input``), and a reference that is
+    neither that bag nor replayed from it is another's, whose stamps may still match (a user
+    test: KITTI 06's odometry scored against KITTI 05's ground truth without a word; every
+    `import-kitti` starts its drive at the same time)."""
+    from planar_vo.tools.evaluation.files import is_bag_path
+    from planar_vo.tools.provenance import bag_custom_data
+
+    if not (is_bag_path(est) and is_bag_path(gt)):
+        return None
+    source = bag_custom_data(est).get('planar_vo.input')
+    if not source:
+        return None
+    gt_source = bag_custom_data(gt).get('planar_vo.input')
+    same = Path(source).resolve()
+    if same == Path(gt).resolve() or (gt_source and Path(gt_source).resolve() == same):
+        return None
+    of = f", replayed from '{gt_source}'" if gt_source else ''
+    return (f"EST was replayed from '{source}' and GT is '{gt}'{of}: two drives? Their stamps "
+            f'can match (import-kitti starts every drive at the same time)')
+
+
 def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError, PlanarVoError
     from planar_vo.tools.evaluation import evaluate, write_report
@@ -258,6 +281,11 @@ def run(args: argparse.Namespace) -> int:
             err.args = (f'{err}; EST has no ground truth: give it with --gt (a TUM file or a '
                         f'bag), and its topic with --gt-topic',)
         raise
+    other = _another_drive(args.est, gt_path)
+    if other:
+        import logging
+
+        logging.getLogger('planar_vo.eval').warning('%s', other)
     try:
         evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
                               segment_lengths=tuple(args.segments),
