@@ -1045,22 +1045,76 @@ def test_a_frame_stamped_ahead_within_the_max_gap_is_confirmed_mis_stamped():
 
     S = StampCheck
     clock = FrameClock(10.0, 1.0)
-    verdicts = [clock.check(t) for t in (100.0, 100.1, 100.2, 100.3, 103.4, 100.5, 100.6,
-                                         100.7)]
-    assert verdicts == [S.OK] * 5 + [S.INSIDE_GAP, S.REWOUND, S.OK]
+    verdicts = [clock.check(t) for t in (100.0, 100.1, 100.2, 100.3, 103.4, 100.5, 100.6)]
+    assert verdicts == [S.OK] * 5 + [S.INSIDE_GAP, S.REWOUND]
     assert clock.mis_stamped == (103.4, pytest.approx(100.4))     # midway to the first inside
+    assert clock.last == 103.4                      # a proposal: the caller accepts it ...
+    clock.rewind()
+    assert clock.check(100.7) is S.OK
     assert clock.last == 100.7 and clock.usual_interval == pytest.approx(0.1)
-    # A real gap with one frame delivered late inside it: refused, then the stream goes on.
-    verdicts = [clock.check(t) for t in (101.5, 101.0, 101.6)]
-    assert verdicts == [S.OK, S.INSIDE_GAP, S.OK]
+    # ... or not: frames delivered late into a real gap stay refused, and the stream goes on.
+    verdicts = [clock.check(t) for t in (101.5, 101.0, 101.1, 101.2, 101.6)]
+    assert verdicts == [S.OK, S.INSIDE_GAP, S.REWOUND, S.REWOUND, S.OK]
+    with pytest.raises(RuntimeError, match='no StampCheck.REWOUND to accept'):
+        clock.rewind()
     ms, t0 = 1_000_000, 1_700_000_000 * 10 ** 9
     gaps = GapCounter(10.0, 1.0)
     for i in (0, 1, 2, 3, 34, 5, 6, 7):             # frame 4 stamped 3 s ahead
         gaps.note(t0 + 100 * ms * i)
     assert (gaps.gaps, gaps.missing) == (0, 0)
-    for i in (8, 9, 11, 10, 12):                    # frame 10 delivered after frame 11
+    for i in list(range(8, 34)) + [35]:             # ... its slot filled when the stream gets there
         gaps.note(t0 + 100 * ms * i)
     assert (gaps.gaps, gaps.missing) == (0, 0)
+    for i in (36, 37, 39, 38, 40):                  # frame 38 delivered after frame 39
+        gaps.note(t0 + 100 * ms * i)
+    assert (gaps.gaps, gaps.missing) == (0, 0)
+    for i in (41, 47, 42, 43, 44, 45, 46, 48):      # frames 42-46 late: all came
+        gaps.note(t0 + 100 * ms * i)
+    assert (gaps.gaps, gaps.missing) == (0, 0)
+    # A late frame inside the first gap of a frame-rate change (a review: the change then took
+    # the gap's whole first count off, and missing went negative).
+    gaps = GapCounter(10.0, 1.0)
+    for t in [100 * i for i in range(11)] + [1300, 1150, 1600, 1900, 2200]:
+        gaps.note(t0 + t * ms)
+        assert gaps.missing >= 0 and gaps.gaps >= 0
+
+
+@pytest.mark.parametrize('late', [1, 5])
+def test_frames_delivered_late_into_a_real_gap_are_refused(late):
+    """A review: frames 10-14 delivered after the correctly stamped frame 15 made it look
+    mis-stamped; the rewind put its speed 12 times too high and the pose 17 m ahead for good.
+    Its step over its own stamp fits the speed before it: the late frames are refused."""
+    trajectory, images, _ = _drive('straight')
+    stamps = [float(s) for s in trajectory.stamps]
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    order = list(range(10)) + [15] + list(range(10, 10 + late)) + list(range(16, 21))
+    results = {i: vo.process(images[i], stamps[i]) for i in order}
+    assert all(results[i].reason is DropReason.OUT_OF_ORDER for i in range(10, 10 + late))
+    assert all(results[i].ok for i in order[1:] if not 10 <= i < 15), [
+        (i, results[i].reason) for i in order]
+    assert abs(results[20].pose[0, 3] - (trajectory.xy[20, 0] - trajectory.xy[0, 0])) < 0.1
+    assert abs(results[20].twist[0] - 8.0) < 0.3
+
+
+@pytest.mark.parametrize('source', ['speed', 'fixed'])
+def test_a_mis_stamped_frame_with_a_time_based_scale_is_not_rewound(source):
+    """A review: with the step length from a speed (a topic, a fixed speed), the mis-stamped
+    frame's step is as long as its wrong interval, and rewinding to its pose left the odometry
+    6.5 m ahead for good. Without the rewind the frames inside its gap are refused and the
+    next step's interval makes up for it."""
+    trajectory, images, twists = _drive('straight')
+    stamps = [float(s) for s in trajectory.stamps]
+    scale = {'source': 'fixed', 'fixed_speed': 8.0} if source == 'fixed' else {'source': 'speed'}
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}, 'scale': scale}),
+                        CAMERA)
+    results = []
+    for i in range(20):
+        stamp = stamps[i] + (0.8 if i == 6 else 0.0)
+        if source == 'speed':
+            vo.add_speed(stamps[i], float(np.hypot(*twists[i, :2])))
+        results.append(vo.process(images[i], stamp))
+    assert vo.counters.get('reinitialised', 0) == 0
+    assert abs(results[19].pose[0, 3] - (trajectory.xy[19, 0] - trajectory.xy[0, 0])) < 0.3
 
 
 @pytest.mark.parametrize('ahead', [0.8, 3.0])
@@ -1258,15 +1312,19 @@ def test_a_camera_model_that_takes_over_carries_what_was_measured_and_must_fit(c
     warnings = [r.getMessage() for r in caplog.records if 'camera model' in r.getMessage()]
     assert warnings == ['a camera model of 1280x960 arrived for 640x480 images: the focal '
                         'self-calibration goes on until one of their size comes']
+    # One stray image of the model's size does not let it take over (a review: it did, and
+    # every later frame was refused as size_changed).
+    stray = vo.process(cv2.resize(images[6], (1280, 960)), stamps[6], other)
+    assert stray.reason is DropReason.SIZE_CHANGED and vo.focal_length()[2] == 'provisional'
     ratios = []
     refocus = vo._refocus
     vo._refocus = lambda ratio: (ratios.append(ratio), refocus(ratio))
     provisional = vo.camera.fx
-    assert vo.process(images[6], stamps[6], CAMERA).ok
+    assert vo.process(images[7], stamps[7], CAMERA).ok
     assert ratios == [provisional / CAMERA.fx] and vo.focal_length() == (500.0, 0.0,
                                                                          'camera_info')
     assert vo.focal_calibrator is None
-    assert vo.process(images[7], stamps[7], CAMERA).ok and len(ratios) == 1
+    assert vo.process(images[8], stamps[8], CAMERA).ok and len(ratios) == 1
 
 
 def test_one_image_of_another_size_keeps_the_focal_self_calibration():

@@ -16,10 +16,11 @@ long real gap). None of them may stop the odometry for good:
   of order;
 - a frame stamped ahead of its time by less than ``max_gap`` opens what looks like a gap of
   lost frames, and the frames after it are older: the first of them that falls inside that gap
-  is refused (`StampCheck.INSIDE_GAP`), and a second one after it confirms that the frame
-  before them was mis-stamped (`StampCheck.REWOUND`): the time goes on from the frames' own
-  stamps (a user test: a frame stamped 0.8 s ahead refused the 7 frames after it, one 3 s
-  ahead reset the pose to the origin as a looped bag).
+  is refused (`StampCheck.INSIDE_GAP`), and a second one after it may confirm that the frame
+  before them was mis-stamped (`StampCheck.REWOUND`, a proposal): if the caller accepts it
+  (`FrameClock.rewind`), the time goes on from the frames' own stamps (a user test: a frame
+  stamped 0.8 s ahead refused the 7 frames after it, one 3 s ahead reset the pose to the
+  origin as a looped bag); else they are frames delivered late into a real gap, refused.
 
 Stamps are float seconds. A float holds about 0.24 us at 1.7e9 s, so two stamps 1 ns apart may
 be the same float: where the source has integer nanoseconds (ROS header stamps, bag times), a
@@ -84,8 +85,9 @@ class StampCheck(str, enum.Enum):
     JUMP_BACK = 'jump_back'              # the second frame far in the past: a new time base
     INSIDE_GAP = 'inside_gap'            # older than the last accepted frame, inside the gap
     #                                      that frame opened: refused
-    REWOUND = 'rewound'                  # the second such frame: the last accepted one was
-    #                                      stamped ahead of its time; accepted
+    REWOUND = 'rewound'                  # a later one inside it: the last accepted frame may
+    #                                      have been stamped ahead of its time (`rewind` takes
+    #                                      this frame; else it is refused, as INSIDE_GAP)
 
 
 # An interval this many times the usual one is a gap (frames lost, or a frame stamped ahead).
@@ -128,8 +130,9 @@ class FrameClock:
         self._inside: float | None = None
         # After `StampCheck.REWOUND`: the mis-stamped frame's stamp and the time it was more
         # likely taken at (midway between the frame before it and the first frame refused
-        # inside its gap, the slot it left).
+        # inside its gap, the slot it left), and the frame that would go on from there.
         self.mis_stamped: tuple[float, float] | None = None
+        self._proposed: float | None = None
 
     def reset(self) -> None:
         """Forget the time base (the next stamp is accepted as is)."""
@@ -160,15 +163,12 @@ class FrameClock:
             # Inside the gap the last frame opened (before the jump-back rules: a frame stamped
             # 3 s ahead is not a looped bag).
             inside = self._inside
+            self._ahead = self._behind = None
             if inside is not None and seconds_between(stamp, inside) > 0.0:
-                self.jump = step
                 self.mis_stamped = (last, start + 0.5 * seconds_between(inside, start))
-                self.last, self._ahead, self._behind = stamp, None, None
-                self._gap_start = self._inside = None
-                if self._intervals:
-                    self._intervals.pop()           # the mis-stamped frame's interval
+                self._inside = self._proposed = stamp
                 return StampCheck.REWOUND
-            self._inside, self._ahead, self._behind = stamp, None, None
+            self._inside = stamp
             return StampCheck.INSIDE_GAP
         if step < 0.0:
             if -step <= self.max_jump_back:
@@ -192,10 +192,23 @@ class FrameClock:
         if usual is not None and step < min(self.TOO_CLOSE_SHARE * usual, self.TOO_CLOSE_S):
             return StampCheck.TOO_CLOSE
         self._gap_start = last if usual is not None and step > GAP_FACTOR * usual else None
-        self._inside = None
+        self._inside = self._proposed = None
         self.last, self._ahead, self._behind = stamp, None, None
         self._intervals.append(step)
         return StampCheck.OK
+
+    def rewind(self) -> None:
+        """Accept the `StampCheck.REWOUND` just returned: the last accepted frame was stamped
+        ahead of its time, and the time goes on from the frame that proposed it (its interval
+        is dropped from the usual one's)."""
+        stamp, self._proposed = self._proposed, None
+        if stamp is None:
+            raise RuntimeError('FrameClock.rewind: no StampCheck.REWOUND to accept')
+        self.jump = seconds_between(stamp, self.last)
+        self.last, self._ahead, self._behind = stamp, None, None
+        self._gap_start = self._inside = None
+        if self._intervals:
+            self._intervals.pop()                   # the mis-stamped frame's interval
 
     def _follows(self, stamp: float, refused: float | None) -> bool:
         """``stamp`` confirms the time of the frame refused before it: it comes after it,
@@ -246,8 +259,9 @@ class GapCounter:
     throttled topic), not lost frames: the nominal period becomes theirs and they are taken
     off the counts. A frame refused inside the last gap (`StampCheck.INSIDE_GAP`: delivered out
     of order, or the frame that opened the gap was stamped ahead) fills one of its slots (a user
-    test: a frame out of order counted as missing too), and a confirmed mis-stamped frame
-    (`StampCheck.REWOUND`) takes its whole gap off the counts.
+    test: a frame out of order counted as missing too); a second one after it in order
+    (`StampCheck.REWOUND`: a mis-stamped frame opened the gap, or the frames came late) takes
+    the whole gap off the counts, and the early frame fills its own slot later.
     """
 
     GAP_FACTOR = GAP_FACTOR     # an interval this many times the nominal period is a gap
@@ -259,10 +273,11 @@ class GapCounter:
         self._clock = FrameClock(max_gap, max_jump_back)
         self._last_ns: int | None = None
         self._intervals: collections.deque[int] = collections.deque(maxlen=self.PERIOD_WINDOW)
-        self._run: collections.deque[tuple[int, int]] = collections.deque(
-            maxlen=self.RATE_CHANGE_GAPS)
+        # [interval, missing] of the last gaps in a row (a late frame fills one of the last's)
+        self._run: collections.deque[list[int]] = collections.deque(maxlen=self.RATE_CHANGE_GAPS)
         self._glitched = 0      # frames refused as far ahead or behind since the last one
         self._open = 0          # frames the gap before the last accepted frame still counts
+        self._early: list[int] = []     # stamps of frames that came before their time
         self.gaps = 0
         self.missing = 0
 
@@ -277,36 +292,48 @@ class GapCounter:
         if check in (StampCheck.JUMP_AHEAD, StampCheck.FAR_BEHIND):
             self._glitched += 1
             return None
-        if check is StampCheck.INSIDE_GAP and self._open > 0:
-            self._open -= 1
-            self.missing -= 1
-            if self._open == 0:             # filled: no gap
+        if check is StampCheck.REWOUND:
+            # Frames came inside the last gap in order: the frame that opened it was stamped
+            # ahead of its time, or they came late; either way no frame of the gap is missing
+            # and the stamps go on from here. The early stamp's slot is filled when the stream
+            # gets there.
+            self._clock.rewind()
+            self._early.append(self._clock.mis_stamped[0].ns)
+            if self._open > 0:
+                self.missing -= self._open
                 self.gaps -= 1
                 if self._run:
                     self._run.pop()
+            self._open, self._glitched, self._last_ns = 0, 0, stamp_ns
             return None
-        if check is StampCheck.REWOUND:
-            self.missing -= self._open
-            self.gaps -= 1 if self._open > 0 else 0
-            if self._open > 0 and self._run:
-                self._run.pop()
-            self._open, self._last_ns = 0, stamp_ns
+        if check is StampCheck.INSIDE_GAP:
+            if self._open > 0:          # a late frame fills one slot of the gap
+                self._open -= 1
+                self.missing -= 1
+                if self._run:
+                    self._run[-1][1] -= 1
+                if self._open == 0:     # filled: no gap
+                    self.gaps -= 1
+                    if self._run:
+                        self._run.pop()
             return None
-        if check in (StampCheck.DUPLICATE, StampCheck.TOO_CLOSE, StampCheck.OUT_OF_ORDER,
-                     StampCheck.INSIDE_GAP):
+        if check in (StampCheck.DUPLICATE, StampCheck.TOO_CLOSE, StampCheck.OUT_OF_ORDER):
             return None
         last, self._last_ns = self._last_ns, stamp_ns
         glitched, self._glitched = self._glitched, 0
+        early = sum(1 for t in self._early if last is not None and last < t <= stamp_ns)
+        self._early = [t for t in self._early if t > stamp_ns]
         self._open = 0
         if check in (StampCheck.JUMP_BACK, StampCheck.NEW_TIME_BASE) or last is None:
             self._intervals.clear()
             self._run.clear()
+            self._early.clear()
             return None
         dt = stamp_ns - last
         if len(self._intervals) >= 2:
             period = statistics.median(self._intervals)
             if dt > self.GAP_FACTOR * period:
-                missing = max(1, round(dt / period) - 1) - glitched
+                missing = max(1, round(dt / period) - 1) - glitched - early
                 if missing < 1:
                     return None     # the refused frames filled it: no gap, no new period
                 self.gaps += 1
@@ -320,7 +347,7 @@ class GapCounter:
 
     def _rate_change(self, dt: int, missing: int, period: float) -> RateChange | None:
         run = self._run
-        run.append((dt, missing))
+        run.append([dt, missing])
         if len(run) < self.RATE_CHANGE_GAPS:
             return None
         lengths = [g for g, _ in run]

@@ -216,6 +216,7 @@ class VisualOdometry:
         self._twist_cov = np.eye(6) * _UNKNOWN
         # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
         self._last_twist: tuple[float, float, np.ndarray] | None = None
+        self._twist_before: tuple[float, float, np.ndarray] | None = None     # the one before
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
         # The last frame that reached tracking and its stamp, and why the run of frames
         # identical to it is a frozen camera's ('' while it is not; `_frozen`).
@@ -438,6 +439,12 @@ class VisualOdometry:
             self._clock.check(stamp)
             self._time_reset = True
         elif check is StampCheck.REWOUND:
+            if not self._mis_stamp_fits(*self._clock.mis_stamped):
+                return self._drop(stamp, DropReason.OUT_OF_ORDER,
+                                  f'timestamp {format_stamp(stamp)} is older than the previous '
+                                  f'{format_stamp(last)}, which came after a gap and moved as '
+                                  f'far as its own stamp says: a frame delivered late')
+            self._clock.rewind()
             self._rewind(*self._clock.mis_stamped)
         elif check is StampCheck.NEW_TIME_BASE and self._fresh_steps == 0:
             # No motion was estimated on the old time base (a user test: one frame stamped
@@ -597,7 +604,10 @@ class VisualOdometry:
     def _resolve_camera(self, camera: CameraModel | None, shape: tuple[int, int]
                         ) -> CameraModel | None:
         if camera is not None and self.config.camera.estimate_focal and self._camera is None:
-            height, width = shape
+            # The images' size: the calibration's (one stray image of another size does not
+            # change it: a review), else this one's.
+            height, width = shape if self._focal is None else (self._focal.height,
+                                                               self._focal.width)
             if camera.size != (width, height):
                 # A model of another resolution cannot replace the self-calibration of these
                 # images (a review: every frame was then refused as no_camera_info): it goes on
@@ -1348,6 +1358,24 @@ class VisualOdometry:
         # beside 'reference keyframe set').
         return self._result(stamp, False, reason=reason, message=message, keyframe=True)
 
+    def _mis_stamp_fits(self, wrong: float, likely: float) -> bool:
+        """Whether the last accepted frame (stamped ``wrong``) was stamped ahead of its time:
+        its step's speed over the ``likely`` interval fits the speed before it better than over
+        its own (a review: frames delivered late into a real gap made a correctly stamped frame
+        look mis-stamped, its speed 12 times too high, 17 m off for good). Only for a step whose
+        length came from the image (the road): a time-based length (a speed topic, a fixed or
+        held speed) would be wrong with the stamp, and unit steps say nothing; nor while
+        standing. Otherwise the frames in the gap are refused as late."""
+        last, before = self._last_twist, self._twist_before
+        if self._step_source != 'ground' or last is None or before is None or last[0] != wrong:
+            return False
+        _, length, twist = last
+        shorter = length - seconds_between(wrong, likely)
+        v, v0 = float(np.linalg.norm(twist[:3])), float(np.linalg.norm(before[2][:3]))
+        if not (shorter > 0 and v > 0 and v0 > 0):
+            return False
+        return abs(math.log(v * length / shorter / v0)) < abs(math.log(v / v0))
+
     def _rewind(self, wrong: float, likely: float) -> None:
         """The last accepted frame was stamped ahead of its time (``wrong``; it was more likely
         taken at ``likely``, `FrameClock.mis_stamped`): its pose stands (it comes from its
@@ -1369,9 +1397,9 @@ class VisualOdometry:
                 self._last_twist = (likely, shorter, twist * k)
             else:
                 self._last_twist = None
-        if self._held is not None and self._held[2] == wrong:
+        if self._held is not None and self._held[2] == wrong and k is not None:
             speed, std, _, bias = self._held
-            self._held = ((speed * k, std * k, likely, bias) if k is not None else None)
+            self._held = (speed * k, std * k, likely, bias)
         if self._previous_stamp == wrong:
             self._previous_stamp = likely
         self._keyframes.clear()
@@ -1514,7 +1542,8 @@ class VisualOdometry:
                 # displacement holds but its interval (from the last of them) does not (a user
                 # test: starting off, 0.254 m/s against 0.200 at 16 standard deviations).
                 self._twist_cov[:3, :3] += (self._crept / dt) ** 2 * np.eye(3)
-            self._last_twist = (stamp, dt, self._twist.copy())
+            self._twist_before, self._last_twist = self._last_twist, (stamp, dt,
+                                                                      self._twist.copy())
         self._crept = 0.0
         self._last_out = (stamp, self.camera_pose.copy())
 
