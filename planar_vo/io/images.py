@@ -16,9 +16,13 @@ import numpy as np
 from planar_vo.core.camera import CameraModel
 from planar_vo.errors import BagError, CameraModelError, ImageError
 from planar_vo.io.reader import BagMessage, BagReader
-from planar_vo.io.writer import MAX_STAMP_NS
 from planar_vo.pipeline.clock import Stamp
-from planar_vo.ros.messages import compressed_to_array, image_to_array, stamp_to_ns
+from planar_vo.ros.messages import (
+    compressed_to_array,
+    image_to_array,
+    stamp_problem,
+    stamp_to_ns,
+)
 
 __all__ = [
     'CAMERA_INFO_TYPE',
@@ -134,13 +138,12 @@ class CameraFrameDecoder:
         try:
             msg = self.bag.deserialize(message)
             stamp_ns, frame_id = stamp_to_ns(msg.header.stamp), str(msg.header.frame_id)
-            sec, nanosec = int(msg.header.stamp.sec), int(msg.header.stamp.nanosec)
-            if not (0 <= nanosec < 1_000_000_000 and 0 <= stamp_ns <= MAX_STAMP_NS):
+            problem = stamp_problem(msg.header.stamp)
+            if problem:
                 # (a user test: a first frame stamped -1 s aborted the replay when its odometry
                 # was written; nanosec 4e9 read as 4 s later)
                 bad_stamp = True
-                raise BagError(f'header stamp sec {sec}, nanosec {nanosec} is not a ROS time '
-                               f'(0 <= nanosec < 1e9, from 1970 to 2038)')
+                raise BagError(problem)
             if message.msgtype == COMPRESSED_IMAGE_TYPE:
                 image = compressed_to_array(msg, mono16_shift=self.mono16_shift)
             else:

@@ -14,10 +14,11 @@ long real gap). None of them may stop the odometry for good:
   ``max_gap`` and is still that far behind): a looped bag or a restarted clock
   (`StampCheck.JUMP_BACK`), and tracking is reset there; a smaller step back is a frame out
   of order;
-- a frame stamped ahead of its time by less than ``max_gap`` opens what looks like a gap of
-  lost frames, and the frames after it are older: the first of them that falls inside that gap
-  is refused (`StampCheck.INSIDE_GAP`), and a second one after it may confirm that the frame
-  before them was mis-stamped (`StampCheck.REWOUND`, a proposal): if the caller accepts it
+- a frame stamped ahead of its time by less than ``max_gap`` (or a few in a row: a clock
+  stepped forward and back) opens what looks like a gap of lost frames, and the frames after
+  it are older: the first of them that falls inside that gap is refused
+  (`StampCheck.INSIDE_GAP`), and a second one after it may confirm that the frames since the
+  gap were stamped ahead (`StampCheck.REWOUND`, a proposal): if the caller accepts it
   (`FrameClock.rewind`), the time goes on from the frames' own stamps (a user test: a frame
   stamped 0.8 s ahead refused the 7 frames after it, one 3 s ahead reset the pose to the
   origin as a looped bag); else they are frames delivered late into a real gap, refused.
@@ -36,7 +37,7 @@ import statistics
 from dataclasses import dataclass
 
 __all__ = ['FrameClock', 'Gap', 'GapCounter', 'RateChange', 'Stamp', 'StampCheck',
-           'format_stamp', 'seconds_between']
+           'format_stamp', 'seconds_between', 'shift_stamp']
 
 
 class Stamp(float):
@@ -59,8 +60,9 @@ def format_stamp(stamp: float) -> str:
     had them), a plain float's to the microsecond (at 1.7e9 s a float holds about 0.2 us: more
     digits would be noise)."""
     if isinstance(stamp, Stamp):
-        sec, nsec = divmod(stamp.ns, 1_000_000_000)
-        return f'{sec}.{nsec:09d}'
+        # (a user test: -4.61 s printed as -5.389627000)
+        sec, nsec = divmod(abs(stamp.ns), 1_000_000_000)
+        return f"{'-' if stamp.ns < 0 else ''}{sec}.{nsec:09d}"
     return f'{stamp:.6f}'
 
 
@@ -92,6 +94,16 @@ class StampCheck(str, enum.Enum):
 
 # An interval this many times the usual one is a gap (frames lost, or a frame stamped ahead).
 GAP_FACTOR = 1.8
+# Frames accepted after a gap during which frames inside it may still show that they were
+# stamped ahead (a clock stepped forward for a few frames).
+GAP_WATCH = 3
+
+
+def shift_stamp(stamp: float, seconds: float) -> float:
+    """``stamp`` moved back by ``seconds`` (a `Stamp` stays one, to the nanosecond)."""
+    if isinstance(stamp, Stamp):
+        return Stamp(stamp.ns - round(seconds * 1_000_000_000))
+    return stamp - seconds
 
 
 class FrameClock:
@@ -124,13 +136,15 @@ class FrameClock:
         self._ahead: float | None = None
         self._behind: float | None = None
         self._intervals: collections.deque[float] = collections.deque(maxlen=self.INTERVALS)
-        # The accepted stamp before the last, when the last one's interval was a gap; the
-        # first frame refused inside that gap.
-        self._gap_start: float | None = None
+        # The last gap among the last `GAP_WATCH` accepted frames: the stamps before and after
+        # it, and the frames accepted since (the one after it included); the first frame
+        # refused inside it.
+        self._gap: tuple[float, float] | None = None
+        self._since_gap = 0
         self._inside: float | None = None
-        # After `StampCheck.REWOUND`: the mis-stamped frame's stamp and the time it was more
-        # likely taken at (midway between the frame before it and the first frame refused
-        # inside its gap, the slot it left), and the frame that would go on from there.
+        # After `StampCheck.REWOUND`: the stamp of the first frame after the gap and the
+        # seconds by which it and the frames after it were ahead (the gap's slots shared
+        # evenly by them and the first frame inside it), and the frame that would go on.
         self.mis_stamped: tuple[float, float] | None = None
         self._proposed: float | None = None
 
@@ -138,7 +152,7 @@ class FrameClock:
         """Forget the time base (the next stamp is accepted as is)."""
         self.last = None
         self._ahead = self._behind = None
-        self._gap_start = self._inside = None
+        self._gap = self._inside = self._proposed = None
         self._intervals.clear()
 
     @property
@@ -158,14 +172,16 @@ class FrameClock:
         step = seconds_between(stamp, last)
         if step == 0.0:
             return StampCheck.DUPLICATE
-        start = self._gap_start
-        if step < 0.0 and start is not None and seconds_between(stamp, start) > 0.0:
-            # Inside the gap the last frame opened (before the jump-back rules: a frame stamped
-            # 3 s ahead is not a looped bag).
+        gap = self._gap
+        if (step < 0.0 and gap is not None and seconds_between(stamp, gap[0]) > 0.0
+                and seconds_between(gap[1], stamp) > 0.0):
+            # Inside the last gap (before the jump-back rules: a frame stamped 3 s ahead is not
+            # a looped bag).
             inside = self._inside
             self._ahead = self._behind = None
             if inside is not None and seconds_between(stamp, inside) > 0.0:
-                self.mis_stamped = (last, start + 0.5 * seconds_between(inside, start))
+                likely = seconds_between(inside, gap[0]) / (self._since_gap + 1)
+                self.mis_stamped = (gap[1], seconds_between(gap[1], gap[0]) - likely)
                 self._inside = self._proposed = stamp
                 return StampCheck.REWOUND
             self._inside = stamp
@@ -191,24 +207,27 @@ class FrameClock:
         usual = self.usual_interval
         if usual is not None and step < min(self.TOO_CLOSE_SHARE * usual, self.TOO_CLOSE_S):
             return StampCheck.TOO_CLOSE
-        self._gap_start = last if usual is not None and step > GAP_FACTOR * usual else None
+        if len(self._intervals) >= 2 and step > GAP_FACTOR * statistics.median(self._intervals):
+            self._gap, self._since_gap = (last, stamp), 1
+        elif self._gap is not None:
+            self._since_gap += 1
+            if self._since_gap > GAP_WATCH:
+                self._gap = None
         self._inside = self._proposed = None
         self.last, self._ahead, self._behind = stamp, None, None
         self._intervals.append(step)
         return StampCheck.OK
 
     def rewind(self) -> None:
-        """Accept the `StampCheck.REWOUND` just returned: the last accepted frame was stamped
-        ahead of its time, and the time goes on from the frame that proposed it (its interval
-        is dropped from the usual one's)."""
+        """Accept the `StampCheck.REWOUND` just returned: the frames since the last gap were
+        stamped ahead of their time (`mis_stamped`), and the time goes on from the frame that
+        proposed it."""
         stamp, self._proposed = self._proposed, None
         if stamp is None:
             raise RuntimeError('FrameClock.rewind: no StampCheck.REWOUND to accept')
         self.jump = seconds_between(stamp, self.last)
         self.last, self._ahead, self._behind = stamp, None, None
-        self._gap_start = self._inside = None
-        if self._intervals:
-            self._intervals.pop()                   # the mis-stamped frame's interval
+        self._gap = self._inside = None
 
     def _follows(self, stamp: float, refused: float | None) -> bool:
         """``stamp`` confirms the time of the frame refused before it: it comes after it,
@@ -217,7 +236,7 @@ class FrameClock:
 
     def _new_base(self, stamp: float) -> None:
         self.last, self._ahead, self._behind = stamp, None, None
-        self._gap_start = self._inside = None
+        self._gap = self._inside = self._proposed = None
         self._intervals.clear()
 
 
@@ -276,8 +295,10 @@ class GapCounter:
         # [interval, missing] of the last gaps in a row (a late frame fills one of the last's)
         self._run: collections.deque[list[int]] = collections.deque(maxlen=self.RATE_CHANGE_GAPS)
         self._glitched = 0      # frames refused as far ahead or behind since the last one
-        self._open = 0          # frames the gap before the last accepted frame still counts
+        self._open = 0          # frames the last gap (of the last few frames) still counts
+        self._open_age = 0      # frames accepted since that gap
         self._early: list[int] = []     # stamps of frames that came before their time
+        self._after_gap: list[int] = []     # stamps accepted since the last gap (a few)
         self.gaps = 0
         self.missing = 0
 
@@ -289,7 +310,10 @@ class GapCounter:
     def note(self, stamp_ns: int) -> Gap | None:
         """Judge one frame's stamp (integer ns): the gap before it, or None."""
         check = self._clock.check(Stamp(stamp_ns))
-        if check in (StampCheck.JUMP_AHEAD, StampCheck.FAR_BEHIND):
+        if check in (StampCheck.JUMP_AHEAD, StampCheck.FAR_BEHIND, StampCheck.DUPLICATE,
+                     StampCheck.TOO_CLOSE):
+            # A frame that came with a wrong stamp fills a slot of the interval it came in (a
+            # user test: a duplicated stamp in place of the next frame's counted one missing).
             self._glitched += 1
             return None
         if check is StampCheck.REWOUND:
@@ -298,7 +322,7 @@ class GapCounter:
             # and the stamps go on from here. The early stamp's slot is filled when the stream
             # gets there.
             self._clock.rewind()
-            self._early.append(self._clock.mis_stamped[0].ns)
+            self._early.extend(self._after_gap)
             if self._open > 0:
                 self.missing -= self._open
                 self.gaps -= 1
@@ -317,29 +341,36 @@ class GapCounter:
                     if self._run:
                         self._run.pop()
             return None
-        if check in (StampCheck.DUPLICATE, StampCheck.TOO_CLOSE, StampCheck.OUT_OF_ORDER):
+        if check is StampCheck.OUT_OF_ORDER:
             return None
         last, self._last_ns = self._last_ns, stamp_ns
         glitched, self._glitched = self._glitched, 0
         early = sum(1 for t in self._early if last is not None and last < t <= stamp_ns)
         self._early = [t for t in self._early if t > stamp_ns]
-        self._open = 0
+        self._open_age += 1
+        if self._open_age > GAP_WATCH:
+            self._open = 0
+        if len(self._after_gap) <= GAP_WATCH:
+            self._after_gap.append(stamp_ns)
         if check in (StampCheck.JUMP_BACK, StampCheck.NEW_TIME_BASE) or last is None:
             self._intervals.clear()
             self._run.clear()
             self._early.clear()
+            self._after_gap.clear()
+            self._open = 0
             return None
         dt = stamp_ns - last
         if len(self._intervals) >= 2:
             period = statistics.median(self._intervals)
             if dt > self.GAP_FACTOR * period:
+                self._after_gap = [stamp_ns]
                 missing = max(1, round(dt / period) - 1) - glitched - early
                 if missing < 1:
                     return None     # the refused frames filled it: no gap, no new period
                 self.gaps += 1
                 self.missing += missing
                 change = self._rate_change(dt, missing, period)
-                self._open = 0 if change is not None else missing
+                self._open, self._open_age = (0 if change is not None else missing), 1
                 return Gap(dt, missing, period, change)
         self._run.clear()
         self._intervals.append(dt)

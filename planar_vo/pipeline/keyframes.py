@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planar_vo.pipeline.clock import seconds_between, shift_stamp
+
 __all__ = ['Keyframe', 'KeyframeChain']
 
 
@@ -115,6 +117,13 @@ class KeyframeChain:
         if len(self._frames) < 2:
             raise ValueError('drop_current: no keyframe before the current one')
         self._frames.pop()
+
+    def shift_stamps(self, first: float, seconds: float) -> None:
+        """Move the stamps of the keyframes stamped at or after ``first`` back by ``seconds``
+        (they were stamped ahead of their time)."""
+        for frame in self._frames:
+            if seconds_between(frame.stamp, first) >= 0.0:
+                frame.stamp = shift_stamp(frame.stamp, seconds)
 
     def clear(self) -> None:
         """Drop every keyframe (the next usable frame starts a new chain)."""

@@ -80,11 +80,13 @@ from planar_vo.pipeline.calibration import (
     prior_sigma_for_fov,
 )
 from planar_vo.pipeline.clock import (
+    GAP_WATCH,
     FrameClock,
     Stamp,
     StampCheck,
     format_stamp,
     seconds_between,
+    shift_stamp,
 )
 from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator
 from planar_vo.pipeline.keyframes import Keyframe, KeyframeChain
@@ -145,6 +147,8 @@ class VisualOdometry:
         self._size_matched = False                  # an image had the camera model's size
         self._camera_problem: str | None = None     # why the configured intrinsics are refused
         self._took_camera = False                   # a camera model replaced the calibration
+        self._matched_camera: CameraModel | None = None     # the model frames were last tracked
+        #                                                      with (a camera model's, given)
         self._warned_camera_size = False            # ... one of another size was refused
         self._new_size: tuple[int, int] | None = None   # an image size not yet confirmed
         scale = self.config.scale
@@ -217,6 +221,8 @@ class VisualOdometry:
         # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
         self._last_twist: tuple[float, float, np.ndarray] | None = None
         self._twist_before: tuple[float, float, np.ndarray] | None = None     # the one before
+        # ... and the last few motion steps' (end, length, twist, scale source)
+        self._recent_steps: deque[tuple] = deque(maxlen=GAP_WATCH + 2)
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
         # The last frame that reached tracking and its stamp, and why the run of frames
         # identical to it is a frozen camera's ('' while it is not; `_frozen`).
@@ -490,6 +496,8 @@ class VisualOdometry:
                               f'image is {gray.shape[1]}x{gray.shape[0]} but the camera model is '
                               f'{camera.width}x{camera.height}{again}')
         self._size_matched = True
+        if self._camera is not None:
+            self._matched_camera = camera
         if _is_blank(gray, self.config.odometry.min_contrast):
             # Nothing to track: the frame counts towards lost tracking (a tunnel, a covered
             # lens), but it never becomes a keyframe. It is another image: a run of repeated
@@ -575,6 +583,8 @@ class VisualOdometry:
                     self._focal.pp_std / camera.fx)
         self._update_twist(keyframe, stamp, step_cov)
         self._step_source = source
+        if self._last_twist is not None and self._last_twist[0] == stamp:
+            self._recent_steps.append((*self._last_twist, source))
         self._twist_cov[:3, :3] += bias * bias * np.outer(self._twist[:3], self._twist[:3])
         new_keyframe = (parallax >= self.config.keyframe.min_parallax
                         or keyframe.age + 1 >= self.config.keyframe.max_interval)
@@ -630,8 +640,14 @@ class VisualOdometry:
                     # to the model's (a review: the levelling kept 3.2 deg where 4.0 was seen).
                     self._refocus(in_use.fx / camera.fx)
         if camera is not None:
-            if self._camera is not None and camera != self._camera:
-                shift = self._camera.pixel_shift(camera)
+            # Against the model the last frames were tracked with, and only for a model of the
+            # images' size, which is used from this frame on (a user test: a stray CameraInfo of
+            # another size, refused, restarted the chain when the right one came back).
+            reference = self._matched_camera if self._matched_camera is not None else \
+                self._camera
+            if (reference is not None and camera != reference
+                    and camera.size == (shape[1], shape[0])):
+                shift = reference.pixel_shift(camera)
                 if shift > _SAME_CAMERA_SHIFT and self._keyframes.current is not None:
                     # The keyframe's pixels do not mean what they did: restart the chain
                     # like lost tracking (the pose extrapolated over the frame interval, its
@@ -1358,52 +1374,76 @@ class VisualOdometry:
         # beside 'reference keyframe set').
         return self._result(stamp, False, reason=reason, message=message, keyframe=True)
 
-    def _mis_stamp_fits(self, wrong: float, likely: float) -> bool:
-        """Whether the last accepted frame (stamped ``wrong``) was stamped ahead of its time:
-        its step's speed over the ``likely`` interval fits the speed before it better than over
-        its own (a review: frames delivered late into a real gap made a correctly stamped frame
-        look mis-stamped, its speed 12 times too high, 17 m off for good). Only for a step whose
-        length came from the image (the road): a time-based length (a speed topic, a fixed or
-        held speed) would be wrong with the stamp, and unit steps say nothing; nor while
-        standing. Otherwise the frames in the gap are refused as late."""
-        last, before = self._last_twist, self._twist_before
-        if self._step_source != 'ground' or last is None or before is None or last[0] != wrong:
-            return False
-        _, length, twist = last
-        shorter = length - seconds_between(wrong, likely)
-        v, v0 = float(np.linalg.norm(twist[:3])), float(np.linalg.norm(before[2][:3]))
-        if not (shorter > 0 and v > 0 and v0 > 0):
-            return False
-        return abs(math.log(v * length / shorter / v0)) < abs(math.log(v / v0))
+    def _mis_stamp_fits(self, first: float, ahead: float) -> bool:
+        """Whether the frames since the last gap, the first stamped ``first``, were stamped
+        ``ahead`` seconds ahead of their time (`FrameClock.mis_stamped`): the step that ended at
+        the first one, whose length came from the image (the road), fits the speed of the step
+        before it better over the interval shortened by ``ahead`` than over its own stamps (a
+        review: frames delivered late into a real gap made a correctly stamped frame look
+        mis-stamped, its speed 12 times too high, 17 m off for good). Not with a time-based
+        step length (a speed topic, a fixed or held speed: as long as the wrong interval says),
+        unit steps (they say nothing) or a stop: the frames inside the gap are refused as
+        late."""
+        steps = list(self._recent_steps)
+        for before, (end, length, twist, source) in zip(steps, steps[1:]):
+            if end != first:
+                continue
+            shorter = length - ahead
+            v, v0 = float(np.linalg.norm(twist[:3])), float(np.linalg.norm(before[2][:3]))
+            if source != 'ground' or not (shorter > 0 and v > 0 and v0 > 0):
+                return False
+            return abs(math.log(v * length / shorter / v0)) < abs(math.log(v / v0))
+        return False
 
-    def _rewind(self, wrong: float, likely: float) -> None:
-        """The last accepted frame was stamped ahead of its time (``wrong``; it was more likely
-        taken at ``likely``, `FrameClock.mis_stamped`): its pose stands (it comes from its
-        image), what its stamp timed is restamped (the last output, the last step's velocity:
-        its displacement over the shorter interval), and a new keyframe chain starts from it,
-        extrapolated to the frame that confirmed it (a user test: a frame stamped 0.8 s ahead
-        refused the 7 frames after it; 3 s ahead, the pose went back to the origin)."""
-        log.warning('the frame stamped %s was stamped ahead of its time (the frames after it '
-                    'are older): tracking restarts from its pose', format_stamp(wrong))
-        if self._last_out is not None and self._last_out[0] == wrong:
-            self._last_out = (likely, self._last_out[1])
-        k = None
-        if self._last_twist is not None and self._last_twist[0] == wrong:
-            _, length, twist = self._last_twist
-            shorter = length - seconds_between(wrong, likely)
-            if shorter > 0:
-                k = length / shorter
-                self._twist, self._twist_cov = self._twist * k, self._twist_cov * (k * k)
-                self._last_twist = (likely, shorter, twist * k)
-            else:
-                self._last_twist = None
-        if self._held is not None and self._held[2] == wrong and k is not None:
-            speed, std, _, bias = self._held
-            self._held = (speed * k, std * k, likely, bias)
-        if self._previous_stamp == wrong:
-            self._previous_stamp = likely
-        self._keyframes.clear()
-        self._restart = 'a frame stamped ahead of its time'
+    def _rewind(self, first: float, ahead: float) -> None:
+        """The frames since the last gap, from the one stamped ``first`` on, were stamped
+        ``ahead`` seconds ahead of their time (`FrameClock.mis_stamped`): everything their
+        stamps timed is moved back (the keyframes, the last output, the velocity of the steps
+        that spanned the gap: their displacement over the shorter interval), and tracking goes
+        on (a user test: a frame stamped 0.8 s ahead refused the 7 frames after it; 3 s ahead,
+        the pose went back to the origin; two frames ahead lost 10 frames and left the pose 9 m
+        short at 7 standard deviations)."""
+        log.warning('the frames from the one stamped %s on were stamped %.3f s ahead of their '
+                    'time (the frames after them are older): their stamps are moved back',
+                    format_stamp(first), ahead)
+
+        def back(stamp):
+            return (shift_stamp(stamp, ahead) if stamp is not None
+                    and seconds_between(stamp, first) >= 0.0 else stamp)
+
+        def step(entry):
+            """A twist entry ``(end, length, twist, ...)`` restamped, and its speed factor."""
+            if entry is None or seconds_between(entry[0], first) < 0.0:
+                return entry, 1.0
+            spans = entry[1] > seconds_between(entry[0], first)      # began before the gap
+            length = entry[1] - ahead if spans else entry[1]
+            if not length > 0:
+                return None, None
+            k = entry[1] / length
+            return (back(entry[0]), length, entry[2] * k, *entry[3:]), k
+
+        self._keyframes.shift_stamps(first, ahead)
+        if self._last_out is not None:
+            self._last_out = (back(self._last_out[0]), self._last_out[1])
+        old_end = self._last_twist[0] if self._last_twist is not None else None
+        self._last_twist, k = step(self._last_twist)
+        if k is None:
+            self._twist, self._twist_cov = np.zeros(6), np.eye(6) * _UNKNOWN
+        elif k != 1.0:
+            self._twist, self._twist_cov = self._twist * k, self._twist_cov * (k * k)
+        self._twist_before = step(self._twist_before)[0]
+        self._recent_steps = deque(
+            (e for e in (step(e)[0] for e in self._recent_steps) if e is not None),
+            maxlen=self._recent_steps.maxlen)
+        if self._held is not None and seconds_between(self._held[2], first) >= 0.0:
+            speed, std, when, bias = self._held
+            factor = k if k is not None and when == old_end else 1.0
+            self._held = (speed * factor, std * factor, back(when), bias)
+        self._previous_stamp = back(self._previous_stamp)
+        self._older = deque(((g, back(t), key) for g, t, key in self._older),
+                            maxlen=self._older.maxlen)
+        if self._grown is not None:
+            self._grown = (back(self._grown[0]), *self._grown[1:])
 
     def _extrapolate(self, stamp: float, hold: bool = False) -> None:
         """The pose across a gap in tracking: the last velocity carried on (over the distance

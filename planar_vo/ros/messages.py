@@ -37,6 +37,7 @@ __all__ = [
     'seconds_to_ns',
     'seconds_to_stamp_fields',
     'speed_from_message',
+    'stamp_problem',
     'stamp_to_ns',
     'stamp_to_seconds',
     'twist_to_fields',
@@ -75,6 +76,16 @@ def compressed_to_array(msg: Any, *, gray: bool = True, mono16_shift: int = 8) -
 def stamp_to_ns(stamp: Any) -> int:
     """Integer nanoseconds of a ``builtin_interfaces/Time`` (``sec``, ``nanosec``)."""
     return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
+
+
+def stamp_problem(stamp: Any) -> str | None:
+    """Why a ``builtin_interfaces/Time`` is no ROS time (negative, ``nanosec`` of a second or
+    more, beyond 2038: int32 seconds), or None."""
+    sec, nanosec = int(stamp.sec), int(stamp.nanosec)
+    if 0 <= sec < 2 ** 31 and 0 <= nanosec < _NS_PER_S:
+        return None
+    return (f'header stamp sec {sec}, nanosec {nanosec} is not a ROS time (0 <= nanosec < 1e9, '
+            f'from 1970 to 2038)')
 
 
 def stamp_to_seconds(stamp: Any) -> float:

@@ -101,6 +101,7 @@ from planar_vo.ros.messages import (
     image_to_array,
     odometry_message,
     speed_from_message,
+    stamp_problem,
     stamp_to_ns,
 )
 
@@ -658,9 +659,14 @@ class PlanarVoNode(Node):
         start = time.perf_counter()
         stamp_ns = stamp_to_ns(msg.header.stamp)
         self._last_frame_id = msg.header.frame_id
-        self._note_gap(stamp_ns)
         odom = None
+        problem = stamp_problem(msg.header.stamp)
         try:
+            if problem:
+                # Not a time at all (a user test: nanosec 4e9 read as 4 s later): neither the
+                # stamps' gaps nor the pipeline see it.
+                raise ImageError(problem)
+            self._note_gap(stamp_ns)
             try:
                 image = decode(msg)
             except ImageError as err:
@@ -1097,7 +1103,9 @@ class PlanarVoNode(Node):
                 f'{self._counters["missing_frames"]} frames missing in '
                 f'{self._counters["gaps"]} gaps; '
                 f'{self._counters["camera_info_errors"]} camera_info errors; '
-                f'{self._counters["speed_messages"]} speed messages; '
+                f'{self._counters["speed_messages"]} speed messages'
+                + (f' ({self._counters["speed_errors"]} refused)'
+                   if self._counters["speed_errors"] else '') + '; '
                 f'{self._counters["resets"]} resets; mean {mean} per frame; '
                 f'{self._vo.focal_status()}')
 
