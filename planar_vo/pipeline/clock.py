@@ -136,11 +136,10 @@ class FrameClock:
         self._ahead: float | None = None
         self._behind: float | None = None
         self._intervals: collections.deque[float] = collections.deque(maxlen=self.INTERVALS)
-        # The last gap among the last `GAP_WATCH` accepted frames: the stamps before and after
-        # it, and the frames accepted since (the one after it included); the first frame
-        # refused inside it.
-        self._gap: tuple[float, float] | None = None
-        self._since_gap = 0
+        # The gaps among the last `GAP_WATCH` accepted frames (and the first two intervals,
+        # which may be ones): [stamp before, stamp after, frames accepted since (the one after
+        # included)]; the first frame refused inside one.
+        self._gaps: list[list] = []
         self._inside: float | None = None
         # After `StampCheck.REWOUND`: the stamp of the first frame after the gap and the
         # seconds by which it and the frames after it were ahead (the gap's slots shared
@@ -152,7 +151,8 @@ class FrameClock:
         """Forget the time base (the next stamp is accepted as is)."""
         self.last = None
         self._ahead = self._behind = None
-        self._gap = self._inside = self._proposed = None
+        self._inside = self._proposed = self.mis_stamped = None
+        self._gaps.clear()
         self._intervals.clear()
 
     @property
@@ -172,15 +172,16 @@ class FrameClock:
         step = seconds_between(stamp, last)
         if step == 0.0:
             return StampCheck.DUPLICATE
-        gap = self._gap
-        if (step < 0.0 and gap is not None and seconds_between(stamp, gap[0]) > 0.0
-                and seconds_between(gap[1], stamp) > 0.0):
-            # Inside the last gap (before the jump-back rules: a frame stamped 3 s ahead is not
+        gap = next((g for g in reversed(self._gaps) if seconds_between(stamp, g[0]) > 0.0
+                    and seconds_between(g[1], stamp) > 0.0), None) if step < 0.0 else None
+        if gap is not None:
+            # Inside a recent gap (before the jump-back rules: a frame stamped 3 s ahead is not
             # a looped bag).
             inside = self._inside
             self._ahead = self._behind = None
-            if inside is not None and seconds_between(stamp, inside) > 0.0:
-                likely = seconds_between(inside, gap[0]) / (self._since_gap + 1)
+            if inside is not None and seconds_between(stamp, inside) > 0.0 \
+                    and seconds_between(inside, gap[0]) > 0.0:
+                likely = seconds_between(inside, gap[0]) / (gap[2] + 1)
                 self.mis_stamped = (gap[1], seconds_between(gap[1], gap[0]) - likely)
                 self._inside = self._proposed = stamp
                 return StampCheck.REWOUND
@@ -207,12 +208,14 @@ class FrameClock:
         usual = self.usual_interval
         if usual is not None and step < min(self.TOO_CLOSE_SHARE * usual, self.TOO_CLOSE_S):
             return StampCheck.TOO_CLOSE
-        if len(self._intervals) >= 2 and step > GAP_FACTOR * statistics.median(self._intervals):
-            self._gap, self._since_gap = (last, stamp), 1
-        elif self._gap is not None:
-            self._since_gap += 1
-            if self._since_gap > GAP_WATCH:
-                self._gap = None
+        # The gaps watched: each a few frames long (a review: a second glitch right after a
+        # first replaced it, and neither was found); the first two intervals too (a frame 1 or
+        # 2 stamped ahead left the pose 7 m behind for good).
+        for g in self._gaps:
+            g[2] += 1
+        self._gaps = [g for g in self._gaps if g[2] <= GAP_WATCH]
+        if len(self._intervals) < 2 or step > GAP_FACTOR * statistics.median(self._intervals):
+            self._gaps.append([last, stamp, 1])
         self._inside = self._proposed = None
         self.last, self._ahead, self._behind = stamp, None, None
         self._intervals.append(step)
@@ -227,7 +230,8 @@ class FrameClock:
             raise RuntimeError('FrameClock.rewind: no StampCheck.REWOUND to accept')
         self.jump = seconds_between(stamp, self.last)
         self.last, self._ahead, self._behind = stamp, None, None
-        self._gap = self._inside = None
+        self._inside = None
+        self._gaps.clear()
 
     def _follows(self, stamp: float, refused: float | None) -> bool:
         """``stamp`` confirms the time of the frame refused before it: it comes after it,
@@ -236,7 +240,8 @@ class FrameClock:
 
     def _new_base(self, stamp: float) -> None:
         self.last, self._ahead, self._behind = stamp, None, None
-        self._gap = self._inside = self._proposed = None
+        self._inside = self._proposed = None
+        self._gaps.clear()
         self._intervals.clear()
 
 

@@ -60,6 +60,7 @@ from planar_vo.core.conventions import (
     wrap_angle,
 )
 from planar_vo.core.correspondences import AffineCorrespondences
+from planar_vo.core.robust import vote_planar_motion
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, median
 from planar_vo.errors import (
     CameraModelError,
@@ -88,7 +89,7 @@ from planar_vo.pipeline.clock import (
     seconds_between,
     shift_stamp,
 )
-from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator
+from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator, lift_planar
 from planar_vo.pipeline.keyframes import Keyframe, KeyframeChain
 from planar_vo.pipeline.motion import (
     compose,
@@ -220,8 +221,7 @@ class VisualOdometry:
         self._twist_cov = np.eye(6) * _UNKNOWN
         # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
         self._last_twist: tuple[float, float, np.ndarray] | None = None
-        self._twist_before: tuple[float, float, np.ndarray] | None = None     # the one before
-        # ... and the last few motion steps' (end, length, twist, scale source)
+        # the last few motion steps' (end, length, twist, scale source)
         self._recent_steps: deque[tuple] = deque(maxlen=GAP_WATCH + 2)
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
         # The last frame that reached tracking and its stamp, and why the run of frames
@@ -445,7 +445,7 @@ class VisualOdometry:
             self._clock.check(stamp)
             self._time_reset = True
         elif check is StampCheck.REWOUND:
-            if not self._mis_stamp_fits(*self._clock.mis_stamped):
+            if not self._mis_stamp_fits(gray, self._in_use, self._clock.mis_stamped[0]):
                 return self._drop(stamp, DropReason.OUT_OF_ORDER,
                                   f'timestamp {format_stamp(stamp)} is older than the previous '
                                   f'{format_stamp(last)}, which came after a gap and moved as '
@@ -1374,26 +1374,40 @@ class VisualOdometry:
         # beside 'reference keyframe set').
         return self._result(stamp, False, reason=reason, message=message, keyframe=True)
 
-    def _mis_stamp_fits(self, first: float, ahead: float) -> bool:
+    def _mis_stamp_fits(self, gray: np.ndarray, camera: CameraModel | None,
+                        first: float) -> bool:
         """Whether the frames since the last gap, the first stamped ``first``, were stamped
-        ``ahead`` seconds ahead of their time (`FrameClock.mis_stamped`): the step that ended at
-        the first one, whose length came from the image (the road), fits the speed of the step
-        before it better over the interval shortened by ``ahead`` than over its own stamps (a
-        review: frames delivered late into a real gap made a correctly stamped frame look
-        mis-stamped, its speed 12 times too high, 17 m off for good). Not with a time-based
-        step length (a speed topic, a fixed or held speed: as long as the wrong interval says),
-        unit steps (they say nothing) or a stop: the frames inside the gap are refused as
-        late."""
-        steps = list(self._recent_steps)
-        for before, (end, length, twist, source) in zip(steps, steps[1:]):
-            if end != first:
-                continue
-            shorter = length - ahead
-            v, v0 = float(np.linalg.norm(twist[:3])), float(np.linalg.norm(before[2][:3]))
-            if source != 'ground' or not (shorter > 0 and v > 0 and v0 > 0):
-                return False
-            return abs(math.log(v * length / shorter / v0)) < abs(math.log(v / v0))
-        return False
+        ahead of their time rather than the frames now coming inside the gap late: this one
+        (``gray``) was then taken after the last of them, and moved on from it in the direction
+        of the step across the gap; a late one lies behind it (a review: judged by the speed,
+        late frames of a car braking to a stop in the gap were taken for a mis-stamp). Only
+        for a step across the gap whose length came from the image (the road, or unit steps): a
+        time-based length (a speed topic, a fixed or held speed) was as long as the wrong
+        interval says; not when either motion is too small to tell."""
+        across = next((e for e in self._recent_steps if e[0] == first), None)
+        previous = self._previous_gray
+        if (across is None or across[3] not in ('ground', 'unit') or camera is None
+                or previous is None or previous.shape != gray.shape):
+            return False
+        forward = float(across[2][0])                      # base_link x velocity
+        acs = self._extractor.extract(previous, gray)
+        if len(acs) < self.config.odometry.min_correspondences or not forward:
+            return False
+        parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
+        if not parallax >= self.config.keyframe.min_parallax:
+            return False
+        # The planar vote alone (it keeps no state: the estimator's would take this motion,
+        # perhaps backwards, as the car's latest).
+        level, _ = acs.normalized(camera).mapped_kept(self._estimator.R_lc)
+        motion, stats = vote_planar_motion(level.p1, level.p2, level.A, level.weights,
+                                           self.config.voting, covariance=False)
+        if not stats.reliable:
+            return False
+        # The camera's displacement from the last frame to this one (camera-1 frame), in
+        # base_link: X2 = R X1 + t, so the centre moves by -R^T t.
+        R, t = lift_planar(motion.alpha, motion.beta, self._estimator.R_lc)
+        moved = self._T_base_camera[:3, :3] @ (-R.T @ t)
+        return bool(moved[0] * forward > 0.0 and abs(moved[0]) > 0.5 * np.linalg.norm(moved))
 
     def _rewind(self, first: float, ahead: float) -> None:
         """The frames since the last gap, from the one stamped ``first`` on, were stamped
@@ -1431,7 +1445,6 @@ class VisualOdometry:
             self._twist, self._twist_cov = np.zeros(6), np.eye(6) * _UNKNOWN
         elif k != 1.0:
             self._twist, self._twist_cov = self._twist * k, self._twist_cov * (k * k)
-        self._twist_before = step(self._twist_before)[0]
         self._recent_steps = deque(
             (e for e in (step(e)[0] for e in self._recent_steps) if e is not None),
             maxlen=self._recent_steps.maxlen)
@@ -1582,8 +1595,7 @@ class VisualOdometry:
                 # displacement holds but its interval (from the last of them) does not (a user
                 # test: starting off, 0.254 m/s against 0.200 at 16 standard deviations).
                 self._twist_cov[:3, :3] += (self._crept / dt) ** 2 * np.eye(3)
-            self._twist_before, self._last_twist = self._last_twist, (stamp, dt,
-                                                                      self._twist.copy())
+            self._last_twist = (stamp, dt, self._twist.copy())
         self._crept = 0.0
         self._last_out = (stamp, self.camera_pose.copy())
 

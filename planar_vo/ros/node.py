@@ -663,8 +663,9 @@ class PlanarVoNode(Node):
         problem = stamp_problem(msg.header.stamp)
         try:
             if problem:
-                # Not a time at all (a user test: nanosec 4e9 read as 4 s later): neither the
-                # stamps' gaps nor the pipeline see it.
+                # Not a time at all (a user test: nanosec 4e9 read as 4 s later): the pipeline
+                # does not see it; it fills a slot of the stamps' interval it came in.
+                self._gaps.refused()
                 raise ImageError(problem)
             self._note_gap(stamp_ns)
             try:
