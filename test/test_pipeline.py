@@ -14,7 +14,8 @@ import pytest
 
 from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
-from planar_vo.core.conventions import invert, mount_transform, yaw_of
+from planar_vo.core.conventions import invert, mount_transform, planar_pose, yaw_of
+from planar_vo.core.trajectory import Trajectory
 from planar_vo.errors import ConfigError
 from planar_vo.frontend import leveling_rotation
 from planar_vo.pipeline import DropReason, Stamp, TrackingState, VisualOdometry
@@ -1113,6 +1114,35 @@ def test_frames_delivered_late_into_a_real_gap_are_refused(late):
     assert abs(results[20].twist[0] - 8.0) < 0.3
 
 
+def test_a_mis_stamp_is_found_through_blank_frames_in_a_spin_and_mixed_glitches():
+    """Reviews: blank frames after a mis-stamped one shrank the rewind by half a frame each
+    (4.6 m off at 20 standard deviations); a turn on the spot moves the camera sideways, and
+    the direction of travel did not tell; a proposing frame stamped ahead itself became the
+    time base and the frames after it were refused."""
+    trajectory, images, _ = _drive('straight')
+    stamps = [float(s) for s in trajectory.stamps]
+    blank = np.zeros_like(images[0])
+    for ahead, frames in (({6: 0.8}, {8: blank, 9: blank, 10: blank}), ({6: 0.8, 8: 0.3}, {})):
+        vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+        results = [vo.process(frames.get(i, images[i]), stamps[i] + ahead.get(i, 0.0))
+                   for i in range(24)]
+        truth = trajectory.xy[23, 0] - trajectory.xy[0, 0]
+        assert abs(results[23].pose[0, 3] - truth) < 0.1, (ahead, results[23].pose[0, 3])
+        assert abs(results[23].twist[0] - 8.0) < 0.3
+    # A turn on the spot, the camera 1.5 m ahead of base_link: frame 10 stamped 0.8 s ahead.
+    spin = Trajectory.from_poses(np.arange(41) / 10.0, np.array(
+        [planar_pose(0.0, 0.0, 0.05 * k) for k in range(41)]))
+    world = StreetWorld.along(straight(10.0, speed=8.0), seed=3)
+    images = [f.image for f in render_drive(spin, world, CAMERA,
+                                            mount_transform(x=1.5, height=HEIGHT))]
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT, 'x': 1.5}}),
+                        CAMERA)
+    results = [vo.process(image, k / 10.0 + (0.8 if k == 10 else 0.0))
+               for k, image in enumerate(images)]
+    assert [k for k, r in enumerate(results[1:], 1) if not r.ok] == [11]
+    assert abs(yaw_of(results[40].pose[:3, :3]) - 2.0) < math.radians(0.5)
+
+
 def test_two_glitches_close_together_are_both_found():
     """A review: frames 6 and 8 each stamped 0.8 s ahead (7 refused between them): the second
     replaced the gap being watched, every frame up to the wrong stamps was lost and the pose
@@ -1174,7 +1204,7 @@ def test_a_mis_stamped_frame_with_a_time_based_scale_is_not_rewound(source):
 
 
 @pytest.mark.parametrize('ahead, frames', [(0.8, (6,)), (3.0, (6,)), (0.8, (6, 7)),
-                                           (0.8, (3,)), (0.8, (1,)), (0.8, (6, 7, 8))])
+                                           (0.8, (3,)), (0.8, (1,)), (0.8, (6, 7, 8, 9))])
 def test_frames_stamped_ahead_cost_one_frame_not_the_drive(ahead, frames):
     """A user test: a frame stamped 0.8 s ahead refused the 7 frames after it as older, one 3 s
     ahead (under odometry.max_frame_gap) made the next ones a looped bag and reset the pose to

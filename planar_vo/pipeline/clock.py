@@ -14,8 +14,8 @@ long real gap). None of them may stop the odometry for good:
   ``max_gap`` and is still that far behind): a looped bag or a restarted clock
   (`StampCheck.JUMP_BACK`), and tracking is reset there; a smaller step back is a frame out
   of order;
-- a frame stamped ahead of its time by less than ``max_gap`` (or a few in a row: a clock
-  stepped forward and back) opens what looks like a gap of lost frames, and the frames after
+- a frame stamped ahead of its time by less than ``max_gap`` (or up to `GAP_WATCH` in a row:
+  a clock stepped forward and back) opens what looks like a gap of lost frames, and the frames after
   it are older: the first of them that falls inside that gap is refused
   (`StampCheck.INSIDE_GAP`), and a second one after it may confirm that the frames since the
   gap were stamped ahead (`StampCheck.REWOUND`, a proposal): if the caller accepts it
@@ -95,8 +95,9 @@ class StampCheck(str, enum.Enum):
 # An interval this many times the usual one is a gap (frames lost, or a frame stamped ahead).
 GAP_FACTOR = 1.8
 # Frames accepted after a gap during which frames inside it may still show that they were
-# stamped ahead (a clock stepped forward for a few frames).
-GAP_WATCH = 3
+# stamped ahead (a clock stepped forward for a few frames; a review: at 3, four frames ahead
+# were not found, 0.13 s at 30 Hz).
+GAP_WATCH = 10
 
 
 def shift_stamp(stamp: float, seconds: float) -> float:
@@ -140,12 +141,12 @@ class FrameClock:
         # which may be ones): [stamp before, stamp after, frames accepted since (the one after
         # included)]; the first frame refused inside one.
         self._gaps: list[list] = []
-        self._inside: float | None = None
+        self._inside: tuple[float, float] | None = None     # (first, latest)
         # After `StampCheck.REWOUND`: the stamp of the first frame after the gap and the
         # seconds by which it and the frames after it were ahead (the gap's slots shared
         # evenly by them and the first frame inside it), and the frame that would go on.
         self.mis_stamped: tuple[float, float] | None = None
-        self._proposed: float | None = None
+        self._proposed: tuple[float, float] | None = None   # (that frame, the inside before)
 
     def reset(self) -> None:
         """Forget the time base (the next stamp is accepted as is)."""
@@ -177,15 +178,17 @@ class FrameClock:
         if gap is not None:
             # Inside a recent gap (before the jump-back rules: a frame stamped 3 s ahead is not
             # a looped bag).
-            inside = self._inside
+            # The first frame inside it times the slots of the frames since the gap (a refused
+            # proposal does not: a review, the rewind shrank with each); a later one proposes.
+            first_inside, latest = self._inside if self._inside is not None else (None, None)
             self._ahead = self._behind = None
-            if inside is not None and seconds_between(stamp, inside) > 0.0 \
-                    and seconds_between(inside, gap[0]) > 0.0:
-                likely = seconds_between(inside, gap[0]) / (gap[2] + 1)
+            if first_inside is not None and seconds_between(stamp, latest) > 0.0 \
+                    and seconds_between(first_inside, gap[0]) > 0.0:
+                likely = seconds_between(first_inside, gap[0]) / (gap[2] + 1)
                 self.mis_stamped = (gap[1], seconds_between(gap[1], gap[0]) - likely)
-                self._inside = self._proposed = stamp
+                self._inside, self._proposed = (first_inside, stamp), (stamp, latest)
                 return StampCheck.REWOUND
-            self._inside = stamp
+            self._inside = (stamp, stamp)
             return StampCheck.INSIDE_GAP
         if step < 0.0:
             if -step <= self.max_jump_back:
@@ -225,13 +228,17 @@ class FrameClock:
         """Accept the `StampCheck.REWOUND` just returned: the frames since the last gap were
         stamped ahead of their time (`mis_stamped`), and the time goes on from the frame that
         proposed it."""
-        stamp, self._proposed = self._proposed, None
-        if stamp is None:
+        proposed, self._proposed = self._proposed, None
+        if proposed is None:
             raise RuntimeError('FrameClock.rewind: no StampCheck.REWOUND to accept')
+        # The proposing frame may be stamped ahead too (a review: it became the time base and
+        # the frames after it were refused): the interval from the frame inside before it is
+        # watched as a gap.
+        stamp, latest = proposed
         self.jump = seconds_between(stamp, self.last)
         self.last, self._ahead, self._behind = stamp, None, None
         self._inside = None
-        self._gaps.clear()
+        self._gaps = [[latest, stamp, 1]]
 
     def _follows(self, stamp: float, refused: float | None) -> bool:
         """``stamp`` confirms the time of the frame refused before it: it comes after it,

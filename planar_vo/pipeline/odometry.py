@@ -221,8 +221,10 @@ class VisualOdometry:
         self._twist_cov = np.eye(6) * _UNKNOWN
         # (end stamp, length in seconds, twist) of the last keyframe interval's mean twist.
         self._last_twist: tuple[float, float, np.ndarray] | None = None
-        # the last few motion steps' (end, length, twist, scale source)
+        # the last few motion steps' (end, length, twist, scale source), and the gap whose frames
+        # were found late
         self._recent_steps: deque[tuple] = deque(maxlen=GAP_WATCH + 2)
+        self._late_gap: float | None = None
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
         # The last frame that reached tracking and its stamp, and why the run of frames
         # identical to it is a frozen camera's ('' while it is not; `_frozen`).
@@ -448,8 +450,8 @@ class VisualOdometry:
             if not self._mis_stamp_fits(gray, self._in_use, self._clock.mis_stamped[0]):
                 return self._drop(stamp, DropReason.OUT_OF_ORDER,
                                   f'timestamp {format_stamp(stamp)} is older than the previous '
-                                  f'{format_stamp(last)}, which came after a gap and moved as '
-                                  f'far as its own stamp says: a frame delivered late')
+                                  f'{format_stamp(last)}, which came after a gap, and does not '
+                                  f'show it stamped ahead: a frame delivered late')
             self._clock.rewind()
             self._rewind(*self._clock.mis_stamped)
         elif check is StampCheck.NEW_TIME_BASE and self._fresh_steps == 0:
@@ -1378,20 +1380,21 @@ class VisualOdometry:
                         first: float) -> bool:
         """Whether the frames since the last gap, the first stamped ``first``, were stamped
         ahead of their time rather than the frames now coming inside the gap late: this one
-        (``gray``) was then taken after the last of them, and moved on from it in the direction
-        of the step across the gap; a late one lies behind it (a review: judged by the speed,
-        late frames of a car braking to a stop in the gap were taken for a mis-stamp). Only
-        for a step across the gap whose length came from the image (the road, or unit steps): a
-        time-based length (a speed topic, a fixed or held speed) was as long as the wrong
-        interval says; not when either motion is too small to tell."""
+        (``gray``) was then taken after the last of them and moved on from it as the step
+        across the gap did (forward or back along base_link x; in a turn on the spot, the same
+        sense of turn); a late one lies behind it (a review: judged by the speed, late frames
+        of a car braking to a stop in the gap were taken for a mis-stamp). Only for a step
+        across the gap whose length came from the image (the road, or unit steps): a time-based
+        length (a speed topic, a fixed or held speed) was as long as the wrong interval says.
+        Not when either motion is too small to tell; a frame found late settles its gap (no
+        further front-end runs for the late frames after it)."""
         across = next((e for e in self._recent_steps if e[0] == first), None)
         previous = self._previous_gray
         if (across is None or across[3] not in ('ground', 'unit') or camera is None
-                or previous is None or previous.shape != gray.shape):
+                or previous is None or previous.shape != gray.shape or first == self._late_gap):
             return False
-        forward = float(across[2][0])                      # base_link x velocity
         acs = self._extractor.extract(previous, gray)
-        if len(acs) < self.config.odometry.min_correspondences or not forward:
+        if len(acs) < self.config.odometry.min_correspondences:
             return False
         parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
         if not parallax >= self.config.keyframe.min_parallax:
@@ -1407,7 +1410,17 @@ class VisualOdometry:
         # base_link: X2 = R X1 + t, so the centre moves by -R^T t.
         R, t = lift_planar(motion.alpha, motion.beta, self._estimator.R_lc)
         moved = self._T_base_camera[:3, :3] @ (-R.T @ t)
-        return bool(moved[0] * forward > 0.0 and abs(moved[0]) > 0.5 * np.linalg.norm(moved))
+        velocity, rate = across[2][:3], float(across[2][5])
+        if abs(velocity[0]) > 0.5 * float(np.linalg.norm(velocity)) and \
+                abs(moved[0]) > 0.5 * float(np.linalg.norm(moved)):
+            on = moved[0] * velocity[0] > 0.0
+        elif camera.fx * abs(motion.alpha) >= self.config.keyframe.min_parallax and rate:
+            on = motion.alpha * rate > 0.0           # a left turn: both positive
+        else:
+            return False
+        if not on:
+            self._late_gap = first
+        return bool(on)
 
     def _rewind(self, first: float, ahead: float) -> None:
         """The frames since the last gap, from the one stamped ``first`` on, were stamped
