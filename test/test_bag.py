@@ -357,6 +357,27 @@ def test_replay_counts_a_header_stamp_that_is_no_ros_time(tmp_path, rng):
     assert len(double.calls) == 8
 
 
+def test_the_tum_file_leaves_out_poses_published_at_stamps_ahead(tmp_path):
+    """A user test: after the odometry moved mis-stamped frames' stamps back, /odom's stamps
+    went back once and the TUM file kept only the poses after it, as for a looped bag. Now it
+    leaves out the few poses published at the wrong stamps; a loop still starts it afresh."""
+    from planar_vo.tools.replay import _Poses
+
+    poses = _Poses()
+    for k in (0, 1, 2, 3, 9, 4, 5, 6, 10, 11):           # frame 9's stamp was 5 ahead
+        poses.add(k, np.eye(4), k > 0)
+    assert poses.stamps_ns == [0, 1, 2, 3, 4, 5, 6, 10, 11] and poses.earlier == 0
+    assert poses.note == ' (without 1 pose published at stamps ahead of their time, which the ' \
+        'bag holds)'
+    for k in range(20, 40):
+        poses.add(k, np.eye(4), True)
+    poses.add(2, np.eye(4), True)                         # a looped bag: afresh
+    assert poses.stamps_ns == [2] and poses.earlier == 29
+    poses.write(tmp_path / 'x.tum')
+    lines = (tmp_path / 'x.tum').read_text().splitlines()
+    assert lines[1:] == ['0.000000002 0.0 0.0 0.0 0.0 0.0 0.0 1.0']
+
+
 def test_replay_skips_and_counts_a_bad_speed_sample(tmp_path, rng, caplog):
     """A user test: one NaN wheel-speed sample aborted the whole replay; the node skips and
     counts such a message, and so does replay."""

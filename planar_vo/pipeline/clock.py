@@ -173,8 +173,11 @@ class FrameClock:
         step = seconds_between(stamp, last)
         if step == 0.0:
             return StampCheck.DUPLICATE
-        gap = next((g for g in reversed(self._gaps) if seconds_between(stamp, g[0]) > 0.0
-                    and seconds_between(g[1], stamp) > 0.0), None) if step < 0.0 else None
+        # Older than the last accepted frame and after the start of a recent gap: inside the
+        # time the frames since that gap should have filled (not only inside the gap: a user
+        # test, two frames 0.3 s ahead left one frame inside it, three none).
+        gap = next((g for g in reversed(self._gaps) if seconds_between(stamp, g[0]) > 0.0),
+                   None) if step < 0.0 else None
         if gap is not None:
             # Inside a recent gap (before the jump-back rules: a frame stamped 3 s ahead is not
             # a looped bag).
@@ -291,8 +294,8 @@ class GapCounter:
     off the counts. A frame refused inside the last gap (`StampCheck.INSIDE_GAP`: delivered out
     of order, or the frame that opened the gap was stamped ahead) fills one of its slots (a user
     test: a frame out of order counted as missing too); a second one after it in order
-    (`StampCheck.REWOUND`: a mis-stamped frame opened the gap, or the frames came late) takes
-    the whole gap off the counts, and the early frame fills its own slot later.
+    (`StampCheck.REWOUND`: a mis-stamped frame opened the gap, or the frames came late) fills
+    one, the frames since the gap theirs, and every later frame stamped inside it one.
     """
 
     GAP_FACTOR = GAP_FACTOR     # an interval this many times the nominal period is a gap
@@ -309,7 +312,8 @@ class GapCounter:
         self._glitched = 0      # frames refused as far ahead or behind since the last one
         self._open = 0          # frames the last gap (of the last few frames) still counts
         self._open_age = 0      # frames accepted since that gap
-        self._early: list[int] = []     # stamps of frames that came before their time
+        self._open_span: tuple[int, int] | None = None     # the stamps around that gap
+        self._early: list[int] = []     # stamps of frames that came before frames stamped earlier
         self._after_gap: list[int] = []     # stamps accepted since the last gap (a few)
         self.gaps = 0
         self.missing = 0
@@ -329,29 +333,21 @@ class GapCounter:
             self._glitched += 1
             return None
         if check is StampCheck.REWOUND:
-            # Frames came inside the last gap in order: the frame that opened it was stamped
-            # ahead of its time, or they came late; either way no frame of the gap is missing
-            # and the stamps go on from here. The early stamp's slot is filled when the stream
-            # gets there.
+            # Frames came inside the last gap in order: the frames since it were stamped ahead
+            # of their time, or these came late. The stamps go on from here; this frame and
+            # the ones since the gap fill slots of it, and so does every later frame stamped
+            # inside it (a user test: late frames after a real gap took the whole gap off the
+            # counts, the frames really lost with it).
+            # (Came late, the frames since the gap lie outside it: their own slots are filled
+            # when the stream gets to their stamps.)
             self._clock.rewind()
+            self._fill(1 + len(self._after_gap))
             self._early.extend(self._after_gap)
-            if self._open > 0:
-                self.missing -= self._open
-                self.gaps -= 1
-                if self._run:
-                    self._run.pop()
-            self._open, self._glitched, self._last_ns = 0, 0, stamp_ns
+            self._glitched, self._last_ns = 0, stamp_ns
+            self._after_gap = [stamp_ns]
             return None
         if check is StampCheck.INSIDE_GAP:
-            if self._open > 0:          # a late frame fills one slot of the gap
-                self._open -= 1
-                self.missing -= 1
-                if self._run:
-                    self._run[-1][1] -= 1
-                if self._open == 0:     # filled: no gap
-                    self.gaps -= 1
-                    if self._run:
-                        self._run.pop()
+            self._fill(1)                   # a late frame fills one slot of the gap
             return None
         if check is StampCheck.OUT_OF_ORDER:
             return None
@@ -359,16 +355,20 @@ class GapCounter:
         glitched, self._glitched = self._glitched, 0
         early = sum(1 for t in self._early if last is not None and last < t <= stamp_ns)
         self._early = [t for t in self._early if t > stamp_ns]
+        inside = (self._open > 0 and self._open_span is not None
+                  and self._open_span[0] < stamp_ns < self._open_span[1])
+        if inside:
+            self._fill(1)                   # stamped inside the gap it reopened: a slot filled
         self._open_age += 1
-        if self._open_age > GAP_WATCH:
+        if self._open_age > GAP_WATCH and not inside:
             self._open = 0
         if len(self._after_gap) <= GAP_WATCH:
             self._after_gap.append(stamp_ns)
         if check in (StampCheck.JUMP_BACK, StampCheck.NEW_TIME_BASE) or last is None:
             self._intervals.clear()
             self._run.clear()
-            self._early.clear()
             self._after_gap.clear()
+            self._early.clear()
             self._open = 0
             return None
         dt = stamp_ns - last
@@ -383,10 +383,25 @@ class GapCounter:
                 self.missing += missing
                 change = self._rate_change(dt, missing, period)
                 self._open, self._open_age = (0 if change is not None else missing), 1
+                self._open_span = (last, stamp_ns)
                 return Gap(dt, missing, period, change)
         self._run.clear()
         self._intervals.append(dt)
         return None
+
+    def _fill(self, frames: int) -> None:
+        """``frames`` frames came in the slots of the open gap (at most all of them)."""
+        frames = min(frames, self._open)
+        if frames <= 0:
+            return
+        self._open -= frames
+        self.missing -= frames
+        if self._run:
+            self._run[-1][1] -= frames
+        if self._open == 0:                 # filled: no gap
+            self.gaps -= 1
+            if self._run:
+                self._run.pop()
 
     def _rate_change(self, dt: int, missing: int, period: float) -> RateChange | None:
         run = self._run

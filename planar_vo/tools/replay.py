@@ -47,7 +47,7 @@ from planar_vo.io.images import CameraFrame, CameraFrameDecoder, resolve_camera_
 from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
 from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
-from planar_vo.pipeline.clock import GapCounter
+from planar_vo.pipeline.clock import GAP_WATCH, GapCounter
 from planar_vo.tools.provenance import provenance
 from planar_vo.pipeline.types import DropReason, FrameResult
 from planar_vo.ros.messages import speed_from_message
@@ -555,11 +555,20 @@ class _Poses:
         # Poses before the stamps last jumped back (a looped bag): a TUM file holds one time
         # base, the latest (a user test: the whole write failed on the repeated stamps).
         self.earlier = 0
+        # Poses published at stamps found ahead of their time (the odometry moved them back):
+        # left out, the file's stamps increase (a user test: 21 poses before one were dropped
+        # as a looped bag's).
+        self.ahead = 0
 
     def add(self, stamp_ns: int, pose: np.ndarray, motion: bool) -> None:
         if self.stamps_ns and stamp_ns <= self.stamps_ns[-1]:
-            self.earlier += len(self.stamps_ns)
-            self.stamps_ns, self.poses = [], []
+            later = len(self.stamps_ns) - bisect.bisect_left(self.stamps_ns, stamp_ns)
+            if later <= GAP_WATCH and later < len(self.stamps_ns):
+                del self.stamps_ns[-later:], self.poses[-later:]
+                self.ahead += later
+            else:
+                self.earlier += len(self.stamps_ns)
+                self.stamps_ns, self.poses = [], []
         self.stamps_ns.append(stamp_ns)
         self.poses.append(np.asarray(pose, dtype=np.float64))
         self.moved = self.moved or motion
@@ -567,8 +576,14 @@ class _Poses:
     @property
     def note(self) -> str:
         """What the TUM file leaves out, if anything (empty otherwise)."""
-        return (f' (the {len(self.poses)} poses after the stamps last jumped back; the bag '
-                f'holds all {len(self.poses) + self.earlier})' if self.earlier else '')
+        notes = []
+        if self.earlier:
+            notes.append(f'the {len(self.poses)} poses after the stamps last jumped back; the '
+                         f'bag holds all {len(self.poses) + self.earlier}')
+        if self.ahead:
+            notes.append(f'without {plural(self.ahead, "pose")} published at stamps ahead of '
+                         f'their time, which the bag holds')
+        return f' ({"; ".join(notes)})' if notes else ''
 
     def write(self, path: str | Path) -> None:
         """Write them as a TUM file (complete or absent; `OutputError` if it cannot be)."""
