@@ -32,6 +32,7 @@ tracking state (tracking, lost, reinitialised) says where the chain stands.
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import time
@@ -58,9 +59,9 @@ from planar_vo.core.conventions import (
     so3_left_jacobian,
     so3_log,
     wrap_angle,
+    yaw_of,
 )
 from planar_vo.core.correspondences import AffineCorrespondences
-from planar_vo.core.robust import vote_planar_motion
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, median
 from planar_vo.errors import (
     CameraModelError,
@@ -89,7 +90,7 @@ from planar_vo.pipeline.clock import (
     seconds_between,
     shift_stamp,
 )
-from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator, lift_planar
+from planar_vo.pipeline.estimator import FrameEstimate, MotionEstimator
 from planar_vo.pipeline.keyframes import Keyframe, KeyframeChain
 from planar_vo.pipeline.motion import (
     compose,
@@ -1399,23 +1400,25 @@ class VisualOdometry:
         parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
         if not parallax >= self.config.keyframe.min_parallax:
             return False
-        # The planar vote alone (it keeps no state: the estimator's would take this motion,
-        # perhaps backwards, as the car's latest).
-        level, _ = acs.normalized(camera).mapped_kept(self._estimator.R_lc)
-        motion, stats = vote_planar_motion(level.p1, level.p2, level.A, level.weights,
-                                           self.config.voting, covariance=False)
-        if not stats.reliable:
+        # A copy of the estimator (its own would take this motion, perhaps backwards, as the
+        # car's latest); its answer's direction is resolved by the cheirality of its inliers
+        # (the planar vote's alone put a car starting off on KITTI 05 backwards: a user test).
+        norm = acs.normalized(camera)
+        level, kept = norm.mapped_kept(self._estimator.R_lc)
+        est = copy.deepcopy(self._estimator).estimate(norm.subset(kept), level)
+        if not est.reliable:
             return False
+        alpha = float(yaw_of(self._T_base_camera[:3, :3] @ est.R.T
+                             @ self._T_base_camera[:3, :3].T))
         # The camera's displacement from the last frame to this one (camera-1 frame), in
         # base_link: X2 = R X1 + t, so the centre moves by -R^T t.
-        R, t = lift_planar(motion.alpha, motion.beta, self._estimator.R_lc)
-        moved = self._T_base_camera[:3, :3] @ (-R.T @ t)
+        moved = self._T_base_camera[:3, :3] @ (-est.R.T @ est.t)
         velocity, rate = across[2][:3], float(across[2][5])
         if abs(velocity[0]) > 0.5 * float(np.linalg.norm(velocity)) and \
                 abs(moved[0]) > 0.5 * float(np.linalg.norm(moved)):
             on = moved[0] * velocity[0] > 0.0
-        elif camera.fx * abs(motion.alpha) >= self.config.keyframe.min_parallax and rate:
-            on = motion.alpha * rate > 0.0           # a left turn: both positive
+        elif camera.fx * abs(alpha) >= self.config.keyframe.min_parallax and rate:
+            on = alpha * rate > 0.0                  # a left turn: both positive
         else:
             return False
         if not on:
