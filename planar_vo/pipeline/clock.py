@@ -15,10 +15,10 @@ long real gap). None of them may stop the odometry for good:
   (`StampCheck.JUMP_BACK`), and tracking is reset there; a smaller step back is a frame out
   of order;
 - a frame stamped ahead of its time by less than ``max_gap`` (or up to `GAP_WATCH` in a row:
-  a clock stepped forward and back) opens what looks like a gap of lost frames, and the frames after
-  it are older: the first of them that falls inside that gap is refused
-  (`StampCheck.INSIDE_GAP`), and a second one after it may confirm that the frames since the
-  gap were stamped ahead (`StampCheck.REWOUND`, a proposal): if the caller accepts it
+  a clock stepped forward and back) opens what looks like a gap of lost frames, and the
+  frames after it are older: the first of them is refused (`StampCheck.INSIDE_GAP`), and a
+  later one may confirm that the frames since the gap were stamped ahead
+  (`StampCheck.REWOUND`, a proposal): if the caller accepts it
   (`FrameClock.rewind`), the time goes on from the frames' own stamps (a user test: a frame
   stamped 0.8 s ahead refused the 7 frames after it, one 3 s ahead reset the pose to the
   origin as a looped bag); else they are frames delivered late into a real gap, refused.
@@ -179,9 +179,8 @@ class FrameClock:
         gap = next((g for g in reversed(self._gaps) if seconds_between(stamp, g[0]) > 0.0),
                    None) if step < 0.0 else None
         if gap is not None:
-            # Inside a recent gap (before the jump-back rules: a frame stamped 3 s ahead is not
-            # a looped bag).
-            # The first frame inside it times the slots of the frames since the gap (a refused
+            # (Before the jump-back rules: a frame stamped 3 s ahead is not a looped bag.) The
+            # first frame inside times the slots of the frames since the gap (a refused
             # proposal does not: a review, the rewind shrank with each); a later one proposes.
             first_inside, latest = self._inside if self._inside is not None else (None, None)
             self._ahead = self._behind = None
@@ -337,9 +336,8 @@ class GapCounter:
             # of their time, or these came late. The stamps go on from here; this frame and
             # the ones since the gap fill slots of it, and so does every later frame stamped
             # inside it (a user test: late frames after a real gap took the whole gap off the
-            # counts, the frames really lost with it).
-            # (Came late, the frames since the gap lie outside it: their own slots are filled
-            # when the stream gets to their stamps.)
+            # counts, the frames really lost with it). If these came late, the frames since
+            # the gap lie outside it: their own slots are filled when the stream gets there.
             self._clock.rewind()
             self._fill(1 + len(self._after_gap))
             self._early.extend(self._after_gap)
