@@ -1749,10 +1749,13 @@ def test_future_stamp_and_looped_bag_neither_wedge_nor_count_as_gaps(
 
 
 @pytest.mark.timeout(120)
-def test_a_100_hz_speed_topic_loses_no_sample_while_images_are_processed(
+def test_a_100_hz_speed_topic_keeps_its_samples_while_images_are_processed(
         prefix, ros_env, tmp_path, drive_bag):
     """Speed messages in bursts of 20 every 0.2 s (100 Hz on average), best effort like a
-    wheel-odometry driver, while the node processes the drive's images."""
+    wheel-odometry driver, while the node processes the drive's images: the subscription's
+    queue (500) holds every burst while an image is processed (the sensor-data profile's 5
+    would keep 5 of each 20). Best effort itself may drop a few on a loaded machine (one CI
+    run: 11 of 290), so at most 5 % may be missing."""
     from geometry_msgs.msg import TwistStamped as Twist
     from rclpy.qos import qos_profile_sensor_data
 
@@ -1806,5 +1809,6 @@ def test_a_100_hz_speed_topic_loses_no_sample_while_images_are_processed(
                              'every frame', alive=[node, player])
         assert node.stop(signal.SIGINT) == 0
     assert sent - warm_up >= 200
-    # Every burst sample arrived (a late warm-up sample can only add to the count).
-    assert last_count(status, 'speed_messages') - base >= sent - warm_up
+    # The burst samples arrived (a late warm-up sample can only add to the count), but for
+    # the few best effort may drop.
+    assert last_count(status, 'speed_messages') - base >= 0.95 * (sent - warm_up)
