@@ -766,17 +766,21 @@ class VisualOdometry:
 
     def _estimate(self, acs: AffineCorrespondences, camera: CameraModel) -> FrameEstimate:
         """The camera's relative pose since the keyframe (`MotionEstimator`)."""
-        norm = acs.normalized(camera)                 # undistorted, K^-1
-        level, kept = norm.mapped_kept(self._estimator.R_lc)
-        if not kept.all():
-            # A ray the levelling rotation sends to infinity (only about 90 degrees off axis):
-            # drop it from both, so that the two sets stay item by item the same.
-            norm = norm.subset(kept)
+        norm, level = self._levelled(acs, camera)
         est = self._estimator.estimate(norm, level)
         if est.reliable:
             self._calibrate_tilt(est)
         self._norm = norm
         return est
+
+    def _levelled(self, acs: AffineCorrespondences, camera: CameraModel
+                  ) -> tuple[AffineCorrespondences, AffineCorrespondences]:
+        """The ACs normalised (undistorted, ``K^-1``) and the same levelled by ``R_lc``, item by
+        item: a ray the levelling sends to infinity (only about 90 degrees off axis) is dropped
+        from both."""
+        norm = acs.normalized(camera)
+        level, kept = norm.mapped_kept(self._estimator.R_lc)
+        return (norm if kept.all() else norm.subset(kept)), level
 
     def _calibrate_tilt(self, est: FrameEstimate) -> None:
         """Feed a reliable relative pose to the mount-tilt estimate (``mount.estimate_tilt``);
@@ -1403,9 +1407,7 @@ class VisualOdometry:
         # A copy of the estimator (its own would take this motion, perhaps backwards, as the
         # car's latest); its answer's direction is resolved by the cheirality of its inliers
         # (the planar vote's alone put a car starting off on KITTI 05 backwards: a user test).
-        norm = acs.normalized(camera)
-        level, kept = norm.mapped_kept(self._estimator.R_lc)
-        est = copy.deepcopy(self._estimator).estimate(norm.subset(kept), level)
+        est = copy.deepcopy(self._estimator).estimate(*self._levelled(acs, camera))
         if not est.reliable:
             return False
         alpha = float(yaw_of(self._T_base_camera[:3, :3] @ est.R.T
