@@ -165,6 +165,14 @@ def test_bench_pipeline_times_every_stage_against_dis(tmp_path, capfd):
         assert f'| {stage} |' in text
     assert '## rendered demo drive: 9 frame pairs, 1241x376, one core' in text
     assert 'target at most 20 ms at 1241x376' in text
+    capfd.readouterr()
+    # Both skipped: nothing to time, refused (a user test: an empty report, exit 0).
+    assert main(['bench', 'pipeline', '--skip-kitti', '--skip-rendered', '--out',
+                 str(tmp_path / 'none')]) == 1
+    assert capfd.readouterr().err == ('planar_vo bench pipeline: error: --skip-kitti: with '
+                                      '--skip-rendered too, nothing is left to time; drop one '
+                                      'of the two\n')
+    assert not (tmp_path / 'none' / 'pipeline.md').exists()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -56,7 +56,8 @@ TASK_TITLE = 'ray::planar_vo_fleet:'          # Ray's process title of a running
 @pytest.fixture(scope='module')
 def drives(tmp_path_factory):
     """Three rendered drives, a truncated copy of one, a bag without images, a missing path, a
-    manifest (two of them, relative paths, a comment) and a configuration file."""
+    manifest (two of the drives and the missing path, relative paths, a comment) and a
+    configuration file."""
     root = tmp_path_factory.mktemp('fleet_bags')
     trajectories = {
         'drive_a': straight(6.0, speed=8.0).then(turn(np.pi / 8, radius=15.0, speed=6.0)),
@@ -76,7 +77,7 @@ def drives(tmp_path_factory):
         for k in range(3):
             writer.write(1_000_000_000 + k * 100_000_000, np.eye(4))
     manifest = root / 'bags.txt'
-    manifest.write_text('# two drives\ndrive_b\n\ndrive_c\n')
+    manifest.write_text('# two drives and a bag that is gone\ndrive_b\n\ndrive_c\nmissing\n')
     config = root / 'fleet.yaml'
     config.write_text('frontend:\n  max_correspondences: 1500\n')
     return {**bags, 'distance': {name: r.distance for name, r in recorded.items()},
@@ -86,7 +87,7 @@ def drives(tmp_path_factory):
 
 def _fleet_args(drives, out, *extra):
     return ['fleet', 'run', str(drives['drive_a']), str(drives['truncated']),
-            str(drives['no_image']), str(drives['missing']), '--manifest',
+            str(drives['no_image']), '--manifest',
             str(drives['manifest']), '--out', str(out), '--config', str(drives['config']),
             *GRID, '--workers', '2', *extra]
 
@@ -119,7 +120,7 @@ def test_rows_failures_and_report(drives, fleet_run):
     out, text = fleet_run
     summary = _summary(out)
     rows = summary['rows']
-    bags = ['drive_a', 'truncated', 'no_image', 'missing', 'drive_b', 'drive_c']
+    bags = ['drive_a', 'truncated', 'no_image', 'drive_b', 'drive_c', 'missing']
     assert [(r['bag'], r['config']) for r in rows] == [
         (str(drives[b]), c) for b in bags for c in CONFIGS]
     by_key = _rows(out)
@@ -509,7 +510,9 @@ def test_an_unreachable_head_address_is_one_line_and_exit_1(drives, tmp_path, ca
 
 @pytest.mark.timeout(180)
 def test_a_fleet_whose_every_run_failed_exits_1(drives, tmp_path, capsys):
-    args = ['fleet', 'run', str(drives['truncated']), str(drives['missing']), '--out',
+    manifest = tmp_path / 'bags.txt'
+    manifest.write_text(f"{drives['missing']}\n")
+    args = ['fleet', 'run', str(drives['truncated']), '--manifest', str(manifest), '--out',
             str(tmp_path / 'o'), '--workers', '1', '--no-progress']
     assert main(args) == 1
     captured = capsys.readouterr()
@@ -559,14 +562,27 @@ def test_no_bags_is_an_error(tmp_path, capsys):
 
 
 def test_only_missing_bags_fail_before_ray_starts(tmp_path, capsys):
+    """A bag typed on the command line that does not exist is a typo: refused (a user test: it
+    became a failed row of a run that exited 0); a manifest's missing bags are failed rows,
+    unless none of them exists."""
+    (tmp_path / 'there').mkdir()
+    assert main(['fleet', 'run', str(tmp_path / 'there'), str(tmp_path / 'typo'), '--out',
+                 str(tmp_path / 'o')]) == 1
+    assert capsys.readouterr().err == (f"planar_vo fleet run: error: BAG: '{tmp_path / 'typo'}' "
+                                       f'does not exist\n')
+    (tmp_path / 'gone.txt').write_text('a\nb\n')
+    assert main(['fleet', 'run', '--manifest', str(tmp_path / 'gone.txt'), '--out',
+                 str(tmp_path / 'o')]) == 1
+    assert capsys.readouterr().err == (f"planar_vo fleet run: error: BAG: none of the 2 bags "
+                                       f"exists ('{tmp_path / 'a'}', ...)\n")
     nope = tmp_path / 'nope.mcap'
     assert main(['fleet', 'run', str(nope), '--out', str(tmp_path / 'o')]) == 1
     assert capsys.readouterr().err == (f"planar_vo fleet run: error: BAG: '{nope}' does not "
                                        f'exist\n')
     assert main(['fleet', 'run', str(tmp_path / 'a'), str(tmp_path / 'b'), '--out',
                  str(tmp_path / 'o')]) == 1
-    assert capsys.readouterr().err == (f"planar_vo fleet run: error: BAG: none of the 2 bags "
-                                       f"exists ('{tmp_path / 'a'}', ...)\n")
+    assert capsys.readouterr().err == (f"planar_vo fleet run: error: BAG: '{tmp_path / 'a'}' "
+                                       f'does not exist (and 1 more of the bags given)\n')
     assert not (tmp_path / 'o').exists()         # found before Ray and the output
 
 

@@ -366,11 +366,47 @@ def test_import_stopped_by_sigterm_keeps_the_frames_written(tmp_path, rng, monke
     monkeypatch.setattr(kitti, '_read_png', read_and_stop)
     with pytest.raises(KeyboardInterrupt, match=r"SIGTERM\nkept '.*bag', a complete bag with "
                                                 r'messages /camera/camera_info: 2, '
-                                                r'/camera/image_raw: 2, /ground_truth/odom: 2$'):
+                                                r'/camera/image_raw: 2, /ground_truth/odom: 2 '
+                                                r'\(2 of 4 frames: the rest were not '
+                                                r'imported\)$'):
         with stop_signals_interrupt():
             import_kitti(tmp_path / 'seq', tmp_path / 'bag')
     with open_bag(tmp_path / 'bag') as bag:
         assert [f.stamp_ns for f in iter_camera_frames(bag)] == [START_NS, START_NS + 10**8]
+    from planar_vo.tools.provenance import bag_custom_data
+    from planar_vo.tools.replay import replay_bag
+
+    assert bag_custom_data(tmp_path / 'bag') == {
+        'planar_vo.partial': '2 of 4 frames (the import was interrupted)'}
+    # replay says so in its summary (the odometry of 2 frames is not the sequence's)
+    from planar_vo.pipeline import VisualOdometry
+
+    summary = replay_bag(tmp_path / 'bag', tmp_path / 'vo', VisualOdometry())
+    assert summary.partial_input == '2 of 4 frames (the import was interrupted)'
+    assert ('\n  input              an import cut short: 2 of 4 frames (the import was '
+            'interrupted)\n') in summary.format()
+
+
+def test_an_interrupt_inside_a_frame_waits_for_its_last_message(tmp_path, rng, monkeypatch):
+    """SIGINT between a frame's image and its ground truth (a user test: 99 images and 98
+    ground-truth poses kept): the frame is finished first, every topic keeps the same count."""
+    from planar_vo.io.camera_bag import CameraBagWriter
+
+    _write_sequence(tmp_path / 'seq', rng)
+    write_odometry = CameraBagWriter.write_odometry
+    calls = []
+
+    def interrupt_then_write(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            signal.raise_signal(signal.SIGINT)
+        return write_odometry(self, *args, **kwargs)
+
+    monkeypatch.setattr(CameraBagWriter, 'write_odometry', interrupt_then_write)
+    with pytest.raises(KeyboardInterrupt, match=r'/camera/camera_info: 2, /camera/image_raw: 2, '
+                                                r'/ground_truth/odom: 2 \(2 of 4 frames'):
+        with stop_signals_interrupt():
+            import_kitti(tmp_path / 'seq', tmp_path / 'bag')
 
 
 def test_import_on_a_full_disk_keeps_nothing_and_says_so(tmp_path, rng):
@@ -398,3 +434,40 @@ def test_an_excerpt_may_keep_its_first_frame_number(tmp_path, rng):
     (tmp_path / 'seq' / 'image_0' / '000101.png').unlink()
     with pytest.raises(InputError, match=r"images: '000101\.png' is missing"):
         read_kitti_sequence(tmp_path / 'seq')
+
+
+def test_frames_numbered_without_zero_padding_are_taken_in_number_order(tmp_path, rng):
+    """'0.png' ... '10.png' (a user test: sorted as text, '02.png' was reported missing)."""
+    times = [f'{0.1 * i:.1f}' for i in range(11)]
+    images = _write_sequence(tmp_path / 'seq', rng, n=11, times=times, poses=False)
+    for i, path in enumerate(sorted((tmp_path / 'seq' / 'image_0').glob('*.png'))):
+        path.rename(path.with_name(f'{i}.png'))
+    seq = read_kitti_sequence(tmp_path / 'seq')
+    assert [p.name for p in seq.images] == [f'{i}.png' for i in range(11)]
+    import_kitti(tmp_path / 'seq', tmp_path / 'bag')
+    with open_bag(tmp_path / 'bag') as bag:
+        got = [f.image for f in iter_camera_frames(bag)]
+    assert all(np.array_equal(a, b) for a, b in zip(got, images, strict=True))
+    (tmp_path / 'seq' / 'image_0' / '5.png').rename(tmp_path / 'seq' / 'image_0' / '05.png')
+    cv2.imwrite(str(tmp_path / 'seq' / 'image_0' / '5.png'), images[5])
+    with pytest.raises(InputError, match=r"images: '05\.png' and '5\.png' in '.*' both number "
+                                         r'frame 5'):
+        read_kitti_sequence(tmp_path / 'seq')
+    (tmp_path / 'seq' / 'image_0' / '05.png').unlink()
+    (tmp_path / 'seq' / 'image_0' / '4.png').unlink()
+    with pytest.raises(InputError, match=r"images: '4\.png' is missing .* the next there is "
+                                         r"'5\.png'"):
+        read_kitti_sequence(tmp_path / 'seq')
+
+
+@pytest.mark.parametrize('times', [('0.0', '0.1'), ('0.0', 'x', '0.2', '0.3'), None])
+def test_a_rate_replaces_times_txt_whatever_it_holds(tmp_path, rng, times):
+    """--rate-hz stamps the frames instead of times.txt: a short, malformed or missing one is
+    no reason to refuse (a user test: a read-only dataset with a short times.txt could not be
+    imported at any rate)."""
+    _write_sequence(tmp_path / 'seq', rng, times=times)
+    with pytest.raises(InputError, match='times.txt'):
+        import_kitti(tmp_path / 'seq', tmp_path / 'bag0')
+    import_kitti(tmp_path / 'seq', tmp_path / 'bag', rate_hz=10.0, start=0)
+    with open_bag(tmp_path / 'bag') as bag:
+        assert [f.stamp_ns for f in iter_camera_frames(bag)] == [0, 10**8, 2 * 10**8, 3 * 10**8]

@@ -191,8 +191,24 @@ def test_compressed_rclpy_message():
     np.testing.assert_array_equal(compressed_to_array(msg), mono)
 
 
+def test_compressed_without_format_is_read_by_its_signature():
+    """An empty ``format`` (some drivers leave it so; a user test saw such frames refused):
+    the bytes' own PNG or JPEG signature says how to decode them."""
+    mono = _smooth_rgb()[..., 0]
+    for ext in ('.png', '.jpg'):
+        ok, data = cv2.imencode(ext, mono)
+        got = compressed_to_array(compressed_msg(data.tobytes(), ''))
+        assert got.shape == mono.shape
+        if ext == '.png':
+            np.testing.assert_array_equal(got, mono)
+        else:
+            assert np.abs(got.astype(int) - mono).mean() < 2.0
+
+
 @pytest.mark.parametrize('fmt, data, match', [
-    ('bmp', b'BM...', r"compressed_image\.format: expected 'jpeg' or 'png', got 'bmp'"),
+    ('bmp', b'BM...', r"compressed_image\.format: expected 'jpeg' or 'png' \(or empty\), "
+     r"got 'bmp'"),
+    ('', b'BM...', r'expected PNG or JPEG data, got 5 bytes starting with 42 4d 2e 2e 2e'),
     ('16UC1; compressedDepth png', b'x', r"got '16UC1; compressedDepth png'"),
     ('jpeg', b'\xff\xd8 not really a jpeg', r'compressed_image\.data: a JPEG without a readable '
      r'frame header \(20 bytes\)'),

@@ -1660,6 +1660,28 @@ def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):
     assert outputs[0] == outputs[1]
 
 
+def test_help_into_a_closed_pipe_ends_quietly(monkeypatch):
+    """``planar_vo_node --help | head -3``: a reader that stopped early (a user saw a
+    BrokenPipeError traceback). stdout here is a pipe whose reader is closed before the help is
+    printed: exit 0, and stdout ends up on os.devnull, so that a later flush cannot fail."""
+    from planar_vo.ros.node import main
+
+    read, write = os.pipe()
+    os.close(read)
+    saved = os.dup(1)
+    stream = os.fdopen(write, 'w')
+    monkeypatch.setattr(sys, 'stdout', stream)
+    try:
+        assert main(['planar_vo_node', '--help']) == 0
+        stream.write('x' * 100000)
+        stream.flush()                      # would raise BrokenPipeError on the closed pipe
+    finally:
+        monkeypatch.undo()
+        stream.close()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def test_the_executables_run_by_another_python_say_so_in_one_line(prefix, tmp_path):
     """``#!/usr/bin/env python3`` finds the first python3 on PATH: without the venv active that
     is one that lacks planar_vo (a user test: a traceback ending in ModuleNotFoundError)."""

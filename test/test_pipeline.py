@@ -878,6 +878,18 @@ def test_focal_status_names_the_source():
     configured = VisualOdometry(PlanarVoConfig.from_dict({'camera': {'fx': 480.0}}))
     configured.process(images[0], float(trajectory.stamps[0]))
     assert configured.focal_status() == 'focal length 480.0 px (configured)'
+    # A camera model of another size than the images is named, and why it is not used (a user
+    # test: 'CameraInfo' was named while every frame was dropped for it).
+    other = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}))
+    small = CameraModel(320, 240, np.diag([250.0, 250.0, 1.0]) + np.array(
+        [[0, 0, 159.5], [0, 0, 119.5], [0, 0, 0]]))
+    assert other.process(images[0], float(trajectory.stamps[0]), small).reason is \
+        DropReason.NO_CAMERA_INFO
+    assert other.focal_status() == ('focal length 250.0 px (CameraInfo, not used: it is 320x240, '
+                                    'the images 640x480)')
+    assert other.process(images[1], float(trajectory.stamps[1]), CAMERA).reason is \
+        DropReason.FIRST_FRAME
+    assert other.focal_status() == f'focal length {CAMERA.fx:.1f} px (CameraInfo)'
 
 
 # ---------------------------------------------------------------------------------------------

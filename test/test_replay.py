@@ -194,8 +194,8 @@ def test_replay_without_odometry_says_why_and_exits_1(tmp_path, capsys, drive_ba
                  'camera.fx=480', '--set', 'camera.cx=5000', '--no-progress', '--tum',
                  str(tmp_path / 'o.tum')]) == 1
     captured = capsys.readouterr()
-    why = ('no_camera_info: camera.cx, camera.cy (5000, 0) lie outside the 640x480 image: no '
-           'camera model')
+    why = ('no_camera_info: camera.cx, camera.cy (5000; 239.5, the image centre) lie outside '
+           'the 640x480 image: no camera model')
     assert f'  odometry out       0 ({why})' in captured.out, captured.out
     frames = int(captured.out.split('frames in')[1].split()[0])
     assert frames > 1

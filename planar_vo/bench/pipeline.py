@@ -54,6 +54,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames < 10:
         raise InputError(f'--frames: expected at least 10, got {args.frames}')
+    if args.skip_rendered and args.skip_kitti:
+        # (a user test: an empty report, exit 0)
+        raise InputError('--skip-kitti: with --skip-rendered too, nothing is left to time; '
+                         'drop one of the two')
     kitti = args.kitti if args.kitti is not None else KITTI_DRIVE
     if args.kitti is not None and not (kitti / 'calib.txt').exists():
         raise InputError(f"kitti: '{kitti}' is not a KITTI sequence folder (no calib.txt)")

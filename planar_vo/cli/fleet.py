@@ -103,6 +103,12 @@ def run(args: argparse.Namespace) -> int:
     bags = list(args.bags) + (read_manifest(args.manifest) if args.manifest else [])
     if not bags:
         raise InputError('BAG: expected BAG arguments or --manifest FILE, got none')
+    typed = [str(bag) for bag in args.bags if not Path(bag).expanduser().exists()]
+    if typed:
+        # A path typed on the command line that does not exist is a typo (a user test: it
+        # became a failed row of a run that exited 0); a manifest's missing bags are rows.
+        raise InputError(f"BAG: '{typed[0]}' does not exist" + (
+            f' (and {len(typed) - 1} more of the bags given)' if len(typed) > 1 else ''))
     missing = [str(bag) for bag in bags if not Path(bag).expanduser().exists()]
     if len(missing) == len(bags):
         # Found before Ray starts; with some bags present the missing ones are failed rows.

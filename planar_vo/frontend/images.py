@@ -212,7 +212,8 @@ def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
     Args:
         data: the encoded bytes.
         fmt: the format; must name ``jpeg``/``jpg`` or ``png`` (e.g. ``'jpeg'``,
-            ``'bgr8; jpeg compressed bgr8'``).
+            ``'bgr8; jpeg compressed bgr8'``), or be empty (some drivers leave it so): the
+            data's own signature then says which (anything else is refused).
         gray: return ``(H, W)`` uint8 grey; ``False`` returns what OpenCV decodes unchanged
             (``(H, W)`` grey, or ``(H, W, 3|4)`` in BGR(A) order; uint8 or uint16 for 16-bit PNG).
         mono16_shift: right shift from 16-bit to 8-bit grey for 16-bit PNGs.
@@ -223,8 +224,10 @@ def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
             marker), or data OpenCV cannot decode.
     """
     lower = str(fmt).lower()
-    if not any(name in lower for name in ('jpeg', 'jpg', 'png')) or 'compresseddepth' in lower:
-        raise ImageError(f"compressed_image.format: expected 'jpeg' or 'png', got '{fmt}'")
+    if lower.strip() and (not any(name in lower for name in ('jpeg', 'jpg', 'png'))
+                          or 'compresseddepth' in lower):
+        raise ImageError(f"compressed_image.format: expected 'jpeg' or 'png' (or empty), got "
+                         f"'{fmt}'")
     buf = buffer(data)
     kind, width, height = declared_size(buf)
     if width * height > MAX_IMAGE_PIXELS:
@@ -233,7 +236,7 @@ def decode_compressed(data: Any, fmt: str = 'png', *, gray: bool = True,
     _check_complete(buf, kind)
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
-        raise ImageError(f"compressed_image.data: expected decodable {fmt} data, got "
+        raise ImageError(f"compressed_image.data: expected decodable {kind} data, got "
                          f'{buf.size} bytes OpenCV cannot decode')
     if not gray:
         return img

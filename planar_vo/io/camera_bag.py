@@ -16,6 +16,7 @@ import numpy as np
 
 from planar_vo.core.camera import CameraModel
 from planar_vo.io.images import CAMERA_INFO_TYPE, IMAGE_TYPE
+from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import TYPESTORE
 from planar_vo.io.writer import ODOMETRY_TYPE, BagWriter, check_stamp_ns
 from planar_vo.ros.messages import ns_to_stamp_fields
@@ -25,6 +26,7 @@ __all__ = [
     'DEFAULT_START',
     'GROUND_TRUTH_TOPIC',
     'IMAGE_TOPIC',
+    'PARTIAL_KEY',
     'SPEED_TOPIC',
     'CameraBagWriter',
 ]
@@ -33,6 +35,8 @@ IMAGE_TOPIC = '/camera/image_raw'
 CAMERA_INFO_TOPIC = '/camera/camera_info'
 GROUND_TRUTH_TOPIC = '/ground_truth/odom'
 SPEED_TOPIC = '/speed'
+# metadata.yaml custom data of an import stopped by an interrupt: 'F of N frames (...)'
+PARTIAL_KEY = 'planar_vo.partial'
 # Seconds added to drives whose own times start at 0 (KITTI, rendered), so that bags start at a
 # plausible epoch.
 DEFAULT_START = Decimal('1700000000')
@@ -50,6 +54,12 @@ class CameraBagWriter(BagWriter):
             intrinsics, ``camera=None``).
         speed: also register ``/speed``.
         camera_frame, odom_frame, base_frame: frame ids.
+
+    Attributes:
+        frames: frames written (each whole: an interrupt waits for its last message).
+        expected: the frames the source holds (an import sets it; None: unknown). A bag kept
+            with fewer, because an interrupt stopped the import, says so in its outcome and in
+            its ``metadata.yaml`` (custom data ``planar_vo.partial``, which replay reports).
     """
 
     def __init__(self, path, *, storage: str = 'mcap', ground_truth: bool = False,
@@ -61,6 +71,28 @@ class CameraBagWriter(BagWriter):
         self._speed = speed
         self.camera_frame, self.odom_frame, self.base_frame = camera_frame, odom_frame, base_frame
         self.frames = 0
+        self.expected: int | None = None
+
+    @property
+    def partial(self) -> str:
+        """``'F of N frames'`` when fewer frames than `expected` were written, else empty."""
+        if self.expected is None or self.frames >= self.expected:
+            return ''
+        return f'{self.frames} of {self.expected} frames'
+
+    @property
+    def outcome(self) -> str:
+        text = super().outcome
+        if self.kept and self.partial:
+            text += f' ({self.partial}: the rest were not imported)'
+        return text
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if isinstance(exc, KeyboardInterrupt) and self.partial:
+            # (a user test: a bag cut short by Ctrl-C looked like a complete import, to replay
+            # and eval alike)
+            self.custom_data[PARTIAL_KEY] = f'{self.partial} (the import was interrupted)'
+        super().__exit__(exc_type, exc, tb)
 
     def open(self) -> None:
         super().open()
@@ -103,6 +135,10 @@ class CameraBagWriter(BagWriter):
             twist: ground-truth body velocity ``(vx, vy, vz, wx, wy, wz)``; also written as the
                 ``/speed`` TwistStamped when ``speed=True``.
         """
+        with deferred_interrupts():         # a frame is written whole, or not at all
+            self._write_frame(stamp_ns, image, camera, projection, pose, twist)
+
+    def _write_frame(self, stamp_ns, image, camera, projection, pose, twist) -> None:
         t = TYPESTORE.types
         height, width = image.shape
         stamp_ns = check_stamp_ns('stamp', stamp_ns)

@@ -142,6 +142,9 @@ def _lines(path: Path) -> list[tuple[int, str]]:
 def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> KittiSequence:
     """Parse a KITTI odometry sequence folder (see the module docstring).
 
+    ``need_times=False`` (the frames are stamped at a given rate instead) leaves times.txt
+    unread: a missing, short or malformed one is not an error then (``times`` None).
+
     Raises:
         InputError: missing folder/images/calibration, malformed lines (with line numbers), or
             counts of times/poses that differ from the number of images.
@@ -152,18 +155,25 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
     image_dir = next((folder / d for d in ('image_0', 'image_l') if (folder / d).is_dir()), None)
     if image_dir is None:
         raise InputError(f"sequence: '{folder}' has no image_0/ or image_l/ folder")
-    images = tuple(sorted(image_dir.glob('*.png')))
+    # By number where every name is one (a user test: '10.png' sorted before '2.png' as
+    # text, and '02.png' was reported missing), else by name.
+    images = sorted(image_dir.glob('*.png'))
+    numbered = all(p.stem.isdigit() for p in images)
+    images = tuple(sorted(images, key=lambda p: (int(p.stem), p.name)) if numbered else images)
     if not images:
         raise InputError(f"sequence: '{image_dir}' contains no .png images")
     n = len(images)
     # KITTI numbers its frames without gaps (from 000000; an excerpt may keep its first
     # number): a missing one would shift every later frame's time and pose by one (a user
     # test: it was blamed on times.txt's count, and with a frame rate imported without a word).
-    numbers = [int(p.stem) if p.stem.isdigit() else None for p in images]
-    if None not in numbers:
+    if numbered:
+        numbers = [int(p.stem) for p in images]
         for i, number in enumerate(numbers):
             if number != numbers[0] + i:
-                width = len(images[i].stem)
+                if number == numbers[i - 1]:
+                    raise InputError(f"images: '{images[i - 1].name}' and '{images[i].name}' "
+                                     f"in '{image_dir}' both number frame {number}")
+                width = len(images[i].stem) if images[i].stem.startswith('0') else 0
                 raise InputError(f"images: '{numbers[0] + i:0{width}d}.png' is missing from "
                                  f"'{image_dir}' (frames are numbered without gaps; the next "
                                  f"there is '{images[i].name}')")
@@ -184,7 +194,7 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
 
     times = None
     times_path = folder / 'times.txt'
-    if times_path.is_file():
+    if times_path.is_file() and need_times:
         times = read_kitti_times(times_path)
         if len(times) != n:
             raise InputError(f'times.txt: expected one time per image ({n}), got {len(times)}')
@@ -358,6 +368,7 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
     with CameraBagWriter(out_path, storage=storage, ground_truth=seq.poses is not None,
                          camera_frame=camera_frame, odom_frame=odom_frame,
                          base_frame=base_frame) as writer:
+        writer.expected = n
         try:
             for i, path in enumerate(tqdm(seq.images, desc='import', unit='frame',
                                           file=sys.stderr, disable=not progress, leave=False)):

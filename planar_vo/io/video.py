@@ -131,7 +131,39 @@ def _folder_images(folder: Path) -> list[Path]:
     if not images:
         raise InputError(f"source: no image files ({', '.join(IMAGE_SUFFIXES)}) in folder "
                          f"'{folder}'")
+    _check_numbering(folder, images)
     return images
+
+
+def _check_numbering(folder: Path, images: list[Path]) -> None:
+    """`InputError` for numbered frames with one missing: names that differ only in their last
+    run of digits (``frame_0007.png``) must number the frames at one steady step (1, or 2 for a
+    folder of every other frame), since the frames are stamped at the given rate by their
+    order and a missing one would stamp every later frame early (a user test; as
+    `planar_vo.io.kitti.read_kitti_sequence` refuses it)."""
+    parts = [re.fullmatch(r'(.*\D)?(\d+)(\D*)', p.name) for p in images]
+    if len(images) < 2 or not all(parts):
+        return
+    if len({(m.group(1) or '', m.group(3).lower()) for m in parts}) != 1:
+        return                                  # not one numbered series
+    numbers = [int(m.group(2)) for m in parts]
+    steps = [b - a for a, b in zip(numbers, numbers[1:])]
+    step = min(steps)
+    if step == 0:
+        i = steps.index(0)
+        raise InputError(f"source: '{images[i].name}' and '{images[i + 1].name}' in '{folder}' "
+                         f'both number frame {numbers[i]}')
+    for i, gap in enumerate(steps):
+        if gap != step:
+            digits = parts[i + 1].group(2)
+            width = len(digits) if digits.startswith('0') else 0
+            m = parts[i + 1]
+            missing = f"{m.group(1) or ''}{numbers[i] + step:0{width}d}{m.group(3)}"
+            raise InputError(f"source: '{missing}' is missing from '{folder}' (the frames are "
+                             f'numbered {numbers[0]}, {numbers[0] + step}, ... at steps of '
+                             f"{step}; the next there is '{images[i + 1].name}'): the frames "
+                             f'after a missing one would be stamped early; import the frames '
+                             f'up to it, or rename them')
 
 
 def _gray(frame: np.ndarray) -> np.ndarray:
@@ -291,6 +323,8 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
     try:
         with CameraBagWriter(out_path, storage=storage, camera_frame=camera_frame,
                              camera_info=camera is not None) as writer:
+            if kind == 'images':
+                writer.expected = -(-total // every)      # every one in `every`, the first on
             try:
                 for name, frame, ms in frames:
                     read += 1

@@ -495,8 +495,8 @@ class MotionEstimator:
         # its own scales to explain more ACs; at tight scales it explains few).
         sp_c = min(g.sp for _, g in answers)
         sa_c = min(g.sa for _, g in answers)
-        final = sorted(((self._msac(M, acs, g.R, g.t, sp_c, sa_c)[0], name, g)
-                        for name, g in answers), key=lambda item: item[0])
+        final = sorted(((self._msac_of(M, acs, g, sp_c, sa_c), name, g) for name, g in answers),
+                       key=lambda item: item[0])
         cost_best, name, best = final[0]
         if not best.converged:
             # More rounds from where the winner stopped (rare: slow linear convergence of the
@@ -506,7 +506,7 @@ class MotionEstimator:
                                          M=M)
             more.iterations += best.iterations
             best = more
-            cost_best = self._msac(M, acs, best.R, best.t, sp_c, sa_c)[0]
+            cost_best = self._msac_of(M, acs, best, sp_c, sa_c)
         stats = {'start': name, 'msac': cost_best, 'point_scale': best.sp,
                  'affine_scale': best.sa, 'iterations': best.iterations, 'rounds': best.rounds,
                  'answers': len(final), 'screened': screened,
@@ -576,6 +576,14 @@ class MotionEstimator:
         self._motions.append(np.concatenate([so3_log(best.R), c / np.linalg.norm(c)]))
 
     # -- helpers -------------------------------------------------------------------------------
+
+    @classmethod
+    def _msac_of(cls, M, acs, answer, sp, sa) -> float:
+        """`_msac` of a refined answer: at its own noise scales its chi-squares are those it
+        carries (the same bits: the refinement's last round computed them at its motion)."""
+        if sp == answer.sp and sa == answer.sa:
+            return float(acs.weights @ np.minimum(answer.chi2, GATE))
+        return cls._msac(M, acs, answer.R, answer.t, sp, sa)[0]
 
     @staticmethod
     def _msac(M, acs, R, t, sp, sa) -> tuple[float, np.ndarray]:

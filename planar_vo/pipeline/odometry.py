@@ -153,6 +153,7 @@ class VisualOdometry:
         #                                                      with (a camera model's, given)
         self._warned_camera_size = False            # ... one of another size was refused
         self._new_size: tuple[int, int] | None = None   # an image size not yet confirmed
+        self._image_size: tuple[int, int] | None = None  # the last image's (width, height)
         scale = self.config.scale
         self._speed = SpeedIntegrator(max_gap=scale.speed_max_gap)
         # Created at the first image (they need its size) when the focal length is unknown.
@@ -292,7 +293,14 @@ class VisualOdometry:
             if self.config.camera.estimate_focal:     # (a user test: it said 'intrinsics')
                 return 'focal length unknown (the self-calibration starts at the first image)'
             return 'focal length unknown (no frame with camera intrinsics yet)'
-        return f"focal length {px:.1f} px ({'CameraInfo' if source == 'camera_info' else source})"
+        origin = 'CameraInfo' if source == 'camera_info' else source
+        if (not self._size_matched and self._image_size is not None
+                and self._in_use.size != self._image_size):
+            # (a user test: a CameraInfo of another size was named the source while every frame
+            # was dropped for it)
+            origin += (f', not used: it is {self._in_use.width}x{self._in_use.height}, the '
+                       f'images {self._image_size[0]}x{self._image_size[1]}')
+        return f'focal length {px:.1f} px ({origin})'
 
     def scale_status(self) -> str:
         """Where the steps' metric scale comes from, one line (a replay summary's): ``ground at
@@ -468,6 +476,7 @@ class VisualOdometry:
                         'motion across a new time base is unknown)', self._clock.jump)
             self._keyframes.clear()
             self._restart, self._new_time_base = 'the time base moved on', True
+        self._image_size = (gray.shape[1], gray.shape[0])
         camera = self._resolve_camera(camera, gray.shape)
         if camera is None:
             c = self.config.camera
@@ -476,9 +485,12 @@ class VisualOdometry:
                                   f'configured intrinsics (camera.fx, fy, cx, cy, distortion): '
                                   f'{self._camera_problem} (no camera model)')
             if c.fx > 0 or c.estimate_focal:
+                # (unset, 0: the image centre, said so; a user test saw 'cy 0' for an unset cy)
+                centre = [f'{value:g}' if value else f'{(size - 1) / 2.0:g}, the image centre'
+                          for value, size in ((c.cx, gray.shape[1]), (c.cy, gray.shape[0]))]
                 return self._drop(stamp, DropReason.NO_CAMERA_INFO,
-                                  f'camera.cx, camera.cy ({c.cx:g}, {c.cy:g}) lie outside the '
-                                  f'{gray.shape[1]}x{gray.shape[0]} image: no camera model')
+                                  f'camera.cx, camera.cy ({centre[0]}; {centre[1]}) lie outside '
+                                  f'the {gray.shape[1]}x{gray.shape[0]} image: no camera model')
             return self._drop(stamp, DropReason.NO_CAMERA_INFO,
                               'no camera intrinsics yet (no valid CameraInfo and camera.fx = 0; '
                               'or set camera.estimate_focal: true to self-calibrate)')

@@ -41,6 +41,7 @@ import difflib
 import functools
 import logging
 import math
+import os
 import signal
 import sys
 import textwrap
@@ -1335,7 +1336,12 @@ def main(args: list[str] | None = None) -> int:
     argv = sys.argv if args is None else args
     ros_start = argv.index('--ros-args') if '--ros-args' in argv else len(argv)
     if {'-h', '--help'} & set(argv[1:ros_start]):
-        print(usage())
+        try:
+            print(usage(), flush=True)
+        except BrokenPipeError:
+            # a reader that stopped early (`planar_vo_node --help | head`): the rest goes
+            # nowhere, and Python's flush at exit must not fail on the closed pipe again
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     stray = _stray_arguments(argv)
     if stray:

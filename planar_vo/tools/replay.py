@@ -42,13 +42,13 @@ from planar_vo.errors import (
     OutputError,
     plural,
 )
-from planar_vo.io.camera_bag import GROUND_TRUTH_TOPIC
+from planar_vo.io.camera_bag import GROUND_TRUTH_TOPIC, PARTIAL_KEY
 from planar_vo.io.images import CameraFrame, CameraFrameDecoder, resolve_camera_topics
 from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
 from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
 from planar_vo.pipeline.clock import GAP_WATCH, GapCounter
-from planar_vo.tools.provenance import provenance
+from planar_vo.tools.provenance import bag_custom_data, provenance
 from planar_vo.pipeline.types import DropReason, FrameResult
 from planar_vo.ros.messages import speed_from_message
 
@@ -124,6 +124,8 @@ class ReplaySummary:
         gaps, missing_frames: intervals of the image stamps far above the usual one, and
             about how many frames they lack (lost before the recording; `GapCounter`, as the
             node counts them).
+        partial_input: the input's own record of an import cut short (``'F of N frames (the
+            import was interrupted)'``, its ``metadata.yaml``), or empty.
     """
 
     input: str
@@ -153,6 +155,7 @@ class ReplaySummary:
     missing_frames: int = 0
     not_copied: str = ''
     tum_note: str = ''
+    partial_input: str = ''
 
     @property
     def motion_out(self) -> int:
@@ -184,6 +187,8 @@ class ReplaySummary:
             info += f' not used: {self.camera_info_unused}'
         lines = [
             f'replay {self.input} -> {self.output}',
+            *([f'  input              an import cut short: {self.partial_input}']
+              if self.partial_input else []),
             f'  image topic        {self.image_topic} (camera info: {info}, speed: '
             f'{self.speed_topic or "none"})',
             f'  frames in          {self.frames_in}' + self._gaps_note(),
@@ -379,6 +384,9 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             raise BagError(f"image_topic: '{image_topic}' in '{in_path}' has no messages; "
                            f'messages per topic: {bag.describe_topics(counts=True)}')
         summary.image_topic, summary.camera_info_topic = image_topic, info_topic
+        summary.partial_input = bag_custom_data(in_path).get(PARTIAL_KEY, '')
+        if summary.partial_input:
+            log.warning('%s: an import cut short, %s', in_path, summary.partial_input)
         if own and info_topic is not None:
             # As the node, which then does not subscribe to CameraInfo at all: the configured
             # intrinsics (or the self-calibration) are what the user asked for.
