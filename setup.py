@@ -63,7 +63,7 @@ setup(
     entry_points={
         'console_scripts': [
             f'{PACKAGE} = {PACKAGE}.cli:main',
-            f'{PACKAGE}_node = {PACKAGE}.ros.node:main',
+            f'{PACKAGE}_node = {PACKAGE}.ros.startup:main',
         ],
     },
     classifiers=[

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -199,7 +200,7 @@ def test_implausible_camera_info_is_refused(changes, match):
 @pytest.mark.parametrize(('width', 'height', 'fx', 'model'), [
     (1241, 376, 718.856, 'none'),            # KITTI: 82 x 29 degrees
     (640, 480, 4000.0, 'none'),              # a 9-degree telephoto
-    (1280, 800, 320.0, 'equidistant'),       # a 229-degree fisheye
+    (1280, 800, 420.0, 'equidistant'),       # a 175-degree fisheye
     (320, 240, 60.0, 'plumb_bob'),           # 139 degrees, a wide-angle lens
 ])
 def test_real_lenses_are_plausible(width, height, fx, model):
@@ -211,6 +212,23 @@ def test_real_lenses_are_plausible(width, height, fx, model):
     expected = (2 * np.degrees(width / 2 / fx) if model == 'equidistant' else
                 2 * np.degrees(np.arctan(width / 2 / fx)))
     assert horizontal == pytest.approx(expected, rel=1e-12) and 3.0 <= vertical <= horizontal
+
+
+def test_an_equidistant_model_without_coefficients_is_the_ideal_fisheye():
+    """All-zero coefficients of ``equidistant`` (a CameraInfo's, or the configuration's empty
+    list) are the ideal fisheye ``theta_d = theta``, not a pinhole (a user test: a pixel 300 px
+    from the centre at f = 300 px was the ray at 45 deg, not at 1 rad)."""
+    K3 = np.array([[300.0, 0.0, 320.0], [0.0, 300.0, 240.0], [0.0, 0.0, 1.0]])
+    info = SimpleNamespace(width=640, height=480, k=K3.ravel(), d=[0.0] * 4,
+                           distortion_model='equidistant', p=np.zeros(12), binning_x=0,
+                           binning_y=0, roi=None)
+    for camera in (CameraModel(640, 480, K3, 'equidistant', (0.0,) * 4),
+                   CameraModel.from_camera_info(info)):
+        assert camera.is_distorted
+        q, _ = camera.pixel_to_normalized(np.array([[620.0, 240.0], [320.0, 240.0]]))
+        np.testing.assert_allclose(q, [[math.tan(1.0), 0.0], [0.0, 0.0]], rtol=1e-9, atol=1e-12)
+        p, _ = camera.normalized_to_pixel(q)
+        np.testing.assert_allclose(p, [[620.0, 240.0], [320.0, 240.0]], rtol=1e-12)
 
 
 @pytest.mark.parametrize('name', list(CAMERAS))

@@ -90,6 +90,18 @@ def node_args(prefix: Path, params: dict[str, object], extra: list[str] = ()) ->
     return args
 
 
+def output_until(args: list[str], env: dict[str, str], log: Path, needle: str) -> str:
+    """Run the node until ``needle`` is in its output (at most 30 s), stop it with SIGINT (exit
+    0 asserted) and return all it wrote."""
+    with NodeProcess(args, env, log) as node:
+        deadline = time.monotonic() + 30
+        while needle not in node.output():
+            assert time.monotonic() < deadline and node.popen.poll() is None, node.output()
+            time.sleep(0.05)
+        assert node.stop(signal.SIGINT) == 0
+        return node.output()
+
+
 def reliable_subscriptions(*topics: str) -> list[str]:
     """Node arguments that subscribe ``topics`` reliably (the standard QoS override
     parameters). Tests that need every image use them: with best-effort delivery, the
@@ -431,6 +443,29 @@ def test_first_signal_mid_stream_exits_cleanly_with_a_summary(prefix, ros_env, t
 
 
 @pytest.mark.timeout(60)
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_a_signal_while_the_node_is_imported_stops_it_cleanly(ros_env, sig):
+    """A launch stopped right after it started the node: the signal arrives while rclpy,
+    numpy and OpenCV are imported (about half a second; a user test: a KeyboardInterrupt
+    traceback, or a kill without the summary). Here it is sent at that moment, after the
+    entry point's first step: the node stops at once, exit 0, with its summary."""
+    import subprocess
+
+    code = ('import os, signal, sys\n'
+            'from planar_vo.ros import startup\n'
+            'startup.catch_early_stops()\n'
+            f'os.kill(os.getpid(), {int(sig)})\n'
+            'import planar_vo.ros.node\n'
+            'sys.argv = ["planar_vo_node"]\n'
+            'sys.exit(startup.main())\n')
+    proc = subprocess.run([sys.executable, '-c', code], env=ros_env, capture_output=True,
+                          text=True, timeout=60)
+    output = proc.stdout + proc.stderr
+    assert proc.returncode == 0 and 'Traceback' not in output, output
+    assert 'summary: 0 frames in, 0 odometry out' in output, output
+
+
+@pytest.mark.timeout(60)
 def test_signals_during_the_clean_up_do_not_interrupt_it(prefix, ros_env, tmp_path):
     """An impatient Ctrl-C: SIGINT again every 20 ms after the first, until the node's summary
     (the end of its clean-up) is out. The clean-up finishes and the exit code stays 0."""
@@ -451,6 +486,22 @@ def test_signals_during_the_clean_up_do_not_interrupt_it(prefix, ros_env, tmp_pa
 
 
 # -- 5, 6: parameters ------------------------------------------------------------------------------
+
+@pytest.mark.timeout(60)
+def test_a_qos_override_of_an_input_the_configuration_does_not_use_is_only_warned(
+        prefix, ros_env, tmp_path):
+    """camera.fx set: no CameraInfo subscription, so its QoS override is unused, warned and not
+    fatal (a user test: a launch file that always sets it failed), while a misspelt one still
+    is (`test_invalid_parameter_is_one_fatal_line_and_exit_code_1`)."""
+    args = node_args(prefix, {**MOUNT_PARAMS, 'camera.fx': 700.0},
+                     ['-p', f'qos_overrides.{CAMERA_INFO_TOPIC}.subscription.reliability:='
+                            f'reliable'])
+    output = output_until(args, ros_env, tmp_path / 'node.log', 'listening on')
+    warned = [ln for ln in output.splitlines() if 'QoS override(s)' in ln]
+    assert len(warned) == 1 and warned[0].startswith('[WARN]'), output
+    assert (f'QoS override(s) qos_overrides.{CAMERA_INFO_TOPIC}.subscription.reliability not '
+            f'used: this configuration does not subscribe to {CAMERA_INFO_TOPIC}') in warned[0]
+
 
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize('arg,message', [
@@ -921,6 +972,10 @@ def test_images_wait_for_the_first_camera_info_whatever_the_order_of_arrival(
             ['no_camera_info', 'no_camera_info', 'first_frame', 'ok', 'ok', 'ok'])]
     assert [stamp_to_ns(m.header.stamp) for m in node.published['odom']] == \
         [stamp_to_ns(images[k].header.stamp) for k in (2, 3, 4, 5)]      # F2 at the origin
+    # No motion yet: 'n/a', not 'nan' (a user test: read as a fault); then a number.
+    first, tracked = statuses(node)[2], statuses(node)[3]
+    assert (first['alpha_rad'], first['beta_rad']) == ('n/a', 'n/a')
+    assert math.isfinite(float(tracked['alpha_rad']))
 
 
 @pytest.mark.timeout(60)
@@ -1551,13 +1606,7 @@ def test_parameter_file_for_another_node_name_is_reported(prefix, ros_env, tmp_p
     params = edited_parameter_file(prefix, tmp_path / 'old.yaml', key='planar_vo')
     args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args', '-r', '__node:=front_vo',
             '--params-file', str(params), '-p', 'ros.image_timeout:=0.5']
-    with NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
-        deadline = time.monotonic() + 30
-        while 'no image for' not in node.output():
-            assert time.monotonic() < deadline and node.popen.poll() is None, node.output()
-            time.sleep(0.05)
-        assert node.stop(signal.SIGINT) == 0
-        output = node.output()
+    output = output_until(args, ros_env, tmp_path / 'node.log', 'no image for')
     warning = [ln for ln in output.splitlines() if 'set nothing' in ln]
     assert len(warning) == 1 and warning[0].startswith('[WARN]'), output
     assert f'parameter file {params} set nothing for this node /front_vo: its parameters are ' \
@@ -1576,13 +1625,7 @@ def test_a_p_value_replaced_by_a_later_parameter_file_is_reported(prefix, ros_en
     args = [str(prefix / 'lib/planar_vo/planar_vo_node'), '--ros-args',
             '-p', 'mount.height:=1.65', '-p', 'front_vo:mount.pitch:=0.1',   # another node's
             '--params-file', str(params), '-p', 'ros.image_timeout:=0.5']
-    with NodeProcess(args, ros_env, tmp_path / 'node.log') as node:
-        deadline = time.monotonic() + 30
-        while 'no image for' not in node.output():
-            assert time.monotonic() < deadline and node.popen.poll() is None, node.output()
-            time.sleep(0.05)
-        assert node.stop(signal.SIGINT) == 0
-        output = node.output()
+    output = output_until(args, ros_env, tmp_path / 'node.log', 'no image for')
     warning = [ln for ln in output.splitlines() if 'was replaced' in ln]
     assert len(warning) == 1 and warning[0].startswith('[WARN]'), output
     assert f'-p mount.height was replaced by the value in {params}, given after it ' \
@@ -1593,6 +1636,9 @@ def test_a_p_value_replaced_by_a_later_parameter_file_is_reported(prefix, ros_en
     (['--params-file', 'no/such/file.yaml'], "Couldn't parse params file"),
     (['--log-level', 'bogus'], "Couldn't parse log level"),
     (['-p'], "Couldn't parse trailing -p flag"),
+    # (a user test: only "['--foo']" was said)
+    (['-p', 'mount.height:=1.65', '--foo'], r"unknown ROS argument(s) ['--foo'] after "
+                                            r'--ros-args (-r FROM:=TO, -p NAME:=VALUE'),
 ])
 def test_bad_ros_arguments_give_one_line_and_exit_1(prefix, ros_env, ros_args, message):
     import subprocess
@@ -1680,6 +1726,19 @@ def test_help_into_a_closed_pipe_ends_quietly(monkeypatch):
         stream.close()
         os.dup2(saved, 1)
         os.close(saved)
+
+
+@pytest.mark.skipif(not os.path.exists('/dev/full'), reason='needs /dev/full')
+def test_help_into_a_full_device_is_one_line_and_exit_1(capsys):
+    """``planar_vo_node --help > /dev/full`` (a user test: an OSError traceback)."""
+    import subprocess
+
+    with open('/dev/full', 'w') as full:
+        proc = subprocess.run([sys.executable, '-m', 'planar_vo.ros.node', '--help'],
+                              stdout=full, stderr=subprocess.PIPE, text=True, timeout=60)
+    assert proc.returncode == 1
+    assert proc.stderr == ('planar_vo_node: cannot write the help to stdout: [Errno 28] No '
+                           'space left on device\n')
 
 
 def test_the_executables_run_by_another_python_say_so_in_one_line(prefix, tmp_path):

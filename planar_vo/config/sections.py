@@ -429,7 +429,10 @@ class OdometryConfig(Options):
             ahead from a standstill); its standard deviation grows by this much speed (m/s) and
             turn rate (rad/s) per second of the gap, and, without the wheels' distance, along
             the last velocity by a third of what braking at ``max_deceleration`` would fall
-            short of the extrapolated travel (a t^2 / 2 until the stop).
+            short of the extrapolated travel (a t^2 / 2 until the stop). The last velocity's
+            own uncertainty is carried over the gap too: before any motion was measured it is
+            unknown, and so is the travel across such a gap (the pose held, its covariance
+            huge).
         turn_rate_time_constant: the extrapolated turn rate decays with this time constant
             (s): a long gap does not spin the pose; the travel follows the decaying turn, the
             yaw's standard deviation grows by the turn the decay leaves out (the rate going

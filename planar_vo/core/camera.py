@@ -259,10 +259,13 @@ class CameraModel:
                 q, _ = self.pixel_to_normalized(grid.reshape(-1, 2))
             inverted = int(np.count_nonzero(np.isfinite(q).all(axis=1)))
             if inverted < 0.75 * 81:
+                beyond = (': a fisheye\'s rays more than 90 deg off its axis have none, and '
+                          'planar_vo works in normalised pinhole coordinates'
+                          if self.distortion_model == 'equidistant' else '')
                 raise CameraModelError(
                     f'the {self.distortion_model} distortion {list(self.D)} cannot '
                     f'be inverted over the image ({81 - inverted} of 81 grid pixels have no '
-                    f'undistorted position)')
+                    f'undistorted position{beyond})')
 
     # -- properties --------------------------------------------------------------------------
 
@@ -296,7 +299,11 @@ class CameraModel:
 
     @property
     def is_distorted(self) -> bool:
-        return self.distortion_model != 'none' and any(self.D)
+        """The model maps rays other than a pinhole: any non-zero coefficient, and
+        ``equidistant`` always (all zeros is the ideal fisheye, ``theta_d = theta``; a user
+        test: it was taken for a pinhole)."""
+        return self.distortion_model == 'equidistant' or (
+            self.distortion_model != 'none' and any(self.D))
 
     @property
     def size(self) -> tuple[int, int]:

@@ -654,6 +654,18 @@ class VisualOdometry:
                     # What the image measured through the provisional focal length is carried
                     # to the model's (a review: the levelling kept 3.2 deg where 4.0 was seen).
                     self._refocus(in_use.fx / camera.fx)
+        matched = self._matched_camera
+        if (camera is not None and camera.size != (shape[1], shape[0]) and matched is not None
+                and matched.size == (shape[1], shape[0])):
+            # The images keep the size of the model they were tracked with: one of another
+            # size (a second camera's CameraInfo on the topic) is not theirs, and that one stays
+            # in use (a user test: every frame was dropped until a matching one came again).
+            if not self._warned_camera_size:
+                log.warning('a camera model of %dx%d arrived for %dx%d images: the last one of '
+                            'their size stays in use', camera.width, camera.height, shape[1],
+                            shape[0])
+                self._warned_camera_size = True
+            camera = None
         if camera is not None:
             # Against the model the last frames were tracked with, and only for a model of the
             # images' size, which is used from this frame on (a user test: a stray CameraInfo of
@@ -1548,6 +1560,14 @@ class VisualOdometry:
         share = max(dt * dt - before * before, 0.0)
         grow = np.diag([cfg.lost_turn_rate_std ** 2 * share] * 3
                        + [cfg.lost_speed_std ** 2 * share] * 3)
+        if not hold:
+            # The last velocity's own uncertainty, carried over the gap (twist order: linear,
+            # angular); unknown before any motion was measured, and then so is the travel
+            # across the gap (a user test: the node started while the car drove, lost the
+            # second frame, and held the pose 36 m behind at 12 standard deviations).
+            if wheels is None:
+                grow[3:, 3:] += share * self._twist_cov[:3, :3]
+            grow[:3, :3] += share * self._twist_cov[3:, 3:]
         # The speed itself may have changed across the gap: braking at up to
         # odometry.max_deceleration (three standard deviations) falls short of the extrapolated
         # travel by a t^2 / 2, until the stop (v t - v^2 / (2 a) after it), along the last

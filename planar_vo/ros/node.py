@@ -105,6 +105,7 @@ from planar_vo.ros.messages import (
     stamp_problem,
     stamp_to_ns,
 )
+from planar_vo.ros.startup import pending_stop
 
 try:  # tf2_ros comes with a ROS installation; it is not on PyPI.
     from tf2_ros import TransformBroadcaster
@@ -362,6 +363,17 @@ class PlanarVoNode(Node):
         """A ``qos_overrides.*`` name that no subscription declared (a misspelt topic or
         policy, a publisher) is an error: rclpy would ignore it without a word."""
         unknown = sorted(n for n in self._qos_overrides() if not self.has_parameter(n))
+        # One for an input this configuration does not subscribe to (CameraInfo with
+        # camera.fx set, the speed without scale.source speed, the other image transport) is
+        # only unused (a user test: a launch file that always sets the CameraInfo's QoS failed
+        # with camera.fx set).
+        idle = set(self.resolve_topic_name(t) for t in _INPUTS) - set(self.listened_topics())
+        unused = [n for n in unknown if _override_topic(n) in idle]
+        if unused:
+            self.get_logger().warning(
+                f'QoS override(s) {", ".join(unused)} not used: this configuration does not '
+                f'subscribe to {", ".join(sorted({_override_topic(n) for n in unused}))}')
+            unknown = [n for n in unknown if n not in unused]
         if unknown:
             self._fatal(f'unknown QoS override(s) {", ".join(unknown)}: expected qos_overrides.'
                         f'<topic>.subscription.<{"|".join(_QOS_POLICIES)}> for a topic the '
@@ -1151,10 +1163,12 @@ def _format_stamp(stamp_ns: int) -> str:
 
 
 def _format_value(value: Any) -> str:
+    """A status value's text; a number that is not there (NaN: a dropped frame's motion) is
+    'n/a', like the focal length's (a user test: 'nan' read as a fault)."""
     if isinstance(value, bool):
         return 'true' if value else 'false'
     if isinstance(value, float):
-        return 'nan' if math.isnan(value) else f'{value:.6g}'
+        return 'n/a' if math.isnan(value) else f'{value:.6g}'
     return str(value)
 
 
@@ -1180,8 +1194,22 @@ def ros_arguments(argv: Sequence[str]) -> tuple[list[str], dict[str, list[str]]]
     return files, names
 
 
+# The node's input topics (before remapping); `listened_topics` are those a configuration uses.
+_INPUTS = ('image', 'image/compressed', 'camera_info', 'speed')
+
+
+def _override_topic(name: str) -> str:
+    """The topic of a ``qos_overrides.<topic>.subscription.<policy>`` parameter name."""
+    return name.removeprefix('qos_overrides.').rpartition('.subscription.')[0]
+
+
 def _rcl_error_line(err: Exception) -> str:
-    """rcl's argument error on one line, without its C source locations."""
+    """rcl's argument error on one line, without its C source locations; its unknown-argument
+    error, which says only the list (``['--foo']``; a user test), in words."""
+    if type(err).__name__ == 'UnknownROSArgsError':
+        return (f'unknown ROS argument(s) {str(err)} after --ros-args (-r FROM:=TO, -p '
+                f'NAME:=VALUE, --params-file FILE, --log-level LEVEL; planar_vo_node --help '
+                f'shows them)')
     text = ' '.join(str(err).split())
     text = text.removeprefix('failed to initialize rcl: ')
     return text.split(', at /')[0].rstrip('.,') or 'invalid ROS arguments'
@@ -1263,7 +1291,8 @@ class _StopRequest:
     POLL = 0.1
 
     def __init__(self) -> None:
-        self.signal: int | None = None
+        # (one that came while the node was being imported: `planar_vo.ros.startup`)
+        self.signal: int | None = pending_stop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._handle)
 
@@ -1338,10 +1367,14 @@ def main(args: list[str] | None = None) -> int:
     if {'-h', '--help'} & set(argv[1:ros_start]):
         try:
             print(usage(), flush=True)
-        except BrokenPipeError:
-            # a reader that stopped early (`planar_vo_node --help | head`): the rest goes
-            # nowhere, and Python's flush at exit must not fail on the closed pipe again
+        except OSError as err:
+            # A reader that stopped early (`planar_vo_node --help | head`): the rest goes
+            # nowhere; a stdout that cannot be written (/dev/full): one line. Either way
+            # Python's flush at exit must not fail on it again (user tests: tracebacks).
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            if not isinstance(err, BrokenPipeError):
+                print(f'planar_vo_node: cannot write the help to stdout: {err}', file=sys.stderr)
+                return 1
         return 0
     stray = _stray_arguments(argv)
     if stray:
