@@ -200,7 +200,7 @@ def test_implausible_camera_info_is_refused(changes, match):
 @pytest.mark.parametrize(('width', 'height', 'fx', 'model'), [
     (1241, 376, 718.856, 'none'),            # KITTI: 82 x 29 degrees
     (640, 480, 4000.0, 'none'),              # a 9-degree telephoto
-    (1280, 800, 420.0, 'equidistant'),       # a 175-degree fisheye
+    (1280, 800, 320.0, 'equidistant'),       # a 229-degree fisheye
     (320, 240, 60.0, 'plumb_bob'),           # 139 degrees, a wide-angle lens
 ])
 def test_real_lenses_are_plausible(width, height, fx, model):

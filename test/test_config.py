@@ -350,10 +350,11 @@ def test_a_key_given_twice_in_a_file_is_refused(tmp_path):
     assert load_config(path).mount.height == 1.65
 
 
-def test_an_empty_distortion_means_none_for_any_model():
+def test_an_empty_distortion_means_all_zero_coefficients_for_any_model():
     """A user test: a fisheye's field of view needs distortion_model equidistant, which then
-    refused the empty coefficient list; empty now means no distortion, for the camera model
-    too."""
+    refused the empty coefficient list; empty now means all-zero coefficients: no distortion
+    for the pinhole models, the ideal fisheye (theta_d = theta) for equidistant
+    (`test_camera_frames.py`)."""
     from planar_vo.config import CameraConfig
 
     camera = PlanarVoConfig.from_dict({'camera': {

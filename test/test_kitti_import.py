@@ -385,6 +385,8 @@ def test_import_stopped_by_sigterm_keeps_the_frames_written(tmp_path, rng, monke
     assert summary.partial_input == '2 of 4 frames (the import was interrupted)'
     assert ('\n  input              an import cut short: 2 of 4 frames (the import was '
             'interrupted)\n') in summary.format()
+    # ... and passes it on to the odometry bag (eval and fleet rows say it from there)
+    assert bag_custom_data(tmp_path / 'vo')['planar_vo.partial'] == summary.partial_input
 
 
 def test_an_interrupt_inside_a_frame_waits_for_its_last_message(tmp_path, rng, monkeypatch):
@@ -457,6 +459,14 @@ def test_frames_numbered_without_zero_padding_are_taken_in_number_order(tmp_path
     (tmp_path / 'seq' / 'image_0' / '4.png').unlink()
     with pytest.raises(InputError, match=r"images: '4\.png' is missing .* the next there is "
                                          r"'5\.png'"):
+        read_kitti_sequence(tmp_path / 'seq')
+    # Padded like the name before the gap ('099999.png' between '099998.png' and '100000.png')
+    for path in sorted((tmp_path / 'seq' / 'image_0').glob('*.png')):
+        path.unlink()
+    for number in (99998, 100000):
+        cv2.imwrite(str(tmp_path / 'seq' / 'image_0' / f'{number:06d}.png'), images[0])
+    with pytest.raises(InputError, match=r"images: '099999\.png' is missing .* the next there "
+                                         r"is '100000\.png'"):
         read_kitti_sequence(tmp_path / 'seq')
 
 

@@ -442,6 +442,23 @@ def test_first_signal_mid_stream_exits_cleanly_with_a_summary(prefix, ros_env, t
     assert frames >= after
 
 
+def test_an_early_stop_is_taken_once():
+    """`startup.pending_stop` hands a noted stop over once (a review: a second main in the
+    same process would inherit it)."""
+    from planar_vo.ros import startup
+
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        startup.catch_early_stops()
+        assert startup.pending_stop() is None
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert startup.pending_stop() == signal.SIGTERM
+        assert startup.pending_stop() is None
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+
+
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 def test_a_signal_while_the_node_is_imported_stops_it_cleanly(ros_env, sig):

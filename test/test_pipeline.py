@@ -1600,6 +1600,19 @@ def test_tracking_lost_before_any_motion_leaves_the_travel_unknown():
             err = r.pose[:2, 3] - (trajectory.xy[i] - trajectory.xy[0])
             assert float(err @ np.linalg.solve(r.pose_covariance[:2, :2], err)) < 9.0
     assert results[-1].ok
+    # With wheel speed the travel across the gap is measured: metres, not the kilometres an
+    # unknown turn rate times the camera's lever arm gave (a review).
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                                  'scale': {'source': 'speed'}}), CAMERA)
+    for t in np.arange(0.0, float(trajectory.stamps[26]), 0.05):
+        vo.add_speed(float(t), 8.0)
+    results = [vo.process(images[i], float(trajectory.stamps[i]))
+               for i in [0] + list(range(20, 26))]
+    last = results[-1]
+    assert last.ok
+    err = last.pose[:2, 3] - (trajectory.xy[25] - trajectory.xy[0])
+    assert float(np.linalg.norm(err)) < 0.5
+    assert np.sqrt(last.pose_covariance[0, 0]) < 10.0
 
 
 _FROZEN = (r"image identical to the previous frame's, pixel for pixel, (\S+) s after moving at "

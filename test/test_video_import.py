@@ -266,6 +266,34 @@ def test_import_stopped_by_sigterm_keeps_the_frames_written(tmp_path, rng, monke
         'planar_vo.partial': '2 of 4 frames (the import was interrupted)'}
 
 
+def test_an_interrupted_video_import_is_marked_without_a_count(tmp_path, rng, monkeypatch):
+    """A video's frame count is only stated (or estimated): an interrupted import says how
+    many frames it kept (a review: videos were never marked)."""
+    import signal
+
+    import planar_vo.io.video as video
+    from planar_vo.io.outputs import stop_signals_interrupt
+    from planar_vo.tools.provenance import bag_custom_data
+
+    frames = [rng.integers(0, 256, (48, 64), dtype=np.uint8) for _ in range(6)]
+    _video(tmp_path / 'v.avi', frames, 10.0)
+    gray = video._gray
+    calls = []
+
+    def gray_and_stop(frame):
+        calls.append(1)
+        if len(calls) == 3:
+            signal.raise_signal(signal.SIGTERM)
+        return gray(frame)
+
+    monkeypatch.setattr(video, '_gray', gray_and_stop)
+    with pytest.raises(KeyboardInterrupt, match=r'\(2 frames: the rest were not imported\)$'):
+        with stop_signals_interrupt():
+            import_video(tmp_path / 'v.avi', tmp_path / 'bag')
+    assert bag_custom_data(tmp_path / 'bag') == {
+        'planar_vo.partial': '2 frames (the import was interrupted)'}
+
+
 def test_a_damaged_or_truncated_video_is_one_line_and_leaves_nothing(tmp_path, capfd):
     """FFmpeg's own messages stay quiet (they came before the command's line)."""
     (tmp_path / 'bad.mp4').write_bytes(bytes(range(256)))
@@ -344,7 +372,10 @@ def test_folders_numbered_at_a_steady_step_or_not_numbered_import(tmp_path, rng)
     """Every other frame of a sequence (a steady step of 2), and names that are not one
     numbered series, are imported in natural order."""
     for k, names in enumerate((['0.png', '2.png', '4.png'], ['a.png', 'b1.png', 'c.png'],
-                               ['left_7.png', 'right_9.png', 'left_8.png'])):
+                               ['left_7.png', 'right_9.png', 'left_8.png'],
+                               # time stamps, as bag-export tools name frames (a review)
+                               ['cam_1700000000000.png', 'cam_1700000000100.png',
+                                'cam_1700000000201.png'])):
         _folder(tmp_path / f'imgs{k}', rng, n=3, names=names)
         summary = import_video(tmp_path / f'imgs{k}', tmp_path / f'bag{k}', rate_hz=10)
         assert summary.frames == 3

@@ -286,6 +286,18 @@ def run(args: argparse.Namespace) -> int:
         import logging
 
         logging.getLogger('planar_vo.eval').warning('%s', other)
+    if is_bag_path(args.est):
+        from planar_vo.io.camera_bag import PARTIAL_KEY
+        from planar_vo.tools.provenance import bag_custom_data
+
+        cut = bag_custom_data(args.est).get(PARTIAL_KEY)
+        if cut:
+            # (a review: an import cut short was evaluated like the whole drive)
+            import logging
+
+            logging.getLogger('planar_vo.eval').warning(
+                'EST was replayed from an import cut short: %s; the evaluation covers those '
+                'frames only', cut)
     try:
         evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
                               segment_lengths=tuple(args.segments),

@@ -255,17 +255,24 @@ class CameraModel:
             # corners; absurd coefficients fail everywhere, and every frame would be lost).
             grid = np.stack(np.meshgrid(np.linspace(0.0, self.width - 1.0, 9),
                                         np.linspace(0.0, self.height - 1.0, 9)), -1)
+            grid = grid.reshape(-1, 2)
+            if self.distortion_model == 'equidistant':
+                # A fisheye's rays more than 90 deg off its axis have no pinhole coordinates
+                # (planar_vo works in them; their ACs are dropped): only the pixels of rays
+                # within 90 deg must invert (a review: every lens over 185 deg was refused).
+                xd, _ = self._pixel_to_distorted(grid)
+                k1, k2, k3, k4 = self.D
+                t2 = (math.pi / 2.0) ** 2
+                edge = math.pi / 2.0 * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+                grid = grid[np.hypot(xd[:, 0], xd[:, 1]) < edge]
             with np.errstate(all='ignore'):
-                q, _ = self.pixel_to_normalized(grid.reshape(-1, 2))
+                q, _ = self.pixel_to_normalized(grid)
             inverted = int(np.count_nonzero(np.isfinite(q).all(axis=1)))
-            if inverted < 0.75 * 81:
-                beyond = (': a fisheye\'s rays more than 90 deg off its axis have none, and '
-                          'planar_vo works in normalised pinhole coordinates'
-                          if self.distortion_model == 'equidistant' else '')
+            if inverted < 0.75 * len(grid) or not len(grid):
                 raise CameraModelError(
                     f'the {self.distortion_model} distortion {list(self.D)} cannot '
-                    f'be inverted over the image ({81 - inverted} of 81 grid pixels have no '
-                    f'undistorted position{beyond})')
+                    f'be inverted over the image ({len(grid) - inverted} of {len(grid)} grid '
+                    f'pixels have no undistorted position)')
 
     # -- properties --------------------------------------------------------------------------
 

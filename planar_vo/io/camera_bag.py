@@ -58,8 +58,10 @@ class CameraBagWriter(BagWriter):
     Attributes:
         frames: frames written (each whole: an interrupt waits for its last message).
         expected: the frames the source holds (an import sets it; None: unknown). A bag kept
-            with fewer, because an interrupt stopped the import, says so in its outcome and in
-            its ``metadata.yaml`` (custom data ``planar_vo.partial``, which replay reports).
+            with fewer, because an interrupt stopped the import (with the count unknown, any
+            bag an interrupt stopped), says so in its outcome and in its ``metadata.yaml``
+            (custom data ``planar_vo.partial``, which replay reports and passes on to its
+            odometry bag, and eval then reports).
     """
 
     def __init__(self, path, *, storage: str = 'mcap', ground_truth: bool = False,
@@ -72,11 +74,16 @@ class CameraBagWriter(BagWriter):
         self.camera_frame, self.odom_frame, self.base_frame = camera_frame, odom_frame, base_frame
         self.frames = 0
         self.expected: int | None = None
+        self._interrupted = False
 
     @property
     def partial(self) -> str:
-        """``'F of N frames'`` when fewer frames than `expected` were written, else empty."""
-        if self.expected is None or self.frames >= self.expected:
+        """``'F of N frames'`` when fewer frames than `expected` were written (``'F frames'``
+        when the source's count is unknown, a video's, and the import was interrupted), else
+        empty."""
+        if self.expected is None:
+            return f'{self.frames} frames' if self._interrupted else ''
+        if self.frames >= self.expected:
             return ''
         return f'{self.frames} of {self.expected} frames'
 
@@ -88,7 +95,8 @@ class CameraBagWriter(BagWriter):
         return text
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        if isinstance(exc, KeyboardInterrupt) and self.partial:
+        self._interrupted = isinstance(exc, KeyboardInterrupt)
+        if self._interrupted and self.partial:
             # (a user test: a bag cut short by Ctrl-C looked like a complete import, to replay
             # and eval alike)
             self.custom_data[PARTIAL_KEY] = f'{self.partial} (the import was interrupted)'

@@ -173,7 +173,8 @@ def read_kitti_sequence(folder: str | Path, *, need_times: bool = True) -> Kitti
                 if number == numbers[i - 1]:
                     raise InputError(f"images: '{images[i - 1].name}' and '{images[i].name}' "
                                      f"in '{image_dir}' both number frame {number}")
-                width = len(images[i].stem) if images[i].stem.startswith('0') else 0
+                # (padded like the name before it: '099999.png' is missing before '100000.png')
+                width = len(images[i - 1].stem) if images[i - 1].stem.startswith('0') else 0
                 raise InputError(f"images: '{numbers[0] + i:0{width}d}.png' is missing from "
                                  f"'{image_dir}' (frames are numbered without gaps; the next "
                                  f"there is '{images[i].name}')")

@@ -149,6 +149,8 @@ def _check_numbering(folder: Path, images: list[Path]) -> None:
     numbers = [int(m.group(2)) for m in parts]
     steps = [b - a for a, b in zip(numbers, numbers[1:])]
     step = min(steps)
+    if step > 2:
+        return          # not frame numbers (a review: names that are time stamps)
     if step == 0:
         i = steps.index(0)
         raise InputError(f"source: '{images[i].name}' and '{images[i + 1].name}' in '{folder}' "

@@ -152,6 +152,7 @@ class VisualOdometry:
         self._matched_camera: CameraModel | None = None     # the model frames were last tracked
         #                                                      with (a camera model's, given)
         self._warned_camera_size = False            # ... one of another size was refused
+        self._warned_stray_camera = False           # ... one not of the tracked images' size
         self._new_size: tuple[int, int] | None = None   # an image size not yet confirmed
         self._image_size: tuple[int, int] | None = None  # the last image's (width, height)
         scale = self.config.scale
@@ -660,11 +661,11 @@ class VisualOdometry:
             # The images keep the size of the model they were tracked with: one of another
             # size (a second camera's CameraInfo on the topic) is not theirs, and that one stays
             # in use (a user test: every frame was dropped until a matching one came again).
-            if not self._warned_camera_size:
+            if not self._warned_stray_camera:
                 log.warning('a camera model of %dx%d arrived for %dx%d images: the last one of '
                             'their size stays in use', camera.width, camera.height, shape[1],
                             shape[0])
-                self._warned_camera_size = True
+                self._warned_stray_camera = True
             camera = None
         if camera is not None:
             # Against the model the last frames were tracked with, and only for a model of the
@@ -1564,10 +1565,14 @@ class VisualOdometry:
             # The last velocity's own uncertainty, carried over the gap (twist order: linear,
             # angular); unknown before any motion was measured, and then so is the travel
             # across the gap (a user test: the node started while the car drove, lost the
-            # second frame, and held the pose 36 m behind at 12 standard deviations).
+            # second frame, and held the pose 36 m behind at 12 standard deviations). The turn
+            # it adds is no less known than a uniform angle (a review: an unknown turn rate
+            # times the camera's lever arm gave kilometres where the wheels had measured the
+            # travel), axis by axis.
             if wheels is None:
                 grow[3:, 3:] += share * self._twist_cov[:3, :3]
-            grow[:3, :3] += share * self._twist_cov[3:, 3:]
+            turn = np.minimum(share * np.diag(self._twist_cov)[3:], _UNIFORM_ANGLE_STD ** 2)
+            grow[:3, :3] += np.diag(turn)
         # The speed itself may have changed across the gap: braking at up to
         # odometry.max_deceleration (three standard deviations) falls short of the extrapolated
         # travel by a t^2 / 2, until the stop (v t - v^2 / (2 a) after it), along the last

@@ -1291,10 +1291,12 @@ class _StopRequest:
     POLL = 0.1
 
     def __init__(self) -> None:
-        # (one that came while the node was being imported: `planar_vo.ros.startup`)
-        self.signal: int | None = pending_stop()
+        self.signal: int | None = None
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._handle)
+        # One that came before (while the node was imported: `planar_vo.ros.startup`); read
+        # after the handlers are in place, so that none falls between (a review).
+        self.signal = pending_stop()
 
     def _handle(self, signum: int, frame: Any) -> None:
         self.signal = signum

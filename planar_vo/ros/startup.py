@@ -31,8 +31,11 @@ def catch_early_stops() -> None:
 
 
 def pending_stop() -> int | None:
-    """The first stop signal noted since `catch_early_stops`, or None."""
-    return _PENDING[0] if _PENDING else None
+    """The first stop signal noted since `catch_early_stops`, or None; taken (a second call
+    says None until another one comes)."""
+    first = _PENDING[0] if _PENDING else None
+    _PENDING.clear()
+    return first
 
 
 def main() -> int:

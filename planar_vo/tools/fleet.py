@@ -359,6 +359,9 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
         # A damaged bag that reading got through: the row says so (a user test: 'ok' alone).
         row['reason'] = ('damaged storage: unreadable ' + ', '.join(
             f'{t} {n}' for t, n in sorted(summary.unreadable.items())))
+    elif summary.partial_input:
+        # So does an import cut short (a review: its row looked like the whole drive's).
+        row['reason'] = f'an import cut short: {summary.partial_input}'
     _kept_outputs(job, work, row)
     if not summary.frames_in:
         raise InputError(f'bag: no frames on {summary.image_topic}')

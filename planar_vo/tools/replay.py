@@ -387,6 +387,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         summary.partial_input = bag_custom_data(in_path).get(PARTIAL_KEY, '')
         if summary.partial_input:
             log.warning('%s: an import cut short, %s', in_path, summary.partial_input)
+            # passed on, so that eval and fleet rows of the odometry say it too
+            writer.custom_data[PARTIAL_KEY] = summary.partial_input
         if own and info_topic is not None:
             # As the node, which then does not subscribe to CameraInfo at all: the configured
             # intrinsics (or the self-calibration) are what the user asked for.
