@@ -435,6 +435,28 @@ def test_focal_calibration_adopts_an_accurate_focal_from_exact_turning_pairs(rng
                             f'(self-calibrated at frame 31, updated at frame 42)')
 
 
+def test_an_adopted_focal_length_that_grew_uncertain_says_so(rng, monkeypatch):
+    """Between the tolerance and twice it the adopted value stays, its standard deviation the
+    calibration's: the status says it is uncertain again, not 'updated' (a user test: 'updated
+    at frame 90' when only the +- had grown to 36 % against a 23 % tolerance)."""
+    cal = _calibrate(rng, 0.0)
+    adopted, tolerance = cal.adopted, cal.tolerance
+    info = {'blocks': 4, 'edge': False}
+    monkeypatch.setattr(cal, 'estimate',
+                        lambda: (1.005 * adopted, 1.5 * tolerance * adopted, info))
+    assert not cal.update_adoption(50)
+    assert (cal.adopted, cal.adopted_std, cal.updated_at, cal.widened_at) == (
+        adopted, 1.5 * tolerance * adopted, 34, 50)
+    assert cal.status() == (f'focal length {adopted:.1f} +- {cal.adopted_std:.1f} px '
+                            f'(self-calibrated at frame 31, updated at frame 34; uncertain again '
+                            f'since frame 50: 3.0 % against the 2 % it was adopted at, revoked '
+                            f'above 4 %)')
+    # precise again: adopted anew, no longer said to be uncertain
+    monkeypatch.setattr(cal, 'estimate', lambda: (1.002 * adopted, 0.01 * adopted, info))
+    assert cal.update_adoption(60)
+    assert cal.widened_at is None and cal.status().endswith('updated at frame 60)')
+
+
 def test_an_adopted_focal_length_the_calibration_no_longer_supports_is_revoked(caplog):
     """A review: blocks whose pixels say another focal length (here 1.4 times the adopted one:
     a zoomed lens, or evidence that disagrees) moved the estimate far off, while the adopted

@@ -178,6 +178,13 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
     ({'camera': {'focal_steps': 0.0}},
      r'camera.focal_steps: expected work steps per frame in \(0, 100\]'),
     # contradictions a user test found silently resolved
+    ({'camera': {'estimate_focal': True, 'rectified': True}},
+     r'camera.rectified: expected false when the camera model does not come from CameraInfo '
+     r'\(estimate_focal or fx configured\): it says how a CameraInfo is read, got True'),
+    ({'camera': {'fx': 700.0, 'rectified': True}}, r'camera.rectified: expected false when'),
+    ({'camera': {'focal_tolerance': 0.05}},
+     r'camera.focal_tolerance: expected its default without estimate_focal \(a setting of the '
+     r'focal self-calibration\), got 0.05'),
     ({'camera': {'estimate_focal': True, 'fx': 707.1}},
      r'camera.estimate_focal: expected false with fx configured \(707.1 px: the focal length '
      r'is known; fx = 0 self-calibrates it\), got True'),

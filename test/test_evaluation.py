@@ -373,6 +373,27 @@ def test_a_bad_pose_in_a_bag_names_the_bag_topic_and_stamp(tmp_path):
         read_bag_trajectory(path, '/gt', role='gt-topic')
 
 
+def test_cli_eval_warns_when_most_poses_find_no_partner(tmp_path, rng, caplog):
+    """The same frames stamped two ways (import-video at a given rate, import-kitti from
+    times.txt): a few poses match by chance and the figures describe them alone (a user test:
+    19 of 120 matched, t_rel 126 %, and only a 'two drives?' note). Said, with both spans."""
+    gt = _drive(rng)
+    skewed = Trajectory(gt.stamps_ns[0] + ((gt.stamps_ns - gt.stamps_ns[0]) * 1.04).astype(
+        np.int64), gt.poses)
+    write_tum(tmp_path / 'gt.tum', gt)
+    write_tum(tmp_path / 'est.tum', skewed)
+    with caplog.at_level('WARNING', logger='planar_vo.eval'):
+        assert main(['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'gt.tum')]) == 0
+    warned = [r.getMessage() for r in caplog.records if 'are matched within' in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith('only ') and \
+        'the two are stamped differently (EST ' in warned[0], warned
+    caplog.clear()
+    write_tum(tmp_path / 'est2.tum', gt)                    # every pose matched: nothing said
+    with caplog.at_level('WARNING', logger='planar_vo.eval'):
+        assert main(['eval', str(tmp_path / 'est2.tum'), '--gt', str(tmp_path / 'gt.tum')]) == 0
+    assert not [r for r in caplog.records if 'are matched within' in r.getMessage()]
+
+
 def test_cli_eval_tum_files_writes_metrics_and_plots(tmp_path, rng, capsys):
     gt = _drive(rng)
     est = _noisy_estimate(rng, gt, scale=1.0)

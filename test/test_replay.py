@@ -555,7 +555,9 @@ def test_the_odometry_bag_and_the_evaluation_say_what_made_them(tmp_path, capsys
                     'planar_vo.source_digest': code_digest(),
                     'planar_vo.settings': '{"voting.bins": 360}',   # 1.5 m is the default
                     'planar_vo.input': str(bags['mcap'].resolve()),
-                    'planar_vo.odom_topic': '/odom'}
+                    'planar_vo.odom_topic': '/odom',
+                    # the focal length the odometry ended on (a user test: in the summary only)
+                    'planar_vo.focal': f'focal length {CAMERA.fx:.1f} px (CameraInfo)'}
     assert main(['eval', 'vo', '--out-dir', 'report']) == 0
     capsys.readouterr()
     metrics = json.loads((tmp_path / 'report' / 'metrics.json').read_text())

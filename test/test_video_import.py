@@ -123,7 +123,10 @@ def test_a_video_is_imported_at_its_own_frame_rate_or_the_given_one(tmp_path):
     (lambda p: _folder(p, np.random.default_rng(1), n=2), {'rate_hz': 10, 'max_width': 8},
      r'max_width: expected a width of at least 16 pixels, got 8'),
     (lambda p: _folder(p, np.random.default_rng(1), n=2), {'rate_hz': -1},
-     r'rate_hz: expected a positive frame rate \(Hz\), got -1'),
+     r'rate_hz: expected a camera frame rate of 0.01-1000 Hz, got -1'),
+    # (a user test: 1e9 Hz was imported and replayed at 1e9 m/s)
+    (lambda p: _folder(p, np.random.default_rng(1), n=2), {'rate_hz': 1e9},
+     r'rate_hz: expected a camera frame rate of 0.01-1000 Hz, got 1000000000.0'),
     (lambda p: _folder(p, np.random.default_rng(1), n=2),
      {'rate_hz': 10, 'camera': CameraModel.pinhole(64, 48, 50.0)},
      r'camera: the intrinsics are for 64x48 images, the source is 40x30'),
@@ -150,7 +153,7 @@ def test_a_frame_of_another_size_mid_way_leaves_no_bag(tmp_path, rng):
 
 
 @pytest.mark.parametrize('options, message', [
-    (['--rate-hz', '0'], '--rate-hz: expected a positive frame rate (Hz), got 0.0'),
+    (['--rate-hz', '0'], '--rate-hz: expected a camera frame rate of 0.01-1000 Hz, got 0.0'),
     (['--rate-hz', '10', '--every', '0'], '--every: expected a whole number of frames >= 1, '
                                           'got 0'),
     (['--rate-hz', '10', '--cx', '3'], '--cx: given without --fx (the intrinsics are written '

@@ -217,6 +217,32 @@ def _another_drive(est: str, gt: str) -> str | None:
             f'can match (import-kitti starts every drive at the same time)')
 
 
+def _warn_few_matched(evaluation, est, ref, max_diff: float) -> None:
+    """A warning when fewer than half of the shorter trajectory's poses found a partner
+    within ``max_diff``: the two are stamped differently, and the figures compare the few
+    poses that happened to match (a user test: KITTI frames imported by import-video at 10 Hz
+    scored against import-kitti's times.txt, 19 of 120 matched, t_rel 126 %, with only the
+    'two drives?' note)."""
+    matched = len(evaluation.ref)
+    if matched >= 0.5 * min(len(est), len(ref)):
+        return
+    import logging
+
+    import numpy as np
+
+    def span(traj) -> str:
+        t = traj.stamps_ns.astype(np.float64) * 1e-9
+        rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else float('nan')
+        return f'{t[0]:.3f}-{t[-1]:.3f} s, {rate:.3g} Hz'
+
+    logging.getLogger('planar_vo.eval').warning(
+        'only %d of %d estimated and %d reference poses are matched within --max-diff %g s: the '
+        'two are stamped differently (EST %s, the reference %s); the figures compare those %d '
+        'poses only. The same frames imported two ways (import-video --rate-hz, import-kitti '
+        'from times.txt) are: import both alike (import-kitti --rate-hz)', matched, len(est),
+        len(ref), max_diff, span(est), span(ref), matched)
+
+
 def run(args: argparse.Namespace) -> int:
     from planar_vo.errors import InputError, PlanarVoError
     from planar_vo.tools.evaluation import evaluate, write_report
@@ -310,6 +336,7 @@ def run(args: argparse.Namespace) -> int:
             err.args = (f'{err}; a trajectory that does not move cannot be aligned: give '
                         f'--align origin',)
         raise
+    _warn_few_matched(evaluation, est, ref, args.max_diff)
     print(f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''))
     print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
     print(evaluation.format_table())

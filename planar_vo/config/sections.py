@@ -82,7 +82,8 @@ class CameraConfig(Options):
             deg is 82 deg in truth).
         focal_tolerance: the calibration is adopted once its relative standard deviation
             (reported so that the error stays within 3 of them) is below this; until then a
-            provisional focal length is used and its uncertainty enters the covariance.
+            provisional focal length is used and its uncertainty enters the covariance. (This
+            and the other ``focal_*`` settings only with ``estimate_focal``.)
         focal_steps: work steps of the focal calibration per frame while turning pairs wait
             (each a vote, a chunk of one pair's profile sized by its ACs, or its shifted
             profile, about 5-15 ms on KITTI frames; a pair of 400 ACs is 4 steps, of 1,200 ACs
@@ -107,6 +108,7 @@ class CameraConfig(Options):
         rectified: the images are rectified (``image_rect``, image_proc's output): the camera
             model is CameraInfo's projection ``P`` (its fx, fy, cx, cy) without distortion, as
             image_geometry uses it for rectified images. False (raw images): ``K`` and ``D``.
+            Only for a model from CameraInfo (not with ``fx`` or ``estimate_focal``).
     """
 
     fx: float = bounded(0.0, 0.0, expected='fx, fy >= 0 (0 = from CameraInfo)')
@@ -177,6 +179,20 @@ class CameraConfig(Options):
                       + ')')
         self._require(self.nominal_fov == 0 or self.estimate_focal, 'nominal_fov',
                       '0 without estimate_focal (it is where the focal self-calibration starts)')
+        # Options that would be ignored are refused, as nominal_fov above (a user test:
+        # rectified with estimate_focal, and the calibration's settings without it, passed
+        # without a word).
+        self._require(not (self.rectified and (self.estimate_focal or self.fx > 0)),
+                      'rectified', 'false when the camera model does not come from CameraInfo '
+                      '(estimate_focal or fx configured): it says how a CameraInfo is read')
+        defaults = {f.name: f.default for f in dataclasses.fields(self)}
+        changed = [name for name in ('focal_tolerance', 'focal_steps', 'focal_max_acs',
+                                     'focal_queue', 'focal_block_frames', 'focal_min_blocks',
+                                     'focal_max_blocks')
+                   if getattr(self, name) != defaults[name]]
+        self._require(self.estimate_focal or not changed, changed[0] if changed else 'focal',
+                      'its default without estimate_focal (a setting of the focal '
+                      'self-calibration)')
         self._require(self.nominal_fov_std == 0 or self.nominal_fov > 0, 'nominal_fov_std',
                       '0 without nominal_fov (it says how well that is known)')
 

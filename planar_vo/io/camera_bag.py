@@ -15,6 +15,8 @@ from decimal import Decimal
 import numpy as np
 
 from planar_vo.core.camera import CameraModel
+from planar_vo.core.checks import positive_number
+from planar_vo.errors import InputError
 from planar_vo.io.images import CAMERA_INFO_TYPE, IMAGE_TYPE
 from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import TYPESTORE
@@ -29,6 +31,7 @@ __all__ = [
     'PARTIAL_KEY',
     'SPEED_TOPIC',
     'CameraBagWriter',
+    'frame_rate',
 ]
 
 IMAGE_TOPIC = '/camera/image_raw'
@@ -37,6 +40,22 @@ GROUND_TRUTH_TOPIC = '/ground_truth/odom'
 SPEED_TOPIC = '/speed'
 # metadata.yaml custom data of an import stopped by an interrupt: 'F of N frames (...)'
 PARTIAL_KEY = 'planar_vo.partial'
+# The frame rates (Hz) an import takes: a camera's, from a time-lapse to a high-speed one.
+FRAME_RATE_RANGE = (0.01, 1000.0)
+
+
+def frame_rate(name: str, value) -> float:
+    """A frame rate an import is given (Hz) as a float, or `InputError` naming ``name``:
+    finite, within `FRAME_RATE_RANGE` (a user test: 1e9 Hz was imported, and replayed as
+    steps 1 ns apart at 1e9 m/s)."""
+    lo, hi = FRAME_RATE_RANGE
+    rate = positive_number(name, value, f'a camera frame rate of {lo:g}-{hi:g} Hz')
+    if not lo <= rate <= hi:
+        raise InputError(f'{name}: expected a camera frame rate of {lo:g}-{hi:g} Hz, got '
+                         f'{value!r}')
+    return rate
+
+
 # Seconds added to drives whose own times start at 0 (KITTI, rendered), so that bags start at a
 # plausible epoch.
 DEFAULT_START = Decimal('1700000000')

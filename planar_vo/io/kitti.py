@@ -46,6 +46,7 @@ from planar_vo.io.camera_bag import (
     GROUND_TRUTH_TOPIC,
     IMAGE_TOPIC,
     CameraBagWriter,
+    frame_rate,
 )
 from planar_vo.io.writer import MAX_STAMP_NS
 from planar_vo.ros.messages import seconds_to_ns
@@ -342,7 +343,7 @@ def import_kitti(folder: str | Path, out_path: str | Path, *, storage: str = 'mc
         raise InputError(f'camera_height: expected a height above the ground of 0.01-100 m '
                          f'(the range of mount.height), got {camera_height:g}')
     if rate_hz is not None:
-        rate_hz = positive_number('rate_hz', rate_hz, 'a positive frame rate')
+        rate_hz = frame_rate('rate_hz', rate_hz)
     try:
         start_ns = seconds_to_ns(DEFAULT_START if start is None else start)
     except InputError:

@@ -26,7 +26,6 @@ import cv2
 import numpy as np
 
 from planar_vo.core.camera import CameraModel
-from planar_vo.core.checks import positive_number
 from planar_vo.errors import CameraModelError, ImageError, InputError, plural
 from planar_vo.frontend.images import MIN_IMAGE_SIZE, read_image
 from planar_vo.io.camera_bag import (
@@ -34,6 +33,7 @@ from planar_vo.io.camera_bag import (
     DEFAULT_START,
     IMAGE_TOPIC,
     CameraBagWriter,
+    frame_rate,
 )
 from planar_vo.io.writer import MAX_STAMP_NS
 from planar_vo.ros.messages import seconds_to_ns
@@ -285,7 +285,7 @@ def import_video(source: str | Path, out_path: str | Path, *, storage: str = 'mc
 
     source = Path(source)
     if rate_hz is not None:
-        rate_hz = positive_number('rate_hz', rate_hz, 'a positive frame rate (Hz)')
+        rate_hz = frame_rate('rate_hz', rate_hz)
     if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
         raise InputError(f'every: expected a whole number of frames >= 1, got {every!r}')
     if max_width is not None and (isinstance(max_width, bool)

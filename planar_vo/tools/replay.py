@@ -490,6 +490,11 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                         _count_drop(dropped, reason, frame, result.message, first)
                     log.debug('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
                               reason or 'odometry')
+                # The focal length the odometry ended on, in the bag (eval's metrics.json then
+                # records it: a user test found it in the summary only).
+                focal = getattr(processor, 'focal_status', None)
+                if callable(focal):
+                    writer.custom_data['planar_vo.focal'] = focal()
         except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
             if tum_path is not None:
                 err.add_note(poses.save(tum_path))

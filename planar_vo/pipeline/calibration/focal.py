@@ -238,9 +238,9 @@ class OnlineFocalCalibrator:
         if not (width > 0 and height > 0):
             raise ConfigError(f'width, height: expected a positive image size, got {width}, '
                               f'{height}')
-        CameraConfig(focal_tolerance=tolerance, focal_max_acs=max_acs, focal_queue=max_queue,
-                     focal_block_frames=block_frames, focal_min_blocks=min_blocks,
-                     focal_max_blocks=max_blocks)        # validates the options
+        CameraConfig(estimate_focal=True, focal_tolerance=tolerance, focal_max_acs=max_acs,
+                     focal_queue=max_queue, focal_block_frames=block_frames,
+                     focal_min_blocks=min_blocks, focal_max_blocks=max_blocks)   # validates them
         self.width, self.height = int(width), int(height)
         self.nominal = float(nominal) if nominal is not None else float(max(width, height))
         self.prior_fov = (float(prior_fov) if prior_fov is not None
@@ -278,6 +278,7 @@ class OnlineFocalCalibrator:
         self.adopted_std: float | None = None
         self.adopted_at: int | None = None
         self.updated_at: int | None = None  # the last frame that changed the adopted value
+        self.widened_at: int | None = None  # ... that widened its std beyond the tolerance
         self.revoked_at: int | None = None  # the frame an adopted value was last revoked at
 
     # -- input and work ------------------------------------------------------------------------
@@ -473,7 +474,7 @@ class OnlineFocalCalibrator:
                           ' %d blocks)', frame, f, s, self.pairs, info['blocks'])
             elif (f, s) != (self.adopted, self.adopted_std):
                 self.updated_at = int(frame)
-            self.adopted, self.adopted_std = f, s
+            self.adopted, self.adopted_std, self.widened_at = f, s, None
         elif self.adopted is not None:
             if (not math.isfinite(f) or info.get('edge', True) or s > 2.0 * self.tolerance * f
                     or abs(f - self.adopted) > s):
@@ -481,9 +482,14 @@ class OnlineFocalCalibrator:
                             'now gives %.1f +- %.1f px against the adopted %.1f +- %.1f px; '
                             'provisional again', frame, f, s, self.adopted, self.adopted_std)
                 self.adopted = self.adopted_std = self.adopted_at = self.updated_at = None
+                self.widened_at = None
                 self.revoked_at = int(frame)
             elif s > self.adopted_std:
-                self.adopted_std, self.updated_at = s, int(frame)
+                # The value stays; only its uncertainty grows, and the status says so (a user
+                # test: 'updated at frame 90' when only the +- had grown past the tolerance).
+                self.adopted_std = s
+                if self.widened_at is None:
+                    self.widened_at = int(frame)
         return ok
 
     def status(self) -> str:
@@ -494,6 +500,11 @@ class OnlineFocalCalibrator:
         turn to calibrate from yet: an assumed 53-degree field of view, 0 of 4 blocks)``."""
         if self.adopted is not None:
             updated = '' if self.updated_at is None else f', updated at frame {self.updated_at}'
+            if self.widened_at is not None:
+                updated += (f'; uncertain again since frame {self.widened_at}: '
+                            f'{100.0 * self.adopted_std / self.adopted:.1f} % against the '
+                            f'{100.0 * self.tolerance:g} % it was adopted at, revoked above '
+                            f'{200.0 * self.tolerance:g} %')
             return (f'focal length {self.adopted:.1f} +- {self.adopted_std:.1f} px '
                     f'(self-calibrated at frame {self.adopted_at}{updated})')
         f = self.provisional
