@@ -175,6 +175,9 @@ def test_rows_failures_and_report(drives, fleet_run):
     assert all(c['ok'] == 3 and c['failed'] == 3 for c in summary['configs'])
     assert summary['run']['ran'] == 12 and summary['run']['skipped'] == 0
     assert summary['run']['frames_per_s'] > 0 and summary['run']['workers'] == 2
+    # the ok runs' frames, as the totals count them (a user test: a failed row's too)
+    assert summary['run']['frames_per_s'] == pytest.approx(
+        totals['frames_in'] / summary['run']['tasks_s'])
     report = (out / 'report.md').read_text()
     assert '## Totals' in report and '## Per configuration' in report and '## Runs' in report
     assert len(re.findall(r'\| voting\.bins=\d+ \| failed \|', report)) == 6
@@ -254,9 +257,15 @@ def test_partial_stale_and_corrupt_results_are_not_trusted(drives, fleet_run, tm
     (_, broken) = plan_jobs([drives['drive_c']], configs)
     shutil.rmtree(out / broken.run_dir / 'odometry')
     assert load_result(out, broken) is None
+    # An output removed from inside (a user test: the rerun kept these rows): the odometry
+    # bag's storage file, or the evaluation's metrics.json.
+    (no_mcap, no_metrics) = plan_jobs([drives['drive_a']], configs)
+    assert load_result(out, no_mcap) is not None and load_result(out, no_metrics) is not None
+    for path in (out / no_mcap.run_dir / 'odometry').glob('*.mcap'):
+        path.unlink()
+    (out / no_metrics.run_dir / 'evaluation' / 'metrics.json').unlink()
+    assert load_result(out, no_mcap) is None and load_result(out, no_metrics) is None
     # The bag changed since: its files differ, so does the job's key.
-    (_, ok) = plan_jobs([drives['drive_a']], configs)
-    assert load_result(out, ok) is not None
     copy = tmp_path / 'drive_a'
     shutil.copytree(drives['drive_a'], copy)
     (changed,) = plan_jobs([copy], configs[1:])
@@ -553,6 +562,28 @@ def test_bad_arguments_are_one_line_and_exit_1(drives, tmp_path, capsys, extra, 
     err = capsys.readouterr().err.strip()
     assert '\n' not in err and re.search(match, err), err
     assert not (tmp_path / 'o').exists()
+
+
+@pytest.mark.parametrize('raised, signal_name', [
+    (SystemExit(signal.SIGTERM), 'SIGTERM'), (KeyboardInterrupt('SIGINT'), 'SIGINT')])
+def test_a_stop_while_ray_starts_shuts_it_down_and_is_a_stop(monkeypatch, raised, signal_name):
+    """A stop signal while Ray starts (a user test: Ray's own SIGTERM handler, installed during
+    its start, exited with code 15 and no word; Ctrl-C left Ray's agents running): what was
+    started is shut down, and SIGTERM is a KeyboardInterrupt naming it, as everywhere else."""
+    from planar_vo.tools.fleet import ray_session
+
+    calls = []
+
+    def init(**kwargs):
+        raise raised
+
+    monkeypatch.setattr(ray, 'init', init)
+    monkeypatch.setattr(ray, 'is_initialized', lambda: False)
+    monkeypatch.setattr(ray, 'shutdown', lambda: calls.append('shutdown'))
+    with pytest.raises(KeyboardInterrupt, match=f'^{signal_name}$'):
+        with ray_session(workers=1):
+            pass
+    assert calls == ['shutdown']
 
 
 def test_no_bags_is_an_error(tmp_path, capsys):

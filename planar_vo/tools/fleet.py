@@ -449,11 +449,30 @@ def load_result(out_dir: str | Path, job: FleetJob) -> dict | None:
         if record['key'] != job.key or record.get('final') is False:
             return None
         outputs = [row[name] for name in ('odometry', 'tum')] if row['status'] == 'ok' else []
+        evaluated = row['status'] == 'ok' and row.get('ate_sim3_m') is not None
     except (OSError, ValueError, KeyError, TypeError):
         return None
     if not all((out_dir / path).exists() for path in outputs):
         return None
+    # Every output whole: the odometry bag's storage files, and the evaluation of a row that
+    # has one (a user test: a rerun kept rows whose metrics.json or .mcap had been removed).
+    if outputs and not _bag_files_present(out_dir / row['odometry']):
+        return None
+    if evaluated and not (out_dir / job.run_dir / EVALUATION / 'metrics.json').is_file():
+        return None
     return record
+
+
+def _bag_files_present(bag: Path) -> bool:
+    """The storage files a bag's ``metadata.yaml`` names are there (and it is readable)."""
+    import yaml
+
+    try:
+        info = yaml.safe_load((bag / 'metadata.yaml').read_text(encoding='utf-8'))
+        files = info['rosbag2_bagfile_information']['relative_file_paths']
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return False
+    return bool(files) and all((bag / str(name)).is_file() for name in files)
 
 
 # -- the run --------------------------------------------------------------------------------------
@@ -521,8 +540,11 @@ class FleetRun:
 
     @property
     def frames_per_s(self) -> float | None:
-        """Aggregate throughput of this run: frames of the jobs it ran per second of tasks."""
-        frames = sum(r['row']['frames_in'] for r in self.records if not r.get('skipped'))
+        """Aggregate throughput of this run: frames of the ok jobs it ran per second of tasks
+        (the frames the totals count: a user test saw a failed row's frames in one figure and
+        not in the other, an aggregate above what one task could do)."""
+        frames = sum(r['row']['frames_in'] for r in self.records
+                     if not r.get('skipped') and r['row']['status'] == 'ok')
         return frames / self.tasks_s if self.ran and self.tasks_s > 0 else None
 
     def format(self) -> str:
@@ -590,6 +612,17 @@ def ray_session(address: str | None = None, workers: int | None = None, retries:
         else:
             ray.init(num_cpus=workers, include_dashboard=False,
                      _system_config={'task_oom_retries': retries}, **common)
+    except (KeyboardInterrupt, SystemExit) as err:
+        # A stop while Ray starts (a user test: Ray's own SIGTERM handler, installed during
+        # the start, exited with code 15 and no word; Ctrl-C left Ray's agents running): what
+        # was started is shut down, and SIGTERM stops like Ctrl-C (exit 143, one line).
+        if isinstance(err, SystemExit) and err.code != signal.SIGTERM:
+            raise
+        with contextlib.suppress(Exception):
+            ray.shutdown()
+        if isinstance(err, SystemExit):
+            raise KeyboardInterrupt(signal.SIGTERM.name) from None
+        raise
     except Exception as err:       # noqa: BLE001 - Ray raises bare Exception on a start timeout
         where = f"'{address}'" if address else f'a local instance ({plural(workers, "CPU")})'
         raise InputError(f'address: cannot start or reach Ray at {where} '
