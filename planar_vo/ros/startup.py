@@ -6,36 +6,17 @@ that time (a launch stopped right after it started the node) ended the process w
 handlers that only note the signal before it imports anything heavy; the node then stops as if
 the signal had come while it spun: at once, exit 0, with its summary line.
 
-Light on purpose: only the standard library is imported here.
+Light on purpose: only the standard library and `planar_vo.ros.early_stops` (the noted
+signals, which the node reads) are imported before the node.
 """
 
 from __future__ import annotations
 
-import signal
 import sys
 
+from planar_vo.ros.early_stops import catch_early_stops, pending_stop
+
 __all__ = ['catch_early_stops', 'main', 'pending_stop']
-
-_PENDING: list[int] = []
-
-
-def _note(signum: int, frame: object) -> None:
-    _PENDING.append(signum)
-
-
-def catch_early_stops() -> None:
-    """Note SIGINT and SIGTERM (`pending_stop`) instead of acting on them, until the node
-    installs its own handlers."""
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _note)
-
-
-def pending_stop() -> int | None:
-    """The first stop signal noted since `catch_early_stops`, or None; taken (a second call
-    says None until another one comes)."""
-    first = _PENDING[0] if _PENDING else None
-    _PENDING.clear()
-    return first
 
 
 def main() -> int:

@@ -74,7 +74,7 @@ from planar_vo.errors import (
 )
 from planar_vo.io.outputs import interrupt_signal
 from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
-from planar_vo.tools.provenance import code_digest, evaluation_provenance
+from planar_vo.tools.provenance import bag_information, code_digest, evaluation_provenance
 
 __all__ = [
     'FLEET_EXTRA',
@@ -465,14 +465,9 @@ def load_result(out_dir: str | Path, job: FleetJob) -> dict | None:
 
 def _bag_files_present(bag: Path) -> bool:
     """The storage files a bag's ``metadata.yaml`` names are there (and it is readable)."""
-    import yaml
-
-    try:
-        info = yaml.safe_load((bag / 'metadata.yaml').read_text(encoding='utf-8'))
-        files = info['rosbag2_bagfile_information']['relative_file_paths']
-    except (OSError, yaml.YAMLError, KeyError, TypeError):
-        return False
-    return bool(files) and all((bag / str(name)).is_file() for name in files)
+    files = bag_information(bag).get('relative_file_paths')
+    return isinstance(files, list) and bool(files) and all((bag / str(name)).is_file()
+                                                           for name in files)
 
 
 # -- the run --------------------------------------------------------------------------------------

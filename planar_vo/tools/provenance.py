@@ -10,7 +10,8 @@ import hashlib
 import json
 from pathlib import Path
 
-__all__ = ['bag_custom_data', 'code_digest', 'evaluation_provenance', 'provenance']
+__all__ = ['bag_custom_data', 'bag_information', 'code_digest', 'evaluation_provenance',
+           'provenance']
 
 
 @functools.lru_cache(maxsize=1)
@@ -40,17 +41,23 @@ def provenance(config=None, **extra: str) -> dict[str, str]:
     return data
 
 
+def bag_information(path: str | Path) -> dict:
+    """The ``rosbag2_bagfile_information`` of a bag folder's ``metadata.yaml`` (empty for a
+    single storage file or an unreadable one)."""
+    import yaml
+
+    try:
+        info = yaml.safe_load((Path(path) / 'metadata.yaml').read_text(encoding='utf-8'))
+        data = info['rosbag2_bagfile_information']
+    except (OSError, yaml.YAMLError, TypeError, KeyError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
 def bag_custom_data(path: str | Path) -> dict[str, str]:
     """The ``custom_data`` of a bag folder's ``metadata.yaml`` (empty for none, a single
     storage file or an unreadable one)."""
-    import yaml
-
-    meta = Path(path) / 'metadata.yaml'
-    try:
-        info = yaml.safe_load(meta.read_text(encoding='utf-8'))
-        data = info['rosbag2_bagfile_information'].get('custom_data') or {}
-    except (OSError, yaml.YAMLError, TypeError, KeyError, AttributeError):
-        return {}
+    data = bag_information(path).get('custom_data') or {}
     return {str(k): str(v) for k, v in data.items()} if isinstance(data, dict) else {}
 
 
