@@ -76,6 +76,25 @@ def test_open_directory_and_single_file(small_bag, storage):
             assert frame.camera == CameraModel.pinhole(32, 24, 30.0, cx=16.0, cy=12.0)
 
 
+@pytest.mark.parametrize('storage', STORAGES)
+def test_open_a_bag_directory_named_like_a_ros1_bag(small_bag, storage):
+    # rosbags takes a path ending in '.bag' for a ROS 1 bag file; a rosbag2 directory of that
+    # name (`import-kitti seq --out drive.bag`) was refused as corrupt.
+    bag_dir, frames = small_bag(storage)
+    named = bag_dir.rename(bag_dir.with_name('drive.bag'))
+    with open_bag(named) as bag:
+        got = list(iter_camera_frames(bag))
+    assert len(got) == 3
+    np.testing.assert_array_equal(got[-1].image, frames[-1])
+    # A ROS 1 bag file stays refused by its suffix, in one line.
+    ros1 = named.parent / 'old.bag'
+    ros1.write_bytes(b'#ROSBAG V2.0\n')
+    with pytest.raises(BagError, match=r"is not a bag: expected a rosbag2 directory or a "
+                                       r"\.mcap/\.db3 file, got a '\.bag' file"):
+        with open_bag(ros1):
+            pass
+
+
 def test_open_missing_path(tmp_path):
     with pytest.raises(BagError, match=r"bag: '.*nothing' does not exist") as exc:
         with open_bag(tmp_path / 'nothing'):

@@ -196,8 +196,10 @@ def test_int_is_accepted_for_float_but_not_bool_for_int():
      r'\(23-126 deg, the range the focal calibration searches\), got 0.3'),
     # (a user test: degrees, and a 143-degree dashcam, got only 'a horizontal field of view')
     ({'camera': {'estimate_focal': True, 'nominal_fov': 90.0}},
-     r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view of at most 4 '
-     r'rad, 229 deg through a fisheye lens \(rad: 90 deg is 1.5708\), got 90.0'),
+     # (and a rectilinear lens's range first: a user test got the fisheye's alone)
+     r'camera.nominal_fov: expected 0 \(unknown\) or a horizontal field of view in radians '
+     r'\(90 deg is 1.5708\): 0.4-2.2 rad, through a fisheye lens \(distortion_model '
+     r'equidistant\) up to 4 rad, 229 deg, got 90.0'),
     ({'camera': {'estimate_focal': True, 'nominal_fov': 2.5}},
      r'camera.nominal_fov: .*wider: a fisheye lens, distortion_model equidistant\), got 2.5'),
     ({'camera': {'estimate_focal': True, 'nominal_fov': 0.3, 'distortion_model': 'equidistant',

@@ -43,6 +43,7 @@ from planar_vo.tools.fleet import (
     read_manifest,
     run_fleet,
 )
+from planar_vo.tools.fleet_report import bag_names
 from planar_vo.tools.record import record_drive
 
 ray = pytest.importorskip('ray', reason='the fleet extra is pinned in the Makefile (make venv)')
@@ -522,11 +523,14 @@ def test_a_fleet_whose_every_run_failed_exits_1(drives, tmp_path, capsys):
     manifest = tmp_path / 'bags.txt'
     manifest.write_text(f"{drives['missing']}\n")
     args = ['fleet', 'run', str(drives['truncated']), '--manifest', str(manifest), '--out',
-            str(tmp_path / 'o'), '--workers', '1', '--no-progress']
+            str(tmp_path / 'o'), '--workers', '1', '--retries', '0', '--no-progress']
     assert main(args) == 1
     captured = capsys.readouterr()
     assert '0 ok, 2 failed' in captured.out
     assert captured.err.strip() == 'planar_vo fleet run: error: all 2 runs failed'
+    # The report's command is the one that ran, --retries too (a user test: it was left out).
+    assert (f"--out {tmp_path / 'o'} --manifest {manifest} --workers 1 --retries 0\n"
+            in (tmp_path / 'o' / 'report.md').read_text())
 
 
 def test_replay_and_the_node_never_import_ray(drives, tmp_path):
@@ -700,6 +704,15 @@ def test_manifest_and_jobs(tmp_path):
     assert jobs[0].run_dir.startswith('runs/x-') and '/voting.bins=360-' in jobs[0].run_dir
 
 
+def test_bag_names_are_relative_to_a_common_folder_or_else_the_paths():
+    assert bag_names(['/d/x/k05', '/d/x/k06', '/d/y/k07']) == {
+        '/d/x/k05': 'x/k05', '/d/x/k06': 'x/k06', '/d/y/k07': 'y/k07'}
+    # Nothing in common but the root: the paths themselves (a user test: 'a/k05' for '/a/k05'
+    # read as a relative path).
+    assert bag_names(['/a/k05', '/b/k06']) == {'/a/k05': '/a/k05', '/b/k06': '/b/k06'}
+    assert bag_names(['/data/k05']) == {'/data/k05': 'k05'}
+
+
 def test_kitti_fields_are_the_evaluations_kitti_drift():
     # A 300 m straight estimated 1 % too long: KITTI t_rel is 1 %, r_rel 0.
     n = 301
@@ -828,8 +841,10 @@ def test_the_same_bag_twice_runs_once_and_the_repeat_is_said(drives, tmp_path, c
         jobs = plan_jobs([bag, tmp_path / 'link', storage, f'{bag}/'], configs)
     assert [j.bag for j in jobs] == [str(bag)]
     said = [r.getMessage() for r in caplog.records]
+    # (the same path spelled another way too: 'k06/' after 'k06'; a user test)
     assert said == [f"BAG: '{tmp_path / 'link'}' is the bag '{bag}' again; it runs once",
-                    f"BAG: '{storage}' is the bag '{bag}' again; it runs once"]
+                    f"BAG: '{storage}' is the bag '{bag}' again; it runs once",
+                    f"BAG: '{bag}/' is the bag '{bag}' again; it runs once"]
     # The files of a split recording are different data (a review: only the first ran).
     split = tmp_path / 'split'
     split.mkdir()

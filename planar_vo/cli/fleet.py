@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
                          f"feed (configuration '{speed[0]}'); use planar_vo replay "
                          f'--speed-topic per bag, or another scale.source')
     command = ['planar_vo', 'fleet', 'run', *args.bags, '--out', args.out]
-    for flag in ('manifest', 'config', 'address', 'workers', 'image_topic',
+    for flag in ('manifest', 'config', 'address', 'workers', 'retries', 'image_topic',
                  'camera_info_topic'):
         if getattr(args, flag) is not None:
             command += [f'--{flag.replace("_", "-")}', str(getattr(args, flag))]

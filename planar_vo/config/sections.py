@@ -122,9 +122,10 @@ class CameraConfig(Options):
     # The declared range (ros2 param describe) is the fisheye's; `validate` narrows it for a
     # rectilinear lens. Beyond it, most likely degrees: the text says how many radians 90 is.
     nominal_fov: float = bounded(0.0, 0.0, NOMINAL_FOV_RANGE['equidistant'][1],
-                                 expected='0 (unknown) or a horizontal field of view of at most '
-                                          '4 rad, 229 deg through a fisheye lens (rad: 90 deg is '
-                                          '1.5708)')
+                                 expected='0 (unknown) or a horizontal field of view in '
+                                          'radians (90 deg is 1.5708): 0.4-2.2 rad, through a '
+                                          'fisheye lens (distortion_model equidistant) up to 4 '
+                                          'rad, 229 deg')
     nominal_fov_std: float = bounded(0.0, 0.0, 1.0,
                                      expected='0 (not said) or a standard deviation of the '
                                               'field of view of at most 1 rad')

@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
+from rosbags.rosbag2 import Reader as Rosbag2Reader
 from rosbags.typesys import Stores, get_typestore
 
 from planar_vo.errors import BagError, one_line
@@ -209,8 +210,12 @@ def open_bag(path: str | Path) -> Iterator[BagReader]:
     if path.is_file() and path.suffix not in BAG_SUFFIXES:
         raise BagError(f"bag: '{path}' is not a bag: expected a rosbag2 directory or a "
                        f"{'/'.join(BAG_SUFFIXES)} file, got a '{path.suffix}' file")
-    reader = AnyReader([path], default_typestore=TYPESTORE)
     try:
+        reader = AnyReader([path], default_typestore=TYPESTORE)
+        if path.is_dir() and not reader.is2:
+            # rosbags takes every path ending in '.bag' for a ROS 1 bag file; a rosbag2
+            # directory may be named so (``import-kitti seq --out drive.bag``: replay refused it).
+            reader.is2, reader.readers = True, [Rosbag2Reader(path)]
         reader.open()
     except Exception as err:           # noqa: BLE001 - rosbags raises many types on damaged files
         raise BagError(f"bag: cannot open '{path}': corrupt, truncated or not a ROS 2 bag "

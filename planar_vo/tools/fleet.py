@@ -268,7 +268,7 @@ def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig], *,
         identity = bag_identity(bag)
         if identity not in seen:
             seen[identity] = bag
-        elif bag != seen[identity]:
+        else:           # (also the same spelling again, or 'k06/' after 'k06': a user test)
             log.warning("BAG: '%s' is the bag '%s' again; it runs once", given, seen[identity])
     paths = list(seen.values())
     jobs = []

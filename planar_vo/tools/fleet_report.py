@@ -90,11 +90,14 @@ def _figure(width: float, height: float):
 
 
 def bag_names(bags: Sequence[str]) -> dict[str, str]:
-    """Short names of bag paths: relative to their deepest common folder."""
+    """Short names of bag paths: relative to their deepest common folder; the paths as they
+    are when that is the root (a user test: 'data/k05' for '/data/k05' read as relative)."""
     bags = list(dict.fromkeys(bags))
     if not bags:
         return {}
     base = os.path.commonpath([str(Path(b).parent) for b in bags])
+    if Path(base) == Path(base).parent:             # nothing in common but the root
+        return {b: b for b in bags}
     return {b: os.path.relpath(b, base) for b in bags}
 
 

@@ -496,7 +496,7 @@ class OnlineFocalCalibrator:
         """One line for logs and the status topic, e.g. ``focal length 712.3 +- 4.1 px
         (self-calibrated at frame 143)`` (``..., updated at frame 180)`` once a later block
         moved it) or ``focal length 1241.0 +- 702.3 px (provisional, 2 of 4 blocks)`` /
-        ``(provisional, calibration 651.2 +- 9.9 %, adopted at 2 %)`` / ``(provisional: no
+        ``(provisional, calibration 651.2 +- 9.9 %, adopted below 2 %)`` / ``(provisional: no
         turn to calibrate from yet: an assumed 53-degree field of view, 0 of 4 blocks)``."""
         if self.adopted is not None:
             updated = '' if self.updated_at is None else f', updated at frame {self.updated_at}'
@@ -521,7 +521,7 @@ class OnlineFocalCalibrator:
         else:
             estimate, std, info = self.estimate()
             why = ('the calibration at the edge of its range' if info.get('edge', True) else
-                   f'calibration {estimate:.1f} +- {100.0 * std / estimate:.1f} %, adopted at '
+                   f'calibration {estimate:.1f} +- {100.0 * std / estimate:.1f} %, adopted below '
                    f'{100.0 * self.tolerance:g} %')
         if self.revoked_at is not None:
             why += f'; an adopted value revoked at frame {self.revoked_at}'
