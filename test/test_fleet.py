@@ -242,6 +242,35 @@ def test_rerun_skips_complete_results_without_starting_ray(drives, fleet_run, tm
     assert (summary['run']['skipped'], summary['run']['ran']) == (12, 0)
 
 
+def test_a_stop_while_the_summary_is_written_waits_for_its_files(
+        drives, fleet_run, tmp_path, monkeypatch):
+    """A (second) Ctrl-C in the summary's plotting: summary.json and report.md are written
+    together, then the stop is raised (a user test: a stale report.md beside a new
+    summary.json)."""
+    import planar_vo.tools.fleet_report as fleet_report
+    from planar_vo.io.outputs import stop_signals_interrupt
+
+    out = tmp_path / 'out'
+    shutil.copytree(fleet_run[0], out)
+    (out / 'report.md').write_text('stale\n')
+    (out / 'summary.json').write_text('{}')
+    configs = config_grid(load_config(drives['config']), GRID[1:])
+    jobs = plan_jobs([drives['drive_a'], drives['drive_b']], configs)     # all complete
+    plot_drift = fleet_report.plot_drift
+
+    def interrupted_plot(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)
+        return plot_drift(*args, **kwargs)
+
+    monkeypatch.setattr(fleet_report, 'plot_drift', interrupted_plot)
+    with stop_signals_interrupt(), pytest.raises(KeyboardInterrupt, match='SIGINT'):
+        run_fleet(jobs, out, command=['planar_vo', 'fleet', 'run'])
+    summary = _summary(out)
+    assert len(summary['rows']) == 4 and summary['run']['skipped'] == 4
+    report = (out / 'report.md').read_text()
+    assert report.startswith('# planar_vo fleet run') and '## Runs' in report
+
+
 def test_partial_stale_and_corrupt_results_are_not_trusted(drives, fleet_run, tmp_path):
     out = tmp_path / 'out'
     shutil.copytree(fleet_run[0], out)
@@ -711,6 +740,19 @@ def test_bag_names_are_relative_to_a_common_folder_or_else_the_paths():
     # read as a relative path).
     assert bag_names(['/a/k05', '/b/k06']) == {'/a/k05': '/a/k05', '/b/k06': '/b/k06'}
     assert bag_names(['/data/k05']) == {'/data/k05': 'k05'}
+
+
+def test_thumbnail_titles_fit_their_panels():
+    """(a user test: a long bag name ran into the next panel's title)"""
+    from planar_vo.tools.fleet_report import _TITLE_WIDTH, _panel_title
+
+    bag = '/very/long/folder/of/the/drives/2026-11-28/drive_front_camera_left'
+    row = {'bag': bag, 'config': 'voting.bins=360'}
+    title = _panel_title(row, {bag: bag}, 2)
+    lines = title.split('\n')
+    assert max(len(line) for line in lines) <= _TITLE_WIDTH
+    assert ''.join(lines[:-1]) == bag and lines[-1] == '[voting.bins=360]'
+    assert _panel_title(row, {bag: 'k05'}, 1) == 'k05'
 
 
 def test_kitti_fields_are_the_evaluations_kitti_drift():

@@ -72,7 +72,7 @@ from planar_vo.errors import (
     one_line,
     plural,
 )
-from planar_vo.io.outputs import interrupt_signal
+from planar_vo.io.outputs import deferred_interrupts, interrupt_signal
 from planar_vo.tools.fleet_report import bag_names, write_json, write_summary
 from planar_vo.tools.provenance import bag_information, code_digest, evaluation_provenance
 
@@ -882,5 +882,8 @@ def _run_fleet(jobs: Sequence[FleetJob], out_dir: Path, address: str | None, wor
     run.records = [records[i] for i in sorted(records)]
     run.ran = len(records) - run.skipped
     run.wall_s = time.perf_counter() - start
-    run.files = write_summary(out_dir, run.records, run.summary(), command)
+    with deferred_interrupts():
+        # A (second) Ctrl-C while the summary is written waits for its files (a user test: it
+        # left the last run's report.md beside a new summary.json), then stops.
+        run.files = write_summary(out_dir, run.records, run.summary(), command)
     return run

@@ -16,6 +16,7 @@ import json
 import math
 import os
 import shlex
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -106,6 +107,19 @@ def _label(row: dict, names: dict[str, str], configs: int) -> str:
     return f'{name} [{row["config"]}]' if configs > 1 else name
 
 
+# Characters of a thumbnail's title line at its font size (a panel is 2.2 in wide).
+_TITLE_WIDTH = 34
+
+
+def _panel_title(row: dict, names: dict[str, str], configs: int) -> str:
+    """`_label` in lines that fit a thumbnail (a user test: long names ran into the next
+    panel's): the name wrapped (a path anywhere), the configuration on a line of its own."""
+    lines = textwrap.wrap(names[row['bag']], _TITLE_WIDTH, break_long_words=True) or ['']
+    if configs > 1:
+        lines += textwrap.wrap(f'[{row["config"]}]', _TITLE_WIDTH, break_long_words=True)
+    return '\n'.join(lines)
+
+
 def plot_drift(rows: Sequence[dict], path: Path, names: dict[str, str], configs: Sequence[str]
                ) -> Path | None:
     """Bars per bag (coloured by configuration): ATE after sim(3) alignment in % of the path,
@@ -154,7 +168,7 @@ def plot_thumbnails(records: Sequence[dict], path: Path, names: dict[str, str], 
         ax.plot([p[0] for p in ref], [p[1] for p in ref], '-', color='0.4', lw=1.5)
         ax.plot([p[0] for p in est], [p[1] for p in est], '-', color='tab:red', lw=0.9)
         ax.set_aspect('equal', adjustable='datalim')
-        ax.set_title(_label(record['row'], names, configs), fontsize=7)
+        ax.set_title(_panel_title(record['row'], names, configs), fontsize=7)
         ax.tick_params(labelsize=6)
         if k % cols == 0:
             ax.set_ylabel('y (m)', fontsize=6)
