@@ -512,6 +512,37 @@ def test_replay_interrupted_before_any_motion_writes_no_tum_file(tmp_path, rng):
     assert not tum.exists() and len(_read_odometry(tmp_path / 'out')) == 1
 
 
+def test_a_replay_stopped_early_marks_its_bag_partial_and_eval_warns(tmp_path, rng, caplog):
+    """A user test: an interrupted replay's bag could not be told from a complete one (no
+    mark, no focal length), and eval scored it without a word."""
+    from planar_vo.tools.provenance import bag_custom_data
+
+    in_bag, _ = _replay_input(tmp_path / 'in', 'mcap', rng)
+    double = ConstantVelocityDouble()
+    double.focal_status = lambda: 'focal length 30.0 px (CameraInfo)'
+    real = double.process
+
+    def stopped(image, stamp, camera):
+        if len(double.calls) == 6:              # the 8th frame (frame 4 is a bad image)
+            raise KeyboardInterrupt('SIGINT')
+        return real(image, stamp, camera)
+
+    double.process = stopped
+    with pytest.raises(KeyboardInterrupt):
+        replay_bag(in_bag, tmp_path / 'out', double, progress=False)
+    custom = bag_custom_data(tmp_path / 'out')
+    # (8 frames read: the summary's 'frames in', the last one stopped while processed)
+    assert custom['planar_vo.partial'] == '8 of 10 frames (the replay was interrupted)'
+    assert custom['planar_vo.focal'] == 'focal length 30.0 px (CameraInfo)'
+    with caplog.at_level('WARNING', logger='planar_vo'):
+        main(['eval', str(tmp_path / 'out'), '--out-dir', str(tmp_path / 'ev')])
+    assert ('EST covers part of its drive: 8 of 10 frames (the replay was interrupted); the '
+            'evaluation covers those frames only') in caplog.text
+    # A complete replay carries no mark.
+    replay_bag(in_bag, tmp_path / 'whole', ConstantVelocityDouble(), progress=False)
+    assert 'planar_vo.partial' not in bag_custom_data(tmp_path / 'whole')
+
+
 @pytest.mark.parametrize('storage', STORAGES)
 def test_replay_of_a_bag_corrupt_mid_way_keeps_what_was_written(tmp_path, rng, storage):
     gt = (lambda i, stamp: ('/ground_truth/odom', ODOM, stamp + 1, odometry_msg(stamp, 0.1 * i)))

@@ -88,6 +88,42 @@ def test_a_path_the_system_refuses_is_one_line_and_exit_1(capsys, tmp_path):
         assert err.count('\n') == 1 and 'File name too long' in err, err
 
 
+@pytest.mark.parametrize('signum, code', [('SIGINT', 130), ('SIGTERM', 143)])
+def test_a_stop_while_the_command_starts_is_one_line(capsys, monkeypatch, signum, code):
+    """A user test: Ctrl-C while the commands are imported (a fraction of a second) printed a
+    KeyboardInterrupt traceback. The handlers before the command are back afterwards."""
+    import signal
+
+    import planar_vo.cli as cli
+
+    build = cli.build_parser
+
+    def stopped_while_importing():
+        signal.raise_signal(signal.Signals[signum])
+        return build()
+
+    monkeypatch.setattr(cli, 'build_parser', stopped_while_importing)
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    assert main(['replay', 'in', '--out', 'out']) == code
+    assert capsys.readouterr().err == f'planar_vo: interrupted by {signum}\n'
+    assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_eval_into_a_closed_pipe_writes_its_files_and_exits_0(tmp_path):
+    """A user test: `eval --out-dir D | head -1` said 'error: Broken pipe' (exit 1) and D was
+    never written: the table came first."""
+    lines = [f'{t:.1f} {0.5 * t} 0 0 0 0 0 1' for t in range(20)]
+    for name in ('est.tum', 'gt.tum'):
+        (tmp_path / name).write_text('\n'.join(lines) + '\n')
+    proc = subprocess.Popen([sys.executable, '-m', 'planar_vo', 'eval', str(tmp_path / 'est.tum'),
+                             '--gt', str(tmp_path / 'gt.tum'), '--out-dir', str(tmp_path / 'd')],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()                       # the reader is gone before the first line
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0 and 'Broken pipe' not in err, err
+    assert (tmp_path / 'd' / 'metrics.json').stat().st_size > 0
+
+
 def test_python_dash_m_entry_point():
     proc = subprocess.run([sys.executable, '-m', 'planar_vo', '--version'],
                           capture_output=True, text=True, timeout=60)

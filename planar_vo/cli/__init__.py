@@ -13,11 +13,15 @@ and one line says what was kept.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
+import os
 import re
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 
 from planar_vo import __version__
 from planar_vo.errors import PlanarVoError, one_line
@@ -111,6 +115,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _reader_gone() -> int:
+    """Exit code 0 when the reader of stdout went away (``planar_vo eval ... | head -1``):
+    the command's outputs are written before its last lines are printed (a user test: 'error:
+    Broken pipe'); stdout goes to the null device, where Python flushes it at exit."""
+    with contextlib.suppress(OSError, ValueError):
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, sys.stdout.fileno())
+    return 0
+
+
+def _stop_early(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _signal_of(err: KeyboardInterrupt) -> signal.Signals:
+    name = str(err)
+    return signal.Signals[name] if name in signal.Signals.__members__ else signal.SIGINT
+
+
+@contextlib.contextmanager
+def _early_stops() -> Iterator[None]:
+    """SIGINT and SIGTERM raise a ``KeyboardInterrupt`` naming them while the command starts
+    (standard library only: `planar_vo.io.outputs`, whose handlers take over for the run,
+    imports rosbags and numpy); the previous handlers come back after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, _stop_early) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
 def relabel(err: PlanarVoError, names: dict[str, str]) -> None:
     """If `err` starts with one of the keys of `names` (``'speed_topic: ...'``), name it
     ``names[key]`` instead (``'--speed-topic: ...'``)."""
@@ -140,27 +179,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     128 + the signal number when stopped by SIGINT (130) or SIGTERM (143): both are
     handled alike, outputs are finished or removed and one line says what was kept.
     """
-    from planar_vo.io.outputs import interrupt_signal, stop_signals_interrupt
-
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=(logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)],
-                        format='%(levelname)s %(name)s: %(message)s')
-    from planar_vo.pipeline.threads import limit_blas_threads
-
-    limit_blas_threads()        # idle OpenBLAS workers busy-wait: one thread is faster here
-    command = args.parser.prog       # the command as typed: 'planar_vo bench drives'
-    with stop_signals_interrupt():
+    with _early_stops():
         try:
-            return int(args.run(args) or 0)
-        except (PlanarVoError, OSError) as err:
-            if isinstance(err, PlanarVoError):
-                relabel(err, _typed_names(args.parser))
-            # OSError: a path the system refuses (no permission, a name too long, a full disk)
-            # that no check of ours named first.
-            print(_with_notes(f'{command}: error: {err}', err), file=sys.stderr)
-            return 1
+            # Importing every command takes a fraction of a second (numpy, OpenCV, rosbags): a
+            # stop signal then is one line too (a user test: a KeyboardInterrupt traceback).
+            from planar_vo.io.outputs import interrupt_signal, stop_signals_interrupt
+
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            logging.basicConfig(
+                level=(logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)],
+                format='%(levelname)s %(name)s: %(message)s')
+            from planar_vo.pipeline.threads import limit_blas_threads
+
+            limit_blas_threads()    # idle OpenBLAS workers busy-wait: one thread is faster here
         except KeyboardInterrupt as err:
-            signum = interrupt_signal(err)
-            print(_with_notes(f'{command}: interrupted by {signum.name}', err), file=sys.stderr)
+            signum = _signal_of(err)
+            print(f'planar_vo: interrupted by {signum.name}', file=sys.stderr)
             return 128 + signum.value
+        command = args.parser.prog   # the command as typed: 'planar_vo bench drives'
+        with stop_signals_interrupt():
+            try:
+                return int(args.run(args) or 0)
+            except BrokenPipeError:
+                return _reader_gone()
+            except (PlanarVoError, OSError) as err:
+                if isinstance(err, PlanarVoError):
+                    relabel(err, _typed_names(args.parser))
+                # OSError: a path the system refuses (no permission, a name too long, a full disk)
+                # that no check of ours named first.
+                print(_with_notes(f'{command}: error: {err}', err), file=sys.stderr)
+                return 1
+            except KeyboardInterrupt as err:
+                signum = interrupt_signal(err)
+                print(_with_notes(f'{command}: interrupted by {signum.name}', err), file=sys.stderr)
+                return 128 + signum.value

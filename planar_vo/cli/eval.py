@@ -322,8 +322,8 @@ def run(args: argparse.Namespace) -> int:
             import logging
 
             logging.getLogger('planar_vo.eval').warning(
-                'EST was replayed from an import cut short: %s; the evaluation covers those '
-                'frames only', cut)
+                'EST covers part of its drive: %s; the evaluation covers those frames only',
+                cut)
     try:
         evaluation = evaluate(ref, est, align=args.align, max_diff=args.max_diff,
                               segment_lengths=tuple(args.segments),
@@ -337,10 +337,10 @@ def run(args: argparse.Namespace) -> int:
                         f'--align origin',)
         raise
     _warn_few_matched(evaluation, est, ref, args.max_diff)
-    print(f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''))
-    print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
-    print(evaluation.format_table())
+    written = []
     if args.out_dir:
+        # The files first, the table after (a user test: `eval --out-dir D | head -1` closed
+        # the pipe on the table and D was never written).
         from planar_vo.tools.evaluation.report import read_as
         from planar_vo.tools.provenance import evaluation_provenance
 
@@ -360,5 +360,9 @@ def run(args: argparse.Namespace) -> int:
         written = write_report(evaluation, args.out_dir, estimate=Path(args.est).resolve(),
                                reference=Path(gt_path).resolve(), read_as=options,
                                **evaluation_provenance(args.est))
+    print(f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''))
+    print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
+    print(evaluation.format_table())
+    if written:
         print(f'wrote {written[0]}, ' + ', '.join(p.name for p in written[1:]))
     return 0

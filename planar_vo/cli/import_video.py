@@ -7,8 +7,9 @@ self-calibration (camera.estimate_focal=true): it starts from the field of view 
 specification states (camera.nominal_fov, radians) when you give one, and needs turns to
 calibrate. Stamps are --start seconds plus each frame's time in the video (or its index over
 --rate-hz, which a folder of images needs). A video whose container counts its frames (MP4,
-MOV, AVI) and that decodes to fewer than 98 % of them (damaged or truncated) is refused:
-nothing is kept.
+MOV, AVI) and that decodes to more than 2 frames fewer (damaged or truncated: where a frame
+was lost cannot be told, and the frames after it would be stamped early) is refused: nothing is
+kept.
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ import logging
 import shutil
 import sqlite3
 import tempfile
+from collections.abc import Callable
 from contextlib import suppress
 from pathlib import Path
 from types import TracebackType
@@ -96,6 +97,9 @@ class BagWriter:
         self.counts: dict[str, int] = {}
         # Written to metadata.yaml's custom_data when the bag is finished (`close`).
         self.custom_data: dict[str, str] = {}
+        # Called with the exception that ends a ``with`` block early, before the bag is
+        # finished (e.g. to mark it partial in `custom_data`).
+        self.on_stop: Callable[[BaseException], None] | None = None
         self.kept = False
         self._writer: Writer | None = None
         self._tmp: Path | None = None
@@ -118,6 +122,8 @@ class BagWriter:
         if exc is None:
             self.close()
             return
+        if self.on_stop is not None:
+            self.on_stop(exc)
         try:                           # keep what was written readable; the original error wins
             self.close()
         except BagError as err:

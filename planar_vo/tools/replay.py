@@ -431,6 +431,22 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         warned_gap = False
         bar = tqdm(total=bag.count(image_topic), desc='replay', unit='frame', file=sys.stderr,
                    disable=not progress, leave=False)
+
+        def stopped(err: BaseException) -> None:
+            # The bag kept from a replay stopped early says so, as an import's (a user test: an
+            # interrupted replay could not be told from a complete one), and eval warns.
+            if str(err).startswith('out:'):
+                return                                     # (nothing is kept then)
+            why = 'interrupted' if isinstance(err, KeyboardInterrupt) else 'stopped by an error'
+            done = (f'{summary.frames_in} of {bag.count(image_topic)} frames (the replay was '
+                    f'{why})')
+            marks = [summary.partial_input, done]
+            writer.custom_data[PARTIAL_KEY] = '; '.join(m for m in marks if m)
+            focal = getattr(processor, 'focal_status', None)
+            if callable(focal):
+                writer.custom_data['planar_vo.focal'] = focal()
+
+        writer.on_stop = stopped
         try:
             with writer:
                 for topic in copy:
