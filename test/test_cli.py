@@ -105,6 +105,8 @@ def test_a_stop_while_the_command_starts_is_one_line(capsys, monkeypatch, signum
     monkeypatch.setattr(cli, 'build_parser', stopped_while_importing)
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     assert main(['replay', 'in', '--out', 'out']) == code
+    assert capsys.readouterr().err == f'planar_vo replay: interrupted by {signum}\n'
+    assert main(['-v', 'bench', 'paper']) == code
     assert capsys.readouterr().err == f'planar_vo: interrupted by {signum}\n'
     assert {s: signal.getsignal(s) for s in before} == before
 

@@ -125,13 +125,33 @@ def _reader_gone() -> int:
     return 0
 
 
+# The last stop signal `_stop_early` handled: a library that turns its KeyboardInterrupt into
+# its own loses the name (SIGTERM came back as a bare one, seen as SIGINT: exit 130).
+_EARLY: list[signal.Signals] = []
+
+
 def _stop_early(signum: int, frame: object) -> None:
+    _EARLY.append(signal.Signals(signum))
     raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _typed_command(argv: Sequence[str] | None) -> str:
+    """The command as typed before its parser exists: ``planar_vo``, ``planar_vo replay``,
+    ``planar_vo bench paper`` (the commands with subcommands: bench, fleet)."""
+    words = list(sys.argv[1:] if argv is None else argv)
+    parts = ['planar_vo']
+    if words and words[0] in COMMANDS:
+        parts.append(words[0])
+        if words[0] in ('bench', 'fleet') and len(words) > 1 and not words[1].startswith('-'):
+            parts.append(words[1])
+    return ' '.join(parts)
 
 
 def _signal_of(err: KeyboardInterrupt) -> signal.Signals:
     name = str(err)
-    return signal.Signals[name] if name in signal.Signals.__members__ else signal.SIGINT
+    if name in signal.Signals.__members__:
+        return signal.Signals[name]
+    return _EARLY[-1] if _EARLY else signal.SIGINT
 
 
 @contextlib.contextmanager
@@ -195,7 +215,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             limit_blas_threads()    # idle OpenBLAS workers busy-wait: one thread is faster here
         except KeyboardInterrupt as err:
             signum = _signal_of(err)
-            print(f'planar_vo: interrupted by {signum.name}', file=sys.stderr)
+            print(f'{_typed_command(argv)}: interrupted by {signum.name}', file=sys.stderr)
             return 128 + signum.value
         command = args.parser.prog   # the command as typed: 'planar_vo bench drives'
         with stop_signals_interrupt():
