@@ -34,7 +34,8 @@ from planar_vo.sim.drive import render_drive
 CAMERA = CameraModel.pinhole(640, 480, 500.0)
 HEIGHT = 1.65
 DRIVE = 'straight_turn'
-PIPELINE_RUNS = ('planar_vo', 'planar_vo_focal', 'planar_vo_focal_pp', 'planar_vo_focal_fov')
+PIPELINE_RUNS = ('planar_vo', 'planar_vo_focal', 'planar_vo_focal_pp', 'planar_vo_focal_fov',
+                 'planar_vo_focal_2pass')
 FOV = 2.0 * math.atan(320.0 / 500.0)        # CAMERA's horizontal field of view (rad)
 PEER_RUNS = tuple(f'{e}_{s}' for s in SOURCES for e in FIVE_POINT)
 
@@ -189,6 +190,15 @@ def test_planar_vo_runs_are_reported_with_their_focal_length(report):
     # The drive turns from its 4th metre: the first turning pair comes after a few frames.
     assert 3 <= bound['first_pair_frame'] < 15, bound
     assert 0 < bound['mean_deg'] < drive['runs']['planar_vo_focal']['yaw_change_error_deg']['mean']
+    # Two passes (replay --two-pass): the first pass's focal length from the first frame on,
+    # said in the report's table and beside the targets.
+    two = drive['runs']['planar_vo_focal_2pass']
+    assert two['focal_status'].endswith('; from a first pass over the whole recording)')
+    assert two['first_pass'].startswith(f"{drive['frames']} frames in ")
+    assert two['focal_in_use_px'] > 0 and two['odometry_pct'] > 90.0
+    text, _ = report
+    assert "| the first pass's, used from the first frame |" in text
+    assert '  - offline, two passes (replay --two-pass: the focal length of a first pass' in text
     six = drive['focal']['six_point']
     assert six['pairs'] == 14 and six['vote'] == 'median of the per-pair focal lengths'
     assert len(six['per_pair_px']) == 14

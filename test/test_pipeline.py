@@ -16,7 +16,7 @@ from planar_vo.config import PlanarVoConfig
 from planar_vo.core.camera import CameraModel
 from planar_vo.core.conventions import invert, mount_transform, planar_pose, yaw_of
 from planar_vo.core.trajectory import Trajectory
-from planar_vo.errors import ConfigError
+from planar_vo.errors import ConfigError, InputError
 from planar_vo.frontend import leveling_rotation
 from planar_vo.pipeline import DropReason, Stamp, TrackingState, VisualOdometry
 from planar_vo.pipeline.calibration import focal_pitch
@@ -721,6 +721,39 @@ def test_a_stated_field_of_view_is_where_the_focal_calibration_starts():
         assert all(r.ok for r in results[1:])
         runs[label] = _errors(trajectory, results)[1]
     assert runs['stated'] < 0.6 * runs['default'], runs
+
+
+def test_a_second_pass_starts_from_the_first_passes_focal_calibration():
+    # `replay --two-pass`: the first pass's calibration, finished (every queued pair
+    # profiled), is the second pass's from its first frame: its focal length, no pair added
+    # (the same frames' pairs would count twice), the status says where it comes from.
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    trajectory, images, _ = _drive('left')
+    first = VisualOdometry(config)
+    for t, image in zip(trajectory.stamps, images):
+        first.process(image, float(t))
+    cal = first.focal_calibrator
+    second = VisualOdometry(config)
+    with pytest.raises(ConfigError, match='whose first pass is finished'):
+        second.start_from_first_pass(cal)
+    cal.finish_first_pass()
+    assert cal.pending == 0 and cal.first_pass and cal.pairs >= 1
+    f, pairs, status = cal.provisional, cal.pairs, cal.status()
+    assert status.endswith('; from a first pass over the whole recording)')
+    with pytest.raises(ConfigError, match='camera.estimate_focal: expected true'):
+        VisualOdometry(PlanarVoConfig()).start_from_first_pass(cal)
+    second.start_from_first_pass(cal)
+    results = [second.process(images[0], float(trajectory.stamps[0]))]
+    assert second.camera.fx == f
+    with pytest.raises(InputError, match='expected no frame processed yet, got 1'):
+        second.start_from_first_pass(cal)
+    results += [second.process(image, float(t))
+                for t, image in zip(trajectory.stamps[1:], images[1:])]
+    assert all(r.ok for r in results[1:])
+    assert second.camera.fx == f and cal.pairs == pairs and second.focal_status() == status
+    assert cal.offer(0, np.zeros((99, 2)), np.zeros((99, 2)), np.zeros((99, 2, 2))) is False
+    assert cal.work(10.0) == 0
 
 
 def test_a_new_focal_length_carries_the_tilt_and_road_normal_measured_through_the_old_one(

@@ -184,6 +184,44 @@ def test_replay_camera_info_topic_beside_own_intrinsics_is_an_error(
         assert not (tmp_path / 'o').exists()
 
 
+def test_two_passes_use_the_whole_drives_focal_calibration_from_the_first_frame(
+        tmp_path, capsys, drive_bags):
+    """--two-pass (offline): the focal length self-calibrated over the whole bag is used from
+    the first frame on, its uncertainty in the covariance, no pair counted twice; the one-pass
+    replay runs on the wide prior (640 px for 500) until the turn."""
+    trajectory, bags = drive_bags
+    args = ['replay', str(bags['mcap']), '--set', 'mount.height=1.5', '--set',
+            'camera.estimate_focal=true', '--no-progress']
+    assert main([*args, '--out', str(tmp_path / 'one')]) == 0
+    one = capsys.readouterr().out
+    assert main([*args, '--out', str(tmp_path / 'two'), '--two-pass']) == 0
+    two = capsys.readouterr().out
+    assert 'first pass' not in one
+    assert re.search(rf'\n  first pass         {len(trajectory)} frames in [\d.]+ s: the focal '
+                     r'length calibrated over all of them, used from the first frame on\n', two)
+    camera = next(x for x in two.splitlines() if x.startswith('  camera      '))
+    assert camera.endswith('; from a first pass over the whole recording)')
+    from planar_vo.tools.provenance import bag_custom_data
+
+    assert bag_custom_data(tmp_path / 'two')['planar_vo.focal'] == camera.split(None, 1)[1]
+    errors = {}
+    for name in ('one', 'two'):
+        assert main(['eval', str(tmp_path / name), '--out-dir', str(tmp_path / f'{name}_ev')]) == 0
+        capsys.readouterr()
+        metrics = json.loads((tmp_path / f'{name}_ev' / 'metrics.json').read_text())
+        errors[name] = (metrics['yaw_change_error_deg']['mean'],
+                        metrics['ate_m']['rmse'] / metrics['path_length_m'])
+    # (measured: mean yaw-change error 0.032 against 0.29 deg, ATE 0.7 % against 8.2 %)
+    assert errors['two'][0] < 0.3 * errors['one'][0] and errors['two'][1] < 0.3 * errors['one'][1]
+    # Without the focal self-calibration there is nothing for a first pass to do.
+    assert main(['replay', str(bags['mcap']), '--out', str(tmp_path / 'x'), '--two-pass']) == 1
+    assert capsys.readouterr().err == (
+        "planar_vo replay: error: --two-pass: the first pass self-calibrates the focal length: "
+        "give --set camera.estimate_focal=true (with the bag's CameraInfo, or camera.fx, there "
+        'is nothing to calibrate)\n')
+    assert not (tmp_path / 'x').exists()
+
+
 def test_replay_without_odometry_says_why_and_exits_1(tmp_path, capsys, drive_bags):
     """A principal point outside the image: no camera model, every frame counted, the
     summary's odometry line says why (a user test found only the counts), and the command

@@ -320,6 +320,10 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
         bag = tmp / 'drive'
         import_kitti(source, bag, camera_height=height, progress=progress)
         calibrated = replay_planar_vo(bag, tmp / 'replayed', config, progress=progress)
+        # Offline, the focal length self-calibrated over the whole drive from its first frame.
+        two_pass = (replay_planar_vo(bag, tmp / 'two_pass', PlanarVoConfig.from_flat(
+            focal_settings), progress=progress, two_pass=True, label=FOCAL_2PASS_LABEL)
+            if focal else None)
 
         # One pass over the bag's frames: the stamps, the focal run and the peers.
         true_steps = np.linalg.norm(np.diff(seq.poses[:, :3, 3], axis=0), axis=1)
@@ -360,6 +364,8 @@ def run_drive(folder: Path, height: float, *, frames: int | None = None, peers: 
         runs['planar_vo_focal_pp'] = self_cal_pp.run.aligned(stamps)
     if self_cal_fov is not None:
         runs['planar_vo_focal_fov'] = self_cal_fov.run.aligned(stamps)
+    if two_pass is not None:
+        runs['planar_vo_focal_2pass'] = two_pass.aligned(stamps)
     if peer is not None:
         runs.update(peer.runs(stamps))
     out = {
@@ -453,6 +459,10 @@ class FrameRecorder:
     def add_speed(self, stamp: float, speed: float) -> None:
         self.processor.add_speed(stamp, speed)
 
+    def __getattr__(self, name: str):
+        # The rest is the processor's (its config, focal_status, start_from_first_pass).
+        return getattr(self.processor, name)
+
 
 def _pipeline_run(label: str, scale: str, stamps_s: Sequence[float], results: list,
                   extra: dict) -> OdometryRun:
@@ -470,20 +480,31 @@ def _scale_label(config) -> str:
     return f'own: {config.scale.source}, height {config.mount.height:g} m'
 
 
-def replay_planar_vo(bag: Path, out: Path, config, *, progress: bool = False) -> OdometryRun:
-    """planar_vo as a user runs it: `replay_bag` of the bag through `VisualOdometry(config)`."""
+def replay_planar_vo(bag: Path, out: Path, config, *, progress: bool = False,
+                     two_pass: bool = False, label: str = '') -> OdometryRun:
+    """planar_vo as a user runs it: `replay_bag` of the bag through `VisualOdometry(config)`
+    (``two_pass``: ``planar_vo replay --two-pass``, the focal length self-calibrated by a
+    first pass)."""
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.tools.replay import replay_bag
 
-    recorder = FrameRecorder(VisualOdometry(config))
-    summary = replay_bag(bag, out, recorder, progress=progress)
-    return _pipeline_run('planar_vo, shipped defaults + camera height (replay)',
-                         _scale_label(config), recorder.stamps, recorder.results,
-                         {'replay_wall_s': summary.wall_time, 'replay_frames': summary.frames_in,
-                          'replay_odometry': summary.odometry_out})
+    vo = VisualOdometry(config)
+    recorder = FrameRecorder(vo)
+    summary = replay_bag(bag, out, recorder, progress=progress, two_pass=two_pass)
+    extra = {'replay_wall_s': summary.wall_time, 'replay_frames': summary.frames_in,
+             'replay_odometry': summary.odometry_out}
+    cal = vo.focal_calibrator
+    if cal is not None:
+        extra.update(focal_status=vo.focal_status(), focal_in_use_px=float(vo.camera.fx),
+                     focal_in_use_std_px=float(vo.camera.fx * cal.relative_std),
+                     first_pass=summary.first_pass)
+    return _pipeline_run(label or 'planar_vo, shipped defaults + camera height (replay)',
+                         _scale_label(config), recorder.stamps, recorder.results, extra)
 
 
 FOCAL_LABEL = 'planar_vo, self-calibrated focal (no CameraInfo)'
+FOCAL_2PASS_LABEL = ('planar_vo, self-calibrated focal, two passes (offline: replay --two-pass, '
+                     'no CameraInfo)')
 FOCAL_PP_LABEL = 'planar_vo, self-calibrated focal, principal point given (camera.cx, cy)'
 FOCAL_FOV_LABEL = 'planar_vo, self-calibrated focal, field of view given (camera.nominal_fov)'
 
@@ -732,6 +753,12 @@ def focal_table(drive: dict) -> str:
                 _fmt(_get(r, key, 'r_rel_deg_per_100m')),
                 _fmt(_get(r, f'{key}_se2', 'r_rel_deg_per_100m')), _fmt(_get(r, key, 't_rel_pct'))]
 
+    def two_passes(r: dict) -> list[str]:
+        f, std = r['focal_in_use_px'], r['focal_in_use_std_px']
+        return [r['label'], _fmt(f, 4), _fmt(100.0 * (f - true) / true),
+                "the first pass's, used from the first frame", _fmt(std),
+                _fmt(abs(f - true) / std), *odometry(r)]
+
     header = ['run', 'focal length (px)', 'error (%)', 'status', 'reported std (px)',
               'abs. error / std', 'frames with odometry (%)', 'yaw-change error (deg)',
               'r_rel 3D (deg/100 m)', 'r_rel SE(2) (deg/100 m)', 't_rel 3D (%)']
@@ -743,6 +770,8 @@ def focal_table(drive: dict) -> str:
         self_calibrated('planar_vo_focal_pp', 'principal_point_given'),
         *([self_calibrated('planar_vo_focal_fov', 'field_of_view_given')]
           if 'field_of_view_given' in drive['focal'] else []),
+        *([two_passes(drive['runs']['planar_vo_focal_2pass'])]
+          if 'planar_vo_focal_2pass' in drive['runs'] else []),
         [six['label'], _fmt(six['focal_px'], 4), _fmt(six['error_pct']),
          f"median of {six['pairs_with_focal']} of {six['pairs']} pairs (IQR {_fmt(q25)}-"
          f"{_fmt(q75)} px), {_fmt(six['estimator_ms_median'])} ms / pair", '-', '-',
@@ -824,6 +853,15 @@ def targets(drive: dict) -> str:
                 f"{_fmt(bound['mean_deg'])} deg, "
                 f"{_fmt(bound['mean_deg'] / _get(ours, 'yaw_change_error_deg', 'mean'))}x "
                 f'calibrated')
+        two = runs.get('planar_vo_focal_2pass')
+        if two is not None:
+            yaw = _get(two, 'yaw_change_error_deg', 'mean')
+            lines.append(
+                f"  - offline, two passes (replay --two-pass: the focal length of a first pass "
+                f"over the whole drive from the first frame on): {_fmt(yaw)} deg, "
+                f"{_fmt(yaw / _get(ours, 'yaw_change_error_deg', 'mean'))}x calibrated; t_rel "
+                f"3D {_fmt(_get(two, key, 't_rel_pct'))} %, frames without odometry "
+                f"{_fmt(100.0 - two['odometry_pct'])} %")
     return '\n'.join(lines)
 
 

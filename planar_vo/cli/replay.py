@@ -24,6 +24,7 @@ EXAMPLES = """examples:
   planar_vo replay drive.mcap --out drive_vo --set mount.height=1.65
   planar_vo replay drive_bag --out drive_vo --image-topic /cam/image_raw/compressed \\
       --speed-topic /vehicle/twist --tum drive_vo.tum --config config/planar_vo.yaml
+  planar_vo replay dashcam --out dashcam_vo --set camera.estimate_focal=true --two-pass
   planar_vo eval drive_vo --out-dir drive_eval
 """
 
@@ -56,6 +57,11 @@ def register(subparsers) -> argparse.ArgumentParser:
                              '(mount.height=1.65); repeatable')
     parser.add_argument('--storage', choices=list(STORAGES), default='mcap',
                         help='output storage format (default: mcap)')
+    parser.add_argument('--two-pass', action='store_true',
+                        help='with camera.estimate_focal: a first pass over the whole bag '
+                             'self-calibrates the focal length, and the odometry written is a '
+                             'second pass using it (and its uncertainty) from the first frame '
+                             'on (offline only: the node calibrates as it drives)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     parser.set_defaults(run=run)
     return parser
@@ -68,6 +74,12 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.tools.replay import replay_bag
 
     config = speed_scale(with_sets(args.config, args.set), args.speed_topic, args.set)
+    if args.two_pass and not config.camera.estimate_focal:
+        from planar_vo.errors import ConfigError
+
+        raise ConfigError('two_pass: the first pass self-calibrates the focal length: give '
+                          '--set camera.estimate_focal=true (with the bag\'s CameraInfo, or '
+                          'camera.fx, there is nothing to calibrate)')
     for item in args.set:
         key = item.partition('=')[0].strip()
         if key.startswith('ros.') and key not in REPLAY_ROS_KEYS:
@@ -81,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
             camera_info_topic=args.camera_info_topic, speed_topic=args.speed_topic,
             tum_path=args.tum, storage=args.storage, odom_topic=args.odom_topic,
             odom_frame=config.ros.odom_frame,
-            base_frame=config.ros.base_frame, progress=show_progress(args))
+            base_frame=config.ros.base_frame, progress=show_progress(args),
+            two_pass=args.two_pass)
     except BagError as err:
         partial = getattr(err, 'replay_summary', None)
         if partial is not None and partial.frames_in:

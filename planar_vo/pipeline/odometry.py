@@ -67,6 +67,7 @@ from planar_vo.errors import (
     CameraModelError,
     ConfigError,
     ImageError,
+    InputError,
     PlanarVoError,
     one_line,
 )
@@ -157,8 +158,10 @@ class VisualOdometry:
         self._image_size: tuple[int, int] | None = None  # the last image's (width, height)
         scale = self.config.scale
         self._speed = SpeedIntegrator(max_gap=scale.speed_max_gap)
-        # Created at the first image (they need its size) when the focal length is unknown.
+        # Created at the first image (they need its size) when the focal length is unknown,
+        # unless a first pass's is given (`start_from_first_pass`).
         self._focal: OnlineFocalCalibrator | None = None
+        self._first_pass: OnlineFocalCalibrator | None = None
         self._focal_stride: int | None = None
         self._turns: TurnPairSelector | None = None
         self._in_use: CameraModel | None = camera
@@ -273,6 +276,28 @@ class VisualOdometry:
         """The online focal calibration (``camera.estimate_focal`` without intrinsics), else
         None (also once a camera model replaced it)."""
         return self._focal if self._camera is None else None
+
+    def start_from_first_pass(self, calibrator: OnlineFocalCalibrator) -> None:
+        """Use the focal calibration of a first pass over the same recording from the first
+        frame on (``planar_vo replay --two-pass``): its focal length (adopted or provisional)
+        and its uncertainty, which enters the covariance as in the first pass; no pairs are
+        added (they are the first pass's again). Used when the images have its size.
+
+        Raises:
+            ConfigError: without ``camera.estimate_focal``, or a calibrator whose first pass is
+                not finished (`OnlineFocalCalibrator.finish_first_pass`).
+            InputError: frames were processed already.
+        """
+        if not self.config.camera.estimate_focal:
+            raise ConfigError('camera.estimate_focal: expected true to start from a first '
+                              "pass's focal self-calibration")
+        if not (isinstance(calibrator, OnlineFocalCalibrator) and calibrator.first_pass):
+            raise ConfigError('calibrator: expected an OnlineFocalCalibrator whose first pass '
+                              'is finished (finish_first_pass)')
+        if self._frames:
+            raise InputError(f'start_from_first_pass: expected no frame processed yet, got '
+                             f'{self._frames}')
+        self._first_pass = calibrator
 
     @property
     def road_normal(self) -> tuple[float, float, float]:
@@ -617,7 +642,8 @@ class VisualOdometry:
         self._lost = self._miss_run = 0
         R_lc = self._estimator.R_lc
         alpha, beta = planar_motion_from_pose(R_lc @ est.R @ R_lc.T, R_lc @ est.t)
-        if new_keyframe and self._focal is not None and self._camera is None:
+        if new_keyframe and self._focal is not None and self._camera is None \
+                and not self._focal.first_pass:
             t = time.perf_counter()
             self._offer_focal_pair(gray, camera, float(alpha))
             timings['focal'] = time.perf_counter() - t
@@ -739,18 +765,22 @@ class VisualOdometry:
                                                        c.distortion_model)
                                if c.nominal_fov > 0 else float(max(width, height)))
                     self._focal_stride = None
-                    self._focal = OnlineFocalCalibrator(
-                        width, height, nominal, pp_std=1.0 if c.cx and c.cy else None,
-                        prior_fov=field_of_view_for_focal(width, nominal, c.distortion_model),
-                        stated=c.nominal_fov > 0,
-                        prior_sigma=(prior_sigma_for_fov(c.nominal_fov, c.nominal_fov_std,
-                                                         c.distortion_model == 'equidistant')
-                                     if c.nominal_fov_std > 0 else None),
-                        prior_fov_std=c.nominal_fov_std,
-                        tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
-                        max_queue=c.focal_queue, block_frames=c.focal_block_frames,
-                        min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,
-                        config=self.config.voting)
+                    first, self._first_pass = self._first_pass, None
+                    if first is not None and (first.width, first.height) == (width, height):
+                        self._focal = first
+                    else:
+                        self._focal = OnlineFocalCalibrator(
+                            width, height, nominal, pp_std=1.0 if c.cx and c.cy else None,
+                            prior_fov=field_of_view_for_focal(width, nominal, c.distortion_model),
+                            stated=c.nominal_fov > 0,
+                            prior_sigma=(prior_sigma_for_fov(c.nominal_fov, c.nominal_fov_std,
+                                                             c.distortion_model == 'equidistant')
+                                         if c.nominal_fov_std > 0 else None),
+                            prior_fov_std=c.nominal_fov_std,
+                            tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
+                            max_queue=c.focal_queue, block_frames=c.focal_block_frames,
+                            min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,
+                            config=self.config.voting)
                     self._turns = TurnPairSelector(width)
                 f = self._focal.provisional
                 if self._in_use is not None:

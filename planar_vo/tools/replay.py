@@ -126,6 +126,7 @@ class ReplaySummary:
             node counts them).
         partial_input: the input's own record of an import cut short (``'F of N frames (the
             import was interrupted)'``, its ``metadata.yaml``), or empty.
+        first_pass: with ``two_pass``, what the first pass did (frames, seconds), else empty.
     """
 
     input: str
@@ -156,6 +157,7 @@ class ReplaySummary:
     not_copied: str = ''
     tum_note: str = ''
     partial_input: str = ''
+    first_pass: str = ''
 
     @property
     def motion_out(self) -> int:
@@ -205,6 +207,7 @@ class ReplaySummary:
                 if self.speed_errors else ''),
             f'  camera info errors {self.camera_info_errors}',
             f'  camera             {self.focal or "unknown"}',
+            *([f'  first pass         {self.first_pass}'] if self.first_pass else []),
             *([f'  scale              {self.scale}'] if self.scale else []),
             f'  step lengths       {sources}'
             + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups})')
@@ -299,7 +302,8 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                speed_topic: str | None = None, copy_topics: Iterable[str] | None = None,
                tum_path: str | Path | None = None, storage: str = 'mcap',
                odom_topic: str = '/odom', odom_frame: str = 'odom',
-               base_frame: str = 'base_link', progress: bool = True) -> ReplaySummary:
+               base_frame: str = 'base_link', progress: bool = True,
+               two_pass: bool = False) -> ReplaySummary:
     """Replay a bag's images through `processor` and write its odometry to a new bag.
 
     Args:
@@ -317,6 +321,11 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         storage: output storage, ``'mcap'`` or ``'sqlite3'``.
         odom_topic, odom_frame, base_frame: the output odometry topic and frame ids.
         progress: show a progress bar on stderr.
+        two_pass: with a `VisualOdometry` self-calibrating its focal length
+            (``camera.estimate_focal``), a first pass over every frame calibrates it, and the
+            odometry written is a second pass that uses that calibration (focal length and
+            uncertainty) from the first frame on (`VisualOdometry.start_from_first_pass`).
+            Offline only: the first frames' odometry then depends on later frames.
 
     Returns:
         A `ReplaySummary`.
@@ -367,6 +376,10 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             raise OutputError(f"tum: cannot write '{tum_path}' (its folder '{folder}' does not "
                               f'exist or is not writable)')
     config = getattr(processor, 'config', None)
+    if two_pass and not (isinstance(config, PlanarVoConfig) and config.camera.estimate_focal
+                         and hasattr(processor, 'start_from_first_pass')):
+        raise ConfigError('two_pass: expected a VisualOdometry with camera.estimate_focal (a '
+                          'first pass calibrates the focal length for the second)')
     own = _own_intrinsics(config) if isinstance(config, PlanarVoConfig) else ''
     if own and camera_info_topic is not None:
         raise ConfigError(f"camera_info_topic: '{camera_info_topic}' would not be used: {own} "
@@ -420,6 +433,9 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         # 16-bit grey images as the processor's configuration reads them (camera.mono16_bits).
         shift = config.camera.mono16_bits - 8 if isinstance(config, PlanarVoConfig) else 8
         rectified = isinstance(config, PlanarVoConfig) and config.camera.rectified
+        if two_pass:
+            summary.first_pass = _first_pass(bag, image_topic, processor, stamps_ns, speeds,
+                                             shift, progress)
         decoder = CameraFrameDecoder(bag, image_topic, info_topic, mono16_shift=shift,
                                      rectified=rectified)
         # VisualOdometry takes an undecodable image's error (`VisualOdometry.process`).
@@ -552,6 +568,43 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         summary.tum = None
     _fill(summary, processor, writer, copy, dropped, first, sources, decoder, start)
     return summary
+
+
+def _first_pass(bag, image_topic: str, processor, stamps_ns: list[int], speeds: list[float],
+                shift: int, progress: bool) -> str:
+    """`replay_bag`'s first pass (``two_pass``): a `VisualOdometry` of the processor's
+    configuration over every image (with the speeds), its focal calibration finished and handed
+    to ``processor``; returns the summary's line."""
+    from tqdm import tqdm
+
+    from planar_vo.pipeline import VisualOdometry
+
+    start = time.perf_counter()
+    first = VisualOdometry(processor.config)
+    decoder = CameraFrameDecoder(bag, image_topic, None, mono16_shift=shift)
+    decoder.prime()
+    frames, next_speed = 0, 0
+    with tqdm(total=bag.count(image_topic), desc='first pass', unit='frame', file=sys.stderr,
+              disable=not progress, leave=False) as bar:
+        for message in bag.messages([image_topic]):
+            frame = decoder.feed(message)
+            if frame is None:
+                continue
+            bar.update(1)
+            frames += 1
+            end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
+            for k in range(next_speed, end):
+                first.add_speed(stamps_ns[k] / 1_000_000_000, speeds[k])
+            next_speed = max(next_speed, end)
+            first.process(frame.image if frame.image is not None else ImageError(frame.error),
+                          frame.stamp, None)
+    calibrator = first.focal_calibrator
+    if calibrator is None:
+        return f'{frames} frames: no image to calibrate the focal length from'
+    calibrator.finish_first_pass()
+    processor.start_from_first_pass(calibrator)
+    return (f'{frames} frames in {time.perf_counter() - start:.1f} s: the focal length '
+            f'calibrated over all of them, used from the first frame on')
 
 
 def _fill(summary: ReplaySummary, processor, writer, copy, dropped, first, sources, decoder,

@@ -280,6 +280,7 @@ class OnlineFocalCalibrator:
         self.updated_at: int | None = None  # the last frame that changed the adopted value
         self.widened_at: int | None = None  # ... that widened its std beyond the tolerance
         self.revoked_at: int | None = None  # the frame an adopted value was last revoked at
+        self.first_pass = False             # `finish_first_pass`: final, takes no more pairs
 
     # -- input and work ------------------------------------------------------------------------
 
@@ -308,6 +309,8 @@ class OnlineFocalCalibrator:
             Whether it was queued: False with too few ACs (3 x ``config.min_inliers``) or a
             full queue (counted in `dropped`).
         """
+        if self.first_pass:
+            return False                     # (the same frames' pairs again: not counted twice)
         p1, p2, A, w, _ = check_inputs(p1, p2, A, weights, self.config)
         if len(p1) < 3 * self.config.min_inliers:
             return False
@@ -338,6 +341,8 @@ class OnlineFocalCalibrator:
         """
         if not (math.isfinite(steps) and steps >= 0):
             raise InputError(f'steps: expected a non-negative number of work steps, got {steps}')
+        if self.first_pass:
+            return 0
         self._frame = frame
         if self._job is None and not self._queue:
             self._credit = 0.0
@@ -350,6 +355,15 @@ class OnlineFocalCalibrator:
             done += 1
         self.steps += done
         return done
+
+    def finish_first_pass(self) -> None:
+        """Profile every pair still waiting, then take no more: the calibration of a first pass
+        over a whole recording (``planar_vo replay --two-pass``), which the second pass over
+        the same frames uses from its first frame on and keeps (their pairs would count twice).
+        `status` says so."""
+        while self.pending:
+            self.work(float(_STEP_WORK), self._frame)
+        self.first_pass = True
 
     def _step(self) -> None:
         if self._job is None:
@@ -497,7 +511,13 @@ class OnlineFocalCalibrator:
         (self-calibrated at frame 143)`` (``..., updated at frame 180)`` once a later block
         moved it) or ``focal length 1241.0 +- 702.3 px (provisional, 2 of 4 blocks)`` /
         ``(provisional, calibration 651.2 +- 9.9 %, adopted below 2 %)`` / ``(provisional: no
-        turn to calibrate from yet: an assumed 53-degree field of view, 0 of 4 blocks)``."""
+        turn to calibrate from yet: an assumed 53-degree field of view, 0 of 4 blocks)``; after
+        `finish_first_pass` ending in ``; from a first pass over the whole recording)``."""
+        line = self._status()
+        return line[:-1] + '; from a first pass over the whole recording)' if self.first_pass \
+            else line
+
+    def _status(self) -> str:
         if self.adopted is not None:
             updated = '' if self.updated_at is None else f', updated at frame {self.updated_at}'
             if self.widened_at is not None:
@@ -514,8 +534,8 @@ class OnlineFocalCalibrator:
                      if self.prior_fov_std else '')
             prior = (f"{'the stated' if self.stated else 'an assumed'} "
                      f'{math.degrees(self.prior_fov):.0f}{known}-degree field of view')
-            why = (f'no turn to calibrate from yet: {prior}, 0 of {self.min_blocks} '
-                   f'blocks')
+            why = (f"no turn to calibrate from{'' if self.first_pass else ' yet'}: {prior}, "
+                   f'0 of {self.min_blocks} blocks')
         elif blocks < self.min_blocks:
             why = f'{blocks} of {self.min_blocks} blocks'
         else:
