@@ -222,6 +222,31 @@ def test_two_passes_use_the_whole_drives_focal_calibration_from_the_first_frame(
     assert not (tmp_path / 'x').exists()
 
 
+def test_a_stop_in_the_first_pass_writes_nothing_and_says_so(tmp_path, drive_bags, monkeypatch):
+    from planar_vo.config import PlanarVoConfig
+    from planar_vo.pipeline import VisualOdometry
+    from planar_vo.tools.replay import replay_bag
+
+    _, bags = drive_bags
+    process = VisualOdometry.process
+    calls = []
+
+    def stopped(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 5:
+            raise KeyboardInterrupt('SIGINT')
+        return process(self, *args, **kwargs)
+
+    monkeypatch.setattr(VisualOdometry, 'process', stopped)
+    config = PlanarVoConfig.from_flat({'camera.estimate_focal': True})
+    with pytest.raises(KeyboardInterrupt) as exc:
+        replay_bag(bags['mcap'], tmp_path / 'out', VisualOdometry(config), progress=False,
+                   two_pass=True)
+    assert exc.value.__notes__ == [
+        f"in the first pass (--two-pass): nothing was written to '{tmp_path / 'out'}'"]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_replay_without_odometry_says_why_and_exits_1(tmp_path, capsys, drive_bags):
     """A principal point outside the image: no camera model, every frame counted, the
     summary's odometry line says why (a user test found only the counts), and the command

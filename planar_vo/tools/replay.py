@@ -434,8 +434,13 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
         shift = config.camera.mono16_bits - 8 if isinstance(config, PlanarVoConfig) else 8
         rectified = isinstance(config, PlanarVoConfig) and config.camera.rectified
         if two_pass:
-            summary.first_pass = _first_pass(bag, image_topic, processor, stamps_ns, speeds,
-                                             shift, progress)
+            try:
+                summary.first_pass = _first_pass(bag, image_topic, processor, stamps_ns,
+                                                 speeds, shift, progress)
+            except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
+                err.add_note(f"in the first pass (--two-pass): nothing was written to "
+                             f"'{out_path}'")
+                raise
         decoder = CameraFrameDecoder(bag, image_topic, info_topic, mono16_shift=shift,
                                      rectified=rectified)
         # VisualOdometry takes an undecodable image's error (`VisualOdometry.process`).
