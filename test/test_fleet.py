@@ -874,6 +874,28 @@ def test_local_runs_equal_rays_and_a_bag_without_motion_is_a_failed_row(
                                            f'runs in this process, without Ray\n')
 
 
+def test_two_pass_fleet_runs_are_replays_with_two_passes(drives, tmp_path, capsys):
+    """fleet run --two-pass: each bag replayed as `replay --two-pass`; refused for a
+    configuration that does not self-calibrate the focal length."""
+    from planar_vo.tools.provenance import bag_custom_data
+
+    args = ['fleet', 'run', str(drives['drive_c']), '--out', str(tmp_path / 'o'), '--config',
+            str(drives['config']), '--local', '--two-pass', '--no-progress']
+    assert main(args) == 1
+    assert capsys.readouterr().err == (
+        "planar_vo fleet run: error: --two-pass: the first pass self-calibrates the focal "
+        "length, which configuration 'fleet.yaml' does not: give --set "
+        'camera.estimate_focal=true\n')
+    assert main([*args, '--set', 'camera.estimate_focal=true']) == 0
+    capsys.readouterr()
+    (row,) = _summary(tmp_path / 'o')['rows']
+    assert row['status'] == 'ok'
+    focal = bag_custom_data(tmp_path / 'o' / row['run_dir'] / 'odometry')['planar_vo.focal']
+    assert focal.endswith('; from a first pass over the whole recording)')
+    assert '--local --two-pass --set camera.estimate_focal=true' in (
+        tmp_path / 'o' / 'report.md').read_text()
+
+
 def test_the_same_bag_twice_runs_once_and_the_repeat_is_said(drives, tmp_path, caplog):
     bag = Path(drives['drive_c'])
     (tmp_path / 'link').symlink_to(bag)

@@ -71,6 +71,10 @@ def register(subparsers) -> argparse.ArgumentParser:
     run_parser.add_argument('--camera-info-topic', metavar='TOPIC',
                             help="every bag's CameraInfo topic, as replay's (default: the only "
                                  'one, if any)')
+    run_parser.add_argument('--two-pass', action='store_true',
+                            help="as replay's: with camera.estimate_focal, a first pass over "
+                                 'each bag self-calibrates the focal length that the odometry '
+                                 'uses from its first frame on')
     run_parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     run_parser.set_defaults(run=run)
     return parser
@@ -135,10 +139,12 @@ def run(args: argparse.Namespace) -> int:
             command += [f'--{flag.replace("_", "-")}', str(getattr(args, flag))]
     if args.local:
         command.append('--local')
+    if args.two_pass:
+        command.append('--two-pass')
     for item in args.set:
         command += ['--set', item]
     jobs = plan_jobs(bags, configs, image_topic=args.image_topic,
-                     camera_info_topic=args.camera_info_topic)
+                     camera_info_topic=args.camera_info_topic, two_pass=args.two_pass)
     result = run_fleet(jobs, args.out, address=args.address, workers=args.workers,
                        retries=retries, progress=show_progress(args), command=command,
                        local=args.local)

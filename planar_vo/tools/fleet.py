@@ -228,6 +228,7 @@ class FleetJob:
         key: digest of the inputs (bag path, its files' sizes and times, configuration,
             topics, planar_vo's code): a ``result.json`` with another key is stale.
         image_topic, camera_info_topic: as ``planar_vo replay``'s (None: the only one).
+        two_pass: as ``planar_vo replay --two-pass`` (the focal self-calibration's first pass).
     """
 
     bag: str
@@ -236,6 +237,7 @@ class FleetJob:
     key: str
     image_topic: str | None = None
     camera_info_topic: str | None = None
+    two_pass: bool = False
 
     @property
     def label(self) -> str:
@@ -257,11 +259,22 @@ def bag_identity(path: str | Path) -> str:
 
 
 def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig], *,
-              image_topic: str | None = None, camera_info_topic: str | None = None
-              ) -> list[FleetJob]:
+              image_topic: str | None = None, camera_info_topic: str | None = None,
+              two_pass: bool = False) -> list[FleetJob]:
     """Every bag under every configuration, bag-major. The same bag given twice (another
     spelling, a symbolic link, its folder and its storage file) runs once, as first given, and
-    a warning names the repeat."""
+    a warning names the repeat. ``two_pass``: every replay as ``replay --two-pass`` (every
+    configuration must self-calibrate the focal length).
+
+    Raises:
+        ConfigError: ``two_pass`` with a configuration without ``camera.estimate_focal``.
+    """
+    if two_pass:
+        plain = [c.name for c in configs if not c.values['camera.estimate_focal']]
+        if plain:
+            raise ConfigError(f"two_pass: the first pass self-calibrates the focal length, "
+                              f"which configuration '{plain[0]}' does not: give --set "
+                              f'camera.estimate_focal=true')
     seen: dict[str, str] = {}                # identity -> the bag as first given
     for given in bags:
         bag = os.path.normpath(Path(given).expanduser().absolute())
@@ -280,8 +293,9 @@ def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig], *,
         for config in configs:
             run_dir = f'{bag_dir}/{_slug(config.name)}-{_digest(config.values)[:8]}'
             key = _digest({'bag': bag, 'files': files, 'config': config.values,
-                           'topics': topics, 'code': code_digest()})
-            jobs.append(FleetJob(bag, config, run_dir, key, image_topic, camera_info_topic))
+                           'topics': topics, 'two_pass': two_pass, 'code': code_digest()})
+            jobs.append(FleetJob(bag, config, run_dir, key, image_topic, camera_info_topic,
+                                 two_pass))
     return jobs
 
 
@@ -352,7 +366,7 @@ def _replay_and_evaluate(job: FleetJob, work: Path, row: dict) -> dict | None:
     summary = replay_bag(job.bag, odometry, VisualOdometry(config), tum_path=work / TUM,
                          image_topic=job.image_topic, camera_info_topic=job.camera_info_topic,
                          odom_frame=config.ros.odom_frame, base_frame=config.ros.base_frame,
-                         progress=False)
+                         progress=False, two_pass=job.two_pass)
     row.update(frames_in=summary.frames_in, odom_out=summary.odometry_out,
                drops=dict(sorted(summary.dropped.items())))
     if summary.unreadable:
