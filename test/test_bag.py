@@ -531,13 +531,15 @@ def test_a_replay_stopped_early_marks_its_bag_partial_and_eval_warns(tmp_path, r
     with pytest.raises(KeyboardInterrupt):
         replay_bag(in_bag, tmp_path / 'out', double, progress=False)
     custom = bag_custom_data(tmp_path / 'out')
-    # (8 frames read: the summary's 'frames in', the last one stopped while processed)
-    assert custom['planar_vo.partial'] == '8 of 10 frames (the replay was interrupted)'
+    # (the odometry messages, as the stop's line counts them: 7 frames processed, frame 4 a
+    # bad image)
+    assert custom['planar_vo.partial'] == ('odometry for 6 of 10 frames (the replay was '
+                                           'interrupted)')
     assert custom['planar_vo.focal'] == 'focal length 30.0 px (CameraInfo)'
     with caplog.at_level('WARNING', logger='planar_vo'):
         main(['eval', str(tmp_path / 'out'), '--out-dir', str(tmp_path / 'ev')])
-    assert ('EST covers part of its drive: 8 of 10 frames (the replay was interrupted); the '
-            'evaluation covers those frames only') in caplog.text
+    assert ('EST covers part of its drive: odometry for 6 of 10 frames (the replay was '
+            'interrupted); the evaluation covers those frames only') in caplog.text
     # A complete replay carries no mark.
     replay_bag(in_bag, tmp_path / 'whole', ConstantVelocityDouble(), progress=False)
     assert 'planar_vo.partial' not in bag_custom_data(tmp_path / 'whole')

@@ -498,7 +498,7 @@ def test_focal_calibration_uncertainty_is_honest_on_noisy_pairs():
             assert abs(cal.adopted - FOCAL) <= 3.0 * cal.adopted_std
         else:                                               # enough blocks, not precise enough
             assert cal.status().endswith(f'(provisional, calibration {f:.1f} +- '
-                                         f'{100 * std / f:.1f} %, adopted below 2 %)')
+                                         f'{100 * std / f:.1f} %, adopted once below 2 %)')
 
 
 def test_provisional_focal_uses_the_calibration_from_two_blocks_on():

@@ -902,6 +902,29 @@ def test_a_self_calibrating_odometry_goes_on_after_an_image_of_another_size():
     assert np.isfinite(results[-1].pose_covariance).all()
 
 
+def test_images_of_a_size_seen_before_resume_its_focal_calibration():
+    # Two frames of another size in a row are a new resolution (its own calibration); when
+    # the first size comes back, its calibration goes on where it was (a user test: it began
+    # again, and the drive's turn was lost to it and to a --two-pass replay).
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    trajectory, images, _ = _drive('left')
+    vo = VisualOdometry(config)
+    before = None
+    for k, (t, image) in enumerate(zip(trajectory.stamps, images)):
+        if k == 20:
+            before = (vo.focal_calibrator, vo.focal_calibrator.pairs + vo.focal_calibrator.pending)
+        if k in (20, 21):
+            image = cv2.resize(image, (320, 240), interpolation=cv2.INTER_AREA)
+        vo.process(image, float(t))
+        if k == 21:
+            assert (vo.focal_calibrator.width, vo.focal_calibrator.height) == (320, 240)
+    cal, seen = before
+    assert seen >= 1                                    # the turn had begun to calibrate it
+    assert vo.focal_calibrator is cal and cal.pairs + cal.pending >= seen
+    assert [(c.width, c.height) for c in vo.focal_calibrations] == [(320, 240), (640, 480)]
+
+
 def test_focal_status_names_the_source():
     trajectory, images, _ = _drive('straight')
     vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}))

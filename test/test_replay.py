@@ -198,12 +198,16 @@ def test_two_passes_use_the_whole_drives_focal_calibration_from_the_first_frame(
     two = capsys.readouterr().out
     assert 'first pass' not in one
     assert re.search(rf'\n  first pass         {len(trajectory)} frames in [\d.]+ s: the focal '
-                     r'length calibrated over all of them, used from the first frame on\n', two)
+                     r'length calibrated from \d+ turning pairs, used from the first frame on\n',
+                     two)
     camera = next(x for x in two.splitlines() if x.startswith('  camera      '))
     assert camera.endswith('; from a first pass over the whole recording)')
     from planar_vo.tools.provenance import bag_custom_data
 
-    assert bag_custom_data(tmp_path / 'two')['planar_vo.focal'] == camera.split(None, 1)[1]
+    made = bag_custom_data(tmp_path / 'two')
+    assert made['planar_vo.focal'] == camera.split(None, 1)[1]
+    assert two.split('\n  first pass         ')[1].startswith(made['planar_vo.first_pass'])
+    assert 'planar_vo.first_pass' not in bag_custom_data(tmp_path / 'one')
     errors = {}
     for name in ('one', 'two'):
         assert main(['eval', str(tmp_path / name), '--out-dir', str(tmp_path / f'{name}_ev')]) == 0

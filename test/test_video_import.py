@@ -360,7 +360,8 @@ def test_the_suggested_replay_writes_beside_the_bag(tmp_path, rng, capsys):
     assert main(['import-video', str(tmp_path / 'imgs'), '--out', f'{tmp_path / "dash"}/',
                  '--rate-hz', '10']) == 0
     assert (f'replay it with: planar_vo replay {tmp_path / "dash"} --out {tmp_path / "dash_vo"} '
-            f'--set mount.height=H --set camera.estimate_focal=true') in capsys.readouterr().out
+            f'--set mount.height=H --set camera.estimate_focal=true --two-pass\n'
+            ) in capsys.readouterr().out
 
 
 @pytest.mark.parametrize('names, match', [

@@ -460,7 +460,10 @@ class FrameRecorder:
         self.processor.add_speed(stamp, speed)
 
     def __getattr__(self, name: str):
-        # The rest is the processor's (its config, focal_status, start_from_first_pass).
+        # The rest is the processor's (its config, focal_status, start_from_first_pass); not
+        # before it is set (copy and pickle look attributes up on a bare instance).
+        if name == 'processor':
+            raise AttributeError(name)
         return getattr(self.processor, name)
 
 

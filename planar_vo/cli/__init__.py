@@ -26,7 +26,8 @@ from collections.abc import Iterator, Sequence
 from planar_vo import __version__
 from planar_vo.errors import PlanarVoError, one_line
 
-__all__ = ['CommandParser', 'Once', 'build_parser', 'main', 'relabel', 'show_progress']
+__all__ = ['CommandParser', 'Once', 'build_parser', 'main', 'print_final', 'relabel',
+           'show_progress']
 
 # Subcommand modules, in --help order.
 COMMANDS = ('demo', 'replay', 'eval', 'import-kitti', 'import-video', 'fleet', 'bench')
@@ -94,6 +95,18 @@ class Once(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
+def print_final(text: str) -> None:
+    """Print a command's last lines, once its outputs are written: a reader of stdout that
+    went away (``planar_vo eval ... | head -1``) is no error then (a user test: 'error: Broken
+    pipe', exit 1, for outputs that were complete). Stdout goes to the null device after, where
+    Python flushes it at exit. Lines printed while a command still works raise as before."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
 def show_progress(args: argparse.Namespace) -> bool:
     """Progress bars on stderr unless ``--no-progress`` or stderr is not a terminal (CI logs)."""
     return not getattr(args, 'no_progress', False) and sys.stderr.isatty()
@@ -113,16 +126,6 @@ def build_parser() -> argparse.ArgumentParser:
     for name in COMMANDS:
         importlib.import_module(f'planar_vo.cli.{name.replace("-", "_")}').register(subparsers)
     return parser
-
-
-def _reader_gone() -> int:
-    """Exit code 0 when the reader of stdout went away (``planar_vo eval ... | head -1``):
-    the command's outputs are written before its last lines are printed (a user test: 'error:
-    Broken pipe'); stdout goes to the null device, where Python flushes it at exit."""
-    with contextlib.suppress(OSError, ValueError):
-        null = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(null, sys.stdout.fileno())
-    return 0
 
 
 # The last stop signal `_stop_early` handled: a library that turns its KeyboardInterrupt into
@@ -168,6 +171,7 @@ def _early_stops() -> Iterator[None]:
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
+        _EARLY.clear()
 
 
 def relabel(err: PlanarVoError, names: dict[str, str]) -> None:
@@ -213,24 +217,25 @@ def main(argv: Sequence[str] | None = None) -> int:
             from planar_vo.pipeline.threads import limit_blas_threads
 
             limit_blas_threads()    # idle OpenBLAS workers busy-wait: one thread is faster here
+            command = args.parser.prog   # the command as typed: 'planar_vo bench drives'
+            with stop_signals_interrupt():
+                try:
+                    return int(args.run(args) or 0)
+                except (PlanarVoError, OSError) as err:
+                    if isinstance(err, PlanarVoError):
+                        relabel(err, _typed_names(args.parser))
+                    # OSError: a path the system refuses (no permission, a name too long, a
+                    # full disk) that no check of ours named first.
+                    print(_with_notes(f'{command}: error: {err}', err), file=sys.stderr)
+                    return 1
+                except KeyboardInterrupt as err:
+                    signum = interrupt_signal(err)
+                    print(_with_notes(f'{command}: interrupted by {signum.name}', err),
+                          file=sys.stderr)
+                    return 128 + signum.value
         except KeyboardInterrupt as err:
+            # While the command starts, or between its handlers and these (a review: a
+            # traceback in those windows).
             signum = _signal_of(err)
             print(f'{_typed_command(argv)}: interrupted by {signum.name}', file=sys.stderr)
             return 128 + signum.value
-        command = args.parser.prog   # the command as typed: 'planar_vo bench drives'
-        with stop_signals_interrupt():
-            try:
-                return int(args.run(args) or 0)
-            except BrokenPipeError:
-                return _reader_gone()
-            except (PlanarVoError, OSError) as err:
-                if isinstance(err, PlanarVoError):
-                    relabel(err, _typed_names(args.parser))
-                # OSError: a path the system refuses (no permission, a name too long, a full disk)
-                # that no check of ours named first.
-                print(_with_notes(f'{command}: error: {err}', err), file=sys.stderr)
-                return 1
-            except KeyboardInterrupt as err:
-                signum = interrupt_signal(err)
-                print(_with_notes(f'{command}: interrupted by {signum.name}', err), file=sys.stderr)
-                return 128 + signum.value

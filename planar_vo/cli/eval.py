@@ -360,9 +360,12 @@ def run(args: argparse.Namespace) -> int:
         written = write_report(evaluation, args.out_dir, estimate=Path(args.est).resolve(),
                                reference=Path(gt_path).resolve(), read_as=options,
                                **evaluation_provenance(args.est))
-    print(f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''))
-    print(f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''))
-    print(evaluation.format_table())
-    if written:
-        print(f'wrote {written[0]}, ' + ', '.join(p.name for p in written[1:]))
+    from planar_vo.cli import print_final
+
+    print_final('\n'.join([
+        f'estimate: {args.est}' + (f' ({args.est_topic})' if is_bag_path(args.est) else ''),
+        f'reference: {gt_path}' + (f' ({args.gt_topic})' if is_bag_path(gt_path) else ''),
+        evaluation.format_table(),
+        *([f'wrote {written[0]}, ' + ', '.join(p.name for p in written[1:])] if written
+          else [])]))
     return 0

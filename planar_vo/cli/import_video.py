@@ -5,7 +5,8 @@ stamped at the video's frame rate (or --rate-hz, which a folder of images needs)
 /camera/camera_info only when --fx is given. Without intrinsics, replay it with the focal
 self-calibration (camera.estimate_focal=true): it starts from the field of view the camera's
 specification states (camera.nominal_fov, radians) when you give one, and needs turns to
-calibrate. Stamps are --start seconds plus each frame's time in the video (or its index over
+calibrate (replay's --two-pass uses the whole recording's calibration from its first frame on).
+Stamps are --start seconds plus each frame's time in the video (or its index over
 --rate-hz, which a folder of images needs). A video whose container counts its frames (MP4,
 MOV, AVI) and that decodes to more than 2 frames fewer (damaged or truncated: where a frame
 was lost cannot be told, and the frames after it would be stamped early) is refused: nothing is
@@ -97,9 +98,10 @@ def run(args: argparse.Namespace) -> int:
     command = (f'planar_vo replay {shlex.quote(out)} --out {shlex.quote(out + "_vo")} '
                f'--set mount.height=H')
     if camera is None:
-        command += ' --set camera.estimate_focal=true'
+        command += ' --set camera.estimate_focal=true --two-pass'
     print(f'replay it with: {command}')
     print("  (H: the camera's height above the road in metres"
-          + ('; add --set camera.nominal_fov=RAD if its specification states a horizontal '
-             'field of view)' if camera is None else ')'))
+          + ('; --two-pass: the focal length self-calibrated over the whole recording, used '
+             'from its first frame on; add --set camera.nominal_fov=RAD if its specification '
+             'states a horizontal field of view)' if camera is None else ')'))
     return 0

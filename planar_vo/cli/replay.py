@@ -68,7 +68,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from planar_vo.cli import show_progress
+    from planar_vo.cli import print_final, show_progress
     from planar_vo.errors import BagError
     from planar_vo.pipeline import VisualOdometry
     from planar_vo.tools.replay import replay_bag
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
             # The counts of the frames replayed before the bag failed (the error follows).
             print(partial.format().replace('\n', ' (until the error below)\n', 1))
         raise
-    print(summary.format())
+    print_final(summary.format())
     if summary.no_motion:
         # The output bag is complete (the summary above says what it holds), but a script that
         # chains `replay && eval` must not go on as if there were motion in it.

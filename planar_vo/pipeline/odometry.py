@@ -161,7 +161,11 @@ class VisualOdometry:
         # Created at the first image (they need its size) when the focal length is unknown,
         # unless a first pass's is given (`start_from_first_pass`).
         self._focal: OnlineFocalCalibrator | None = None
-        self._first_pass: OnlineFocalCalibrator | None = None
+        # Every image size's calibration (the current one among them; at most
+        # _FOCAL_SIZES), so that images of a size seen before resume its calibration, and
+        # those of a first pass not yet used (`start_from_first_pass`).
+        self._calibrations: dict[tuple[int, int], OnlineFocalCalibrator] = {}
+        self._first_pass: dict[tuple[int, int], OnlineFocalCalibrator] = {}
         self._focal_stride: int | None = None
         self._turns: TurnPairSelector | None = None
         self._in_use: CameraModel | None = camera
@@ -277,11 +281,17 @@ class VisualOdometry:
         None (also once a camera model replaced it)."""
         return self._focal if self._camera is None else None
 
-    def start_from_first_pass(self, calibrator: OnlineFocalCalibrator) -> None:
-        """Use the focal calibration of a first pass over the same recording from the first
-        frame on (``planar_vo replay --two-pass``): its focal length (adopted or provisional)
-        and its uncertainty, which enters the covariance as in the first pass; no pairs are
-        added (they are the first pass's again). Used when the images have its size.
+    @property
+    def focal_calibrations(self) -> list[OnlineFocalCalibrator]:
+        """The focal self-calibration of every image size seen (the current one last)."""
+        return list(self._calibrations.values())
+
+    def start_from_first_pass(self, *calibrators: OnlineFocalCalibrator) -> None:
+        """Use the focal calibrations of a first pass over the same recording from the first
+        frame on (``planar_vo replay --two-pass``; `focal_calibrations`, one per image size):
+        its focal length (adopted or provisional) and its uncertainty, which enters the
+        covariance as in the first pass; no pairs are added (they are the first pass's again).
+        Each is used for the images of its size.
 
         Raises:
             ConfigError: without ``camera.estimate_focal``, or a calibrator whose first pass is
@@ -291,13 +301,14 @@ class VisualOdometry:
         if not self.config.camera.estimate_focal:
             raise ConfigError('camera.estimate_focal: expected true to start from a first '
                               "pass's focal self-calibration")
-        if not (isinstance(calibrator, OnlineFocalCalibrator) and calibrator.first_pass):
-            raise ConfigError('calibrator: expected an OnlineFocalCalibrator whose first pass '
-                              'is finished (finish_first_pass)')
+        for calibrator in calibrators:
+            if not (isinstance(calibrator, OnlineFocalCalibrator) and calibrator.first_pass):
+                raise ConfigError('calibrator: expected an OnlineFocalCalibrator whose first '
+                                  'pass is finished (finish_first_pass)')
         if self._frames:
             raise InputError(f'start_from_first_pass: expected no frame processed yet, got '
                              f'{self._frames}')
-        self._first_pass = calibrator
+        self._first_pass = {(c.width, c.height): c for c in calibrators}
 
     @property
     def road_normal(self) -> tuple[float, float, float]:
@@ -765,10 +776,13 @@ class VisualOdometry:
                                                        c.distortion_model)
                                if c.nominal_fov > 0 else float(max(width, height)))
                     self._focal_stride = None
-                    first, self._first_pass = self._first_pass, None
-                    if first is not None and (first.width, first.height) == (width, height):
-                        self._focal = first
-                    else:
+                    size = (width, height)
+                    # A first pass's calibration of this size, else this size's own from
+                    # before (a user test: two stray frames in a row, and the drive's turn was
+                    # lost when the old size came back), else a new one.
+                    self._focal = (self._first_pass.pop(size, None)
+                                   or self._calibrations.pop(size, None))
+                    if self._focal is None:
                         self._focal = OnlineFocalCalibrator(
                             width, height, nominal, pp_std=1.0 if c.cx and c.cy else None,
                             prior_fov=field_of_view_for_focal(width, nominal, c.distortion_model),
@@ -781,6 +795,9 @@ class VisualOdometry:
                             max_queue=c.focal_queue, block_frames=c.focal_block_frames,
                             min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,
                             config=self.config.voting)
+                    self._calibrations[size] = self._focal
+                    while len(self._calibrations) > _FOCAL_SIZES:
+                        del self._calibrations[next(iter(self._calibrations))]
                     self._turns = TurnPairSelector(width)
                 f = self._focal.provisional
                 if self._in_use is not None:
@@ -1918,6 +1935,9 @@ def _seconds(value: float) -> str:
 
 # The standard deviation of an angle uniform on the circle: no angle is less known.
 _UNIFORM_ANGLE_STD = math.pi / math.sqrt(3.0)
+# Image sizes whose focal self-calibration is kept (a memory bound: each holds up to
+# camera.focal_max_blocks profiles and its queue of pairs).
+_FOCAL_SIZES = 4
 # Frames before the previous one kept to catch an older image republished (A B A): 8 frames of
 # 1241x376 are 3.7 MB.
 _OLDER_FRAMES = 8

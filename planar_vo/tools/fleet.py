@@ -896,8 +896,12 @@ def _run_fleet(jobs: Sequence[FleetJob], out_dir: Path, address: str | None, wor
     run.records = [records[i] for i in sorted(records)]
     run.ran = len(records) - run.skipped
     run.wall_s = time.perf_counter() - start
-    with deferred_interrupts():
-        # A (second) Ctrl-C while the summary is written waits for its files (a user test: it
-        # left the last run's report.md beside a new summary.json), then stops.
-        run.files = write_summary(out_dir, run.records, run.summary(), command)
+    try:
+        with deferred_interrupts():
+            # A (second) Ctrl-C while the summary is written waits for its files (a user test:
+            # it left the last run's report.md beside a new summary.json), then the run
+            # returns as interrupted (a review: it was raised, without the table).
+            run.files = write_summary(out_dir, run.records, run.summary(), command)
+    except KeyboardInterrupt as err:
+        run.stop_signal = run.stop_signal or interrupt_signal(err)
     return run

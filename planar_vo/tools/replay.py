@@ -212,7 +212,8 @@ class ReplaySummary:
             f'  step lengths       {sources}'
             + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups})')
             + self._unit_note(),
-            f'  wall time          {self.wall_time:.2f} s',
+            f'  wall time          {self.wall_time:.2f} s'
+            + (' (both passes)' if self.first_pass else ''),
             f'  throughput         {self.throughput:.1f} frames/s',
         ]
         if self.tum:
@@ -437,6 +438,9 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             try:
                 summary.first_pass = _first_pass(bag, image_topic, processor, stamps_ns,
                                                  speeds, shift, progress)
+                # What made the odometry (a user test: two passes could not be told from one
+                # in the bag nor in eval's metrics.json).
+                writer.custom_data['planar_vo.first_pass'] = summary.first_pass
             except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
                 err.add_note(f"in the first pass (--two-pass): nothing was written to "
                              f"'{out_path}'")
@@ -459,8 +463,10 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             if str(err).startswith('out:'):
                 return                                     # (nothing is kept then)
             why = 'interrupted' if isinstance(err, KeyboardInterrupt) else 'stopped by an error'
-            done = (f'{summary.frames_in} of {bag.count(image_topic)} frames (the replay was '
-                    f'{why})')
+            # (the odometry messages, as the stop's line counts them: a user test found the
+            # frames read, one more, beside it)
+            done = (f'odometry for {writer.count} of {bag.count(image_topic)} frames (the '
+                    f'replay was {why})')
             marks = [summary.partial_input, done]
             writer.custom_data[PARTIAL_KEY] = '; '.join(m for m in marks if m)
             focal = getattr(processor, 'focal_status', None)
@@ -597,19 +603,32 @@ def _first_pass(bag, image_topic: str, processor, stamps_ns: list[int], speeds: 
                 continue
             bar.update(1)
             frames += 1
+            if frame.bad_stamp:
+                continue                          # (as in the second pass: not a time at all)
             end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
             for k in range(next_speed, end):
                 first.add_speed(stamps_ns[k] / 1_000_000_000, speeds[k])
             next_speed = max(next_speed, end)
             first.process(frame.image if frame.image is not None else ImageError(frame.error),
                           frame.stamp, None)
-    calibrator = first.focal_calibrator
-    if calibrator is None:
-        return f'{frames} frames: no image to calibrate the focal length from'
-    calibrator.finish_first_pass()
-    processor.start_from_first_pass(calibrator)
-    return (f'{frames} frames in {time.perf_counter() - start:.1f} s: the focal length '
-            f'calibrated over all of them, used from the first frame on')
+    seconds = time.perf_counter() - start
+    calibrations = first.focal_calibrations
+    if not calibrations:
+        return f'{frames} frames in {seconds:.1f} s: no image to calibrate the focal length from'
+    for calibrator in calibrations:
+        calibrator.finish_first_pass()
+    processor.start_from_first_pass(*calibrations)
+    # What each image size's calibration holds (a review and a user test: 'calibrated over all
+    # of them' was said of a drive without a turn, and of the last of two image sizes).
+    parts = [f"{plural(c.pairs, 'turning pair')}" if c.pairs else 'no turning pair'
+             for c in calibrations]
+    if len(calibrations) > 1:
+        parts = [f'{c.width}x{c.height}: {part}' for c, part in zip(calibrations, parts)]
+    if not any(c.pairs for c in calibrations):
+        return (f'{frames} frames in {seconds:.1f} s: no turning pair to calibrate the focal '
+                f'length from (it stays where it starts)')
+    return (f'{frames} frames in {seconds:.1f} s: the focal length calibrated from '
+            f"{', '.join(parts)}, used from the first frame on")
 
 
 def _fill(summary: ReplaySummary, processor, writer, copy, dropped, first, sources, decoder,

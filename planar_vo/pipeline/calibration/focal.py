@@ -510,7 +510,7 @@ class OnlineFocalCalibrator:
         """One line for logs and the status topic, e.g. ``focal length 712.3 +- 4.1 px
         (self-calibrated at frame 143)`` (``..., updated at frame 180)`` once a later block
         moved it) or ``focal length 1241.0 +- 702.3 px (provisional, 2 of 4 blocks)`` /
-        ``(provisional, calibration 651.2 +- 9.9 %, adopted below 2 %)`` / ``(provisional: no
+        ``(provisional, calibration 651.2 +- 9.9 %, adopted once below 2 %)`` / ``(provisional: no
         turn to calibrate from yet: an assumed 53-degree field of view, 0 of 4 blocks)``; after
         `finish_first_pass` ending in ``; from a first pass over the whole recording)``."""
         line = self._status()
@@ -541,8 +541,8 @@ class OnlineFocalCalibrator:
         else:
             estimate, std, info = self.estimate()
             why = ('the calibration at the edge of its range' if info.get('edge', True) else
-                   f'calibration {estimate:.1f} +- {100.0 * std / estimate:.1f} %, adopted below '
-                   f'{100.0 * self.tolerance:g} %')
+                   f'calibration {estimate:.1f} +- {100.0 * std / estimate:.1f} %, adopted '
+                   f'once below {100.0 * self.tolerance:g} %')
         if self.revoked_at is not None:
             why += f'; an adopted value revoked at frame {self.revoked_at}'
         return f'focal length {f:.1f} +- {f * self.relative_std:.1f} px (provisional, {why})'
