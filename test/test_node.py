@@ -938,6 +938,33 @@ def test_the_no_image_warning_comes_at_the_timeout_and_diagnostics_name_the_sile
 
 
 @pytest.mark.timeout(60)
+def test_each_reason_to_refuse_a_camera_info_is_said_once(local_node, drive_bag, monkeypatch):
+    """Refused CameraInfo messages are warned about once per reason within ros.warn_period (a
+    user test: fx = 50 px after a principal point outside the image was counted without a
+    word); the same reason with other numbers is held back."""
+    import copy
+
+    node = local_node(MOUNT_PARAMS)
+    said = []
+    monkeypatch.setattr(node.get_logger(), 'warning', said.append)
+    info, _ = _bag_messages(drive_bag, 1)
+    bad = []
+    for cx in (5000.0, 6000.0):                            # outside the image, twice
+        msg = copy.deepcopy(info)
+        msg.k[2] = msg.p[2] = cx
+        bad.append(msg)
+    for fx in (50.0, 40.0):                                # implausible focal lengths, twice
+        msg = copy.deepcopy(info)
+        msg.k[0] = msg.k[4] = msg.p[0] = msg.p[5] = fx
+        bad.append(msg)
+    for msg in bad:
+        node._on_camera_info(msg)
+    assert node._counters['camera_info_errors'] == 4
+    assert len(said) == 2 and all(s.startswith('ignoring camera_info: ') for s in said), said
+    assert said[0] != said[1].replace('40', '50')
+
+
+@pytest.mark.timeout(60)
 def test_frames_stamped_1_ns_apart_are_not_duplicates(local_node, drive_bag):
     """Header stamps 1 ns apart (the same float seconds at 1.7e9 s): the node hands the
     pipeline the integer nanoseconds, so every frame gets its odometry, stamped exactly."""
@@ -1703,13 +1730,15 @@ def test_arguments_outside_ros_args_are_one_line_and_exit_1(capsys):
 
 
 def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):
-    # The installed executable, and `python -m planar_vo.ros.node` (a user test found the
-    # module silently doing nothing: no __main__ guard).
+    # The installed executable, `python -m planar_vo.ros.node` and `python -m
+    # planar_vo.ros.startup` (user tests found each module silently doing nothing: no
+    # __main__ guard).
     import subprocess
 
     outputs = []
     for command in ([str(prefix / 'lib/planar_vo/planar_vo_node'), '--help'],
-                    [sys.executable, '-m', 'planar_vo.ros.node', '--help']):
+                    [sys.executable, '-m', 'planar_vo.ros.node', '--help'],
+                    [sys.executable, '-m', 'planar_vo.ros.startup', '--help']):
         proc = subprocess.run(command, env=ros_env, capture_output=True, text=True, timeout=60)
         assert proc.returncode == 0, proc.stderr
         assert proc.stdout.startswith('usage: ros2 run planar_vo planar_vo_node')
@@ -1720,7 +1749,7 @@ def test_help_prints_usage_and_exits_0_without_starting(prefix, ros_env):
             assert needle in proc.stdout, needle
         assert 'listening on' not in proc.stdout + proc.stderr
         outputs.append(proc.stdout)
-    assert outputs[0] == outputs[1]
+    assert outputs[0] == outputs[1] == outputs[2]
 
 
 def test_help_into_a_closed_pipe_ends_quietly(monkeypatch):

@@ -943,9 +943,13 @@ def test_focal_status_names_the_source():
         DropReason.NO_CAMERA_INFO
     assert other.focal_status() == ('focal length 250.0 px (CameraInfo, not used: it is 320x240, '
                                     'the images 640x480)')
+    # ... and the status values' source is 'unknown' then (a user test: 'camera_info', 250 px)
+    px, std, source = other.focal_length()
+    assert math.isnan(px) and std == math.inf and source == 'unknown'
     assert other.process(images[1], float(trajectory.stamps[1]), CAMERA).reason is \
         DropReason.FIRST_FRAME
     assert other.focal_status() == f'focal length {CAMERA.fx:.1f} px (CameraInfo)'
+    assert other.focal_length() == (CAMERA.fx, 0.0, 'camera_info')
 
 
 # ---------------------------------------------------------------------------------------------

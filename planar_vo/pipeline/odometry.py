@@ -325,18 +325,20 @@ class VisualOdometry:
         px (self-calibrated at frame 143)`` / ``... (provisional, 2 of 4 blocks)``."""
         if self._focal is not None and self._camera is None:
             return self._focal.status()
+        if self._unused_model():
+            # (a user test: a CameraInfo of another size was named the source while every frame
+            # was dropped for it)
+            source = self._model_origin()
+            origin = 'CameraInfo' if source == 'camera_info' else source
+            return (f'focal length {self._in_use.fx:.1f} px ({origin}, not used: it is '
+                    f'{self._in_use.width}x{self._in_use.height}, the images '
+                    f'{self._image_size[0]}x{self._image_size[1]})')
         px, _, source = self.focal_length()
         if source == 'unknown':
             if self.config.camera.estimate_focal:     # (a user test: it said 'intrinsics')
                 return 'focal length unknown (the self-calibration starts at the first image)'
             return 'focal length unknown (no frame with camera intrinsics yet)'
         origin = 'CameraInfo' if source == 'camera_info' else source
-        if (not self._size_matched and self._image_size is not None
-                and self._in_use.size != self._image_size):
-            # (a user test: a CameraInfo of another size was named the source while every frame
-            # was dropped for it)
-            origin += (f', not used: it is {self._in_use.width}x{self._in_use.height}, the '
-                       f'images {self._image_size[0]}x{self._image_size[1]}')
         return f'focal length {px:.1f} px ({origin})'
 
     def scale_status(self) -> str:
@@ -365,7 +367,8 @@ class VisualOdometry:
 
     def focal_length(self) -> tuple[float, float, str]:
         """``(pixels, standard deviation, source)`` of the focal length `focal_status`
-        describes (the one the next frame uses): source ``'unknown'`` (NaN, inf),
+        describes (the one the next frame uses): source ``'unknown'`` (NaN, inf; also while
+        the camera model is of another size than the images, whose frames are dropped),
         ``'camera_info'``, ``'configured'`` (standard deviation 0: given), ``'provisional'`` or
         ``'self-calibrated'``."""
         if self._focal is not None and self._camera is None:
@@ -373,11 +376,21 @@ class VisualOdometry:
             f = cal.provisional
             return (f, f * cal.relative_std,
                     'self-calibrated' if cal.adopted is not None else 'provisional')
-        if self._in_use is None:
+        if self._in_use is None or self._unused_model():
+            # (a user test: a CameraInfo of another size than the images was the status
+            # values' focal_source while every frame was dropped for it)
             return float('nan'), float('inf'), 'unknown'
-        origin = 'configured' if self.config.camera.fx > 0 and self._camera_from_config \
-            else 'camera_info'
-        return self._in_use.fx, 0.0, origin
+        return self._in_use.fx, 0.0, self._model_origin()
+
+    def _model_origin(self) -> str:
+        return ('configured' if self.config.camera.fx > 0 and self._camera_from_config
+                else 'camera_info')
+
+    def _unused_model(self) -> bool:
+        """The camera model in use is of another size than the last image (whose frame was
+        dropped for it)."""
+        return (self._in_use is not None and not self._size_matched
+                and self._image_size is not None and self._in_use.size != self._image_size)
 
     def add_speed(self, stamp: float, speed: float) -> None:
         """A speed sample (m/s) for ``scale.source = 'speed'`` (e.g. from wheel odometry)."""

@@ -42,6 +42,7 @@ import functools
 import logging
 import math
 import os
+import re
 import signal
 import sys
 import textwrap
@@ -625,7 +626,12 @@ class PlanarVoNode(Node):
             self._counters['camera_info_errors'] += 1
             kept = 'keeping the last valid one' if self._camera is not None else \
                 'no valid camera model yet'
-            self._warn('camera_info', f'ignoring camera_info: {err}; {kept}')
+            # Rate-limited per reason (its words, the numbers left out): a new reason is said
+            # at once (a user test: fx = 50 px after a principal point outside the image was
+            # counted without a word).
+            reason = re.sub(r'[-+]?\d[\d.eE+-]*', '#', str(err))
+            self._warn(f'camera_info {reason}', f'ignoring camera_info: {err}; {kept}',
+                       label='camera_info')
             return
         if self._camera is None and self._pending:
             self._release_pending(stamp_to_ns(msg.header.stamp))
@@ -1088,12 +1094,14 @@ class PlanarVoNode(Node):
         return (f": its publishers' type is {', '.join(others)}, not {wanted}"
                 + ''.join(hint.get(t, '') for t in others))
 
-    def _warn(self, key: str, message: str) -> None:
+    def _warn(self, key: str, message: str, label: str | None = None) -> None:
+        """`message` at warning level, rate-limited per ``key`` (``ros.warn_period``); the
+        note of the ones held back names ``label`` (default: the key)."""
         held = self._throttle.admit(key)
         if held is None:
             return
         if held:
-            message += f' ({held} more {key} warning(s) suppressed in the last ' \
+            message += f' ({held} more {label or key} warning(s) suppressed in the last ' \
                        f'{self._throttle.period:g} s)'
         self.get_logger().warning(message)
 

@@ -36,3 +36,7 @@ def main() -> int:
             return 1
         raise
     return node_main()
+
+
+if __name__ == '__main__':      # `python -m planar_vo.ros.startup`, as the executables (a user
+    sys.exit(main())            # test: it imported the module, did nothing and exited 0)
