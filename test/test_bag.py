@@ -301,6 +301,32 @@ def test_writer_closes_properly_on_exception(tmp_path, storage):
     assert [i.stamp_ns for i in items] == [T0, T0 + 1, T0 + 2]
 
 
+def test_a_second_stop_while_the_writer_finishes_keeps_the_bag_and_says_so(tmp_path):
+    """A stop signal inside the writer's exit (its on_stop mark, its close) waits until the
+    bag is finished, then is raised with the note of what was kept (a review: the note stayed
+    on the first exception, the line said nothing of the bag)."""
+    import os
+    import signal as signals
+
+    from planar_vo.io.outputs import stop_signals_interrupt
+
+    out = tmp_path / 'vo'
+    writer = OdometryBagWriter(out)
+
+    def second_stop(err):
+        os.kill(os.getpid(), signals.SIGINT)
+        writer.custom_data['marked'] = type(err).__name__
+
+    writer.on_stop = second_stop
+    with stop_signals_interrupt(), pytest.raises(KeyboardInterrupt) as exc:
+        with writer:
+            writer.write(T0, planar_pose(0.0, 0.0, 0.0))
+            raise RuntimeError('first')
+    assert str(exc.value) == 'SIGINT'
+    assert exc.value.__notes__ == [f"kept '{out}', a complete bag with messages /odom: 1"]
+    assert [i.stamp_ns for i in _read_odometry(out)] == [T0]
+
+
 # -- replay -------------------------------------------------------------------------------------
 
 class ConstantVelocityDouble:

@@ -902,6 +902,33 @@ def test_a_self_calibrating_odometry_goes_on_after_an_image_of_another_size():
     assert np.isfinite(results[-1].pose_covariance).all()
 
 
+def test_a_second_pass_hands_each_image_size_its_first_pass_calibration():
+    # Two frames of another size in a row mid-drive: the first pass ends with a calibration
+    # per size; the second pass uses each for its own images and adds no pair to either.
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    trajectory, images, _ = _drive('left')
+    frames = [cv2.resize(image, (320, 240), interpolation=cv2.INTER_AREA) if k in (20, 21)
+              else image for k, image in enumerate(images)]
+    first = VisualOdometry(config)
+    for t, image in zip(trajectory.stamps, frames):
+        first.process(image, float(t))
+    calibrations = first.focal_calibrations
+    assert [(c.width, c.height) for c in calibrations] == [(320, 240), (640, 480)]
+    for cal in calibrations:
+        cal.finish_first_pass()
+    pairs = [c.pairs for c in calibrations]
+    second = VisualOdometry(config)
+    second.start_from_first_pass(*calibrations)
+    used = []
+    for t, image in zip(trajectory.stamps, frames):
+        second.process(image, float(t))
+        used.append(second.focal_calibrator)
+    assert used[0] is calibrations[1] and used[21] is calibrations[0]
+    assert used[-1] is calibrations[1]
+    assert [c.pairs for c in calibrations] == pairs
+
+
 def test_images_of_a_size_seen_before_resume_its_focal_calibration():
     # Two frames of another size in a row are a new resolution (its own calibration); when
     # the first size comes back, its calibration goes on where it was (a user test: it began

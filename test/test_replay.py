@@ -197,9 +197,9 @@ def test_two_passes_use_the_whole_drives_focal_calibration_from_the_first_frame(
     assert main([*args, '--out', str(tmp_path / 'two'), '--two-pass']) == 0
     two = capsys.readouterr().out
     assert 'first pass' not in one
-    assert re.search(rf'\n  first pass         {len(trajectory)} frames in [\d.]+ s: the focal '
-                     r'length calibrated from \d+ turning pairs, used from the first frame on\n',
-                     two)
+    assert re.search(rf'\n  first pass         {len(trajectory)} frames in [\d.]+ s: \d+ turning '
+                     r'pairs profiled; the focal length they give \(the camera line\) used from '
+                     r'the first frame on\n', two)
     camera = next(x for x in two.splitlines() if x.startswith('  camera      '))
     assert camera.endswith('; from a first pass over the whole recording)')
     from planar_vo.tools.provenance import bag_custom_data

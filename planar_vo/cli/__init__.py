@@ -104,7 +104,11 @@ def print_final(text: str) -> None:
         print(text, flush=True)
     except BrokenPipeError:
         with contextlib.suppress(OSError, ValueError):
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            null = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(null, sys.stdout.fileno())
+            finally:
+                os.close(null)
 
 
 def show_progress(args: argparse.Namespace) -> bool:

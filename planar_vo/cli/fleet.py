@@ -81,7 +81,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from planar_vo.cli import show_progress
+    from planar_vo.cli import print_final, show_progress
     from planar_vo.config import read_config
     from planar_vo.errors import InputError
     from planar_vo.tools.fleet import (
@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_fleet(jobs, args.out, address=args.address, workers=args.workers,
                        retries=retries, progress=show_progress(args), command=command,
                        local=args.local)
-    print(result.format())
+    print_final(result.format())        # (the summary and report are written by now)
     if result.interrupted:
         # The line every command ends an interruption with (a user test: only stdout said it;
         # and SIGTERM returned Ctrl-C's code).

@@ -54,16 +54,15 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from planar_vo.cli import show_progress
+    from planar_vo.cli import print_final, show_progress
     from planar_vo.io.kitti import import_kitti
 
     summary = import_kitti(args.sequence, args.out, storage=args.storage,
                            camera_height=args.camera_height, rate_hz=args.rate_hz,
                            start=args.start, progress=show_progress(args))
-    print(summary.format())
     # The height given here sets the ground truth's base_link; the replay's scale needs it too.
     # Quoted for the shell (a user test: a path with a space broke the suggested command).
     out = os.path.normpath(args.out)           # 'k06/' replays into 'k06_vo', not 'k06/_vo'
-    print(f'replay it with: planar_vo replay {shlex.quote(out)} --out '
-          f"{shlex.quote(out + '_vo')} --set mount.height={args.camera_height:g}")
+    print_final(f'{summary.format()}\nreplay it with: planar_vo replay {shlex.quote(out)} '
+                f"--out {shlex.quote(out + '_vo')} --set mount.height={args.camera_height:g}")
     return 0

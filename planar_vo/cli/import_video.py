@@ -65,7 +65,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from planar_vo.cli import show_progress
+    from planar_vo.cli import print_final, show_progress
     from planar_vo.core.camera import CameraModel
     from planar_vo.core.checks import positive_number
     from planar_vo.errors import CameraModelError, InputError
@@ -93,15 +93,15 @@ def run(args: argparse.Namespace) -> int:
     summary = import_video(args.source, args.out, storage=args.storage, rate_hz=args.rate_hz,
                            every=args.every, max_width=args.max_width, camera=camera,
                            start=args.start, progress=show_progress(args))
-    print(summary.format())
     out = os.path.normpath(args.out)           # 'dash/' replays into 'dash_vo', not 'dash/_vo'
     command = (f'planar_vo replay {shlex.quote(out)} --out {shlex.quote(out + "_vo")} '
                f'--set mount.height=H')
     if camera is None:
         command += ' --set camera.estimate_focal=true --two-pass'
-    print(f'replay it with: {command}')
-    print("  (H: the camera's height above the road in metres"
-          + ('; --two-pass: the focal length self-calibrated over the whole recording, used '
-             'from its first frame on; add --set camera.nominal_fov=RAD if its specification '
-             'states a horizontal field of view)' if camera is None else ')'))
+    print_final(f'{summary.format()}\nreplay it with: {command}\n'
+                "  (H: the camera's height above the road in metres"
+                + ('; --two-pass: the focal length self-calibrated over the whole recording, '
+                   'used from its first frame on; add --set camera.nominal_fov=RAD if its '
+                   'specification states a horizontal field of view)' if camera is None
+                   else ')'))
     return 0

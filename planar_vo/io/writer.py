@@ -123,18 +123,23 @@ class BagWriter:
             self.close()
             return
         # One block that a (second) stop signal cannot cut short before the bag is finished
-        # (a review: `on_stop` ran unprotected); it is raised after, with the note added.
-        with deferred_interrupts():
-            if self.on_stop is not None:
-                try:
-                    self.on_stop(exc)
-                except Exception:      # noqa: BLE001 - a mark is not worth the bag
-                    log.debug('on_stop failed', exc_info=True)
-            try:                       # keep what was written readable; the original error wins
-                self.close()
-            except BagError as err:
-                log.debug('%s', err)   # the note below says it
-            exc.add_note(self.outcome)
+        # (a review: `on_stop` ran unprotected); it is raised after, with the note added too
+        # (a review: the note was lost on the original exception).
+        try:
+            with deferred_interrupts():
+                if self.on_stop is not None:
+                    try:
+                        self.on_stop(exc)
+                    except Exception:  # noqa: BLE001 - a mark is not worth the bag
+                        log.debug('on_stop failed', exc_info=True)
+                try:                   # keep what was written readable; the original error wins
+                    self.close()
+                except BagError as err:
+                    log.debug('%s', err)   # the note below says it
+                exc.add_note(self.outcome)
+        except KeyboardInterrupt as late:
+            late.add_note(self.outcome)
+            raise
 
     @property
     def outcome(self) -> str:

@@ -629,7 +629,7 @@ class PlanarVoNode(Node):
             # Rate-limited per reason (its words, the numbers left out): a new reason is said
             # at once (a user test: fx = 50 px after a principal point outside the image was
             # counted without a word).
-            reason = re.sub(r'[-+]?\d[\d.eE+-]*', '#', str(err))
+            reason = re.sub(r'[-+]?\d[\d.eE+-]*', '#', re.sub(r"'[^']*'", "'*'", str(err)))[:80]
             self._warn(f'camera_info {reason}', f'ignoring camera_info: {err}; {kept}',
                        label='camera_info')
             return
@@ -886,7 +886,9 @@ class PlanarVoNode(Node):
         focal length the status line describes) and ``focal`` (that line, or ``line`` when the
         caller has it)."""
         px, std, source = self._vo.focal_length()
-        if source == 'unknown' and self._camera is not None:
+        if source == 'unknown' and self._camera is not None and self._vo.camera is None:
+            # A CameraInfo before any frame used it; not one the frames could not use (a
+            # review: a model of another size than the images was named the source here).
             px, std, source = self._camera.fx, 0.0, 'camera_info'
         if source == 'unknown':
             px = std = 'n/a'        # not NaN and infinity, read as a fault (a review)

@@ -291,7 +291,9 @@ def plan_jobs(bags: Iterable[str | Path], configs: Sequence[FleetConfig], *,
         bag_dir = f'runs/{_slug(stem)}-{_digest(bag)[:8]}'
         files = bag_fingerprint(bag)
         for config in configs:
-            run_dir = f'{bag_dir}/{_slug(config.name)}-{_digest(config.values)[:8]}'
+            # (two passes in a folder of their own: a review, toggling --two-pass overwrote)
+            run_dir = (f'{bag_dir}/{_slug(config.name)}-{_digest(config.values)[:8]}'
+                       + ('-two-pass' if two_pass else ''))
             key = _digest({'bag': bag, 'files': files, 'config': config.values,
                            'topics': topics, 'two_pass': two_pass, 'code': code_digest()})
             jobs.append(FleetJob(bag, config, run_dir, key, image_topic, camera_info_topic,

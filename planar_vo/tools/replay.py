@@ -620,15 +620,15 @@ def _first_pass(bag, image_topic: str, processor, stamps_ns: list[int], speeds: 
     processor.start_from_first_pass(*calibrations)
     # What each image size's calibration holds (a review and a user test: 'calibrated over all
     # of them' was said of a drive without a turn, and of the last of two image sizes).
-    parts = [f"{plural(c.pairs, 'turning pair')}" if c.pairs else 'no turning pair'
+    parts = [plural(c.pairs, 'turning pair') if c.pairs else 'no turning pair'
              for c in calibrations]
     if len(calibrations) > 1:
         parts = [f'{c.width}x{c.height}: {part}' for c, part in zip(calibrations, parts)]
     if not any(c.pairs for c in calibrations):
         return (f'{frames} frames in {seconds:.1f} s: no turning pair to calibrate the focal '
                 f'length from (it stays where it starts)')
-    return (f'{frames} frames in {seconds:.1f} s: the focal length calibrated from '
-            f"{', '.join(parts)}, used from the first frame on")
+    return (f"{frames} frames in {seconds:.1f} s: {', '.join(parts)} profiled; the focal "
+            f'length they give (the camera line) used from the first frame on')
 
 
 def _fill(summary: ReplaySummary, processor, writer, copy, dropped, first, sources, decoder,
