@@ -132,14 +132,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# The last stop signal `_stop_early` handled: a library that turns its KeyboardInterrupt into
-# its own loses the name (SIGTERM came back as a bare one, seen as SIGINT: exit 130).
+# Stop signals that came while the command started (`_early_stops`), noted, not raised: an
+# exception raised inside an extension's import (numpy's) became that import's error ('exit 1,
+# PyCapsule_Import could not import module "datetime"') or lost its signal (exit 130 for a
+# SIGTERM); `_stop_if_noted` raises the first once the imports are done.
 _EARLY: list[signal.Signals] = []
 
 
 def _stop_early(signum: int, frame: object) -> None:
     _EARLY.append(signal.Signals(signum))
-    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _stop_if_noted() -> None:
+    if _EARLY:
+        raise KeyboardInterrupt(_EARLY[0].name)
 
 
 def _typed_command(argv: Sequence[str] | None) -> str:
@@ -163,9 +169,10 @@ def _signal_of(err: KeyboardInterrupt) -> signal.Signals:
 
 @contextlib.contextmanager
 def _early_stops() -> Iterator[None]:
-    """SIGINT and SIGTERM raise a ``KeyboardInterrupt`` naming them while the command starts
-    (standard library only: `planar_vo.io.outputs`, whose handlers take over for the run,
-    imports rosbags and numpy); the previous handlers come back after."""
+    """SIGINT and SIGTERM are noted while the command starts (standard library only:
+    `planar_vo.io.outputs`, whose handlers take over for the run, imports rosbags and numpy)
+    and stop it once its imports are done (`_stop_if_noted`); the previous handlers come back
+    after."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -214,6 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             from planar_vo.io.outputs import interrupt_signal, stop_signals_interrupt
 
             parser = build_parser()
+            _stop_if_noted()
             args = parser.parse_args(argv)
             logging.basicConfig(
                 level=(logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)],
@@ -224,6 +232,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             command = args.parser.prog   # the command as typed: 'planar_vo bench drives'
             with stop_signals_interrupt():
                 try:
+                    _stop_if_noted()
                     return int(args.run(args) or 0)
                 except (PlanarVoError, OSError) as err:
                     if isinstance(err, PlanarVoError):
