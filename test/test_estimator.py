@@ -263,10 +263,14 @@ def test_wrong_arguments_are_typed_errors():
     with pytest.raises(InputError, match=rf'^level: expected the {len(level)} ACs of acs '
                                          rf'levelled, got 10$'):
         MotionEstimator().estimate(s.normalized, level.subset(np.arange(10)))
-    # A negative weight: the votes do not check the arrays again (the estimator does).
+    # A negative weight: refused by AffineCorrespondences itself; one written into its array
+    # afterwards by the estimator (the votes do not check the arrays again).
     w = level.weights.copy()
     w[3] = -0.5
-    bad = AffineCorrespondences(level.p1, level.p2, level.A, w)
+    with pytest.raises(InputError, match=r'^weights: expected non-negative weights'):
+        AffineCorrespondences(level.p1, level.p2, level.A, w)
+    bad = AffineCorrespondences(level.p1, level.p2, level.A, level.weights.copy())
+    bad.weights[3] = -0.5
     with pytest.raises(InputError, match=r'^level: expected non-negative weights, got minimum '
                                          r'-0.5$'):
         MotionEstimator().estimate(s.normalized, bad)

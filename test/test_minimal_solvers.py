@@ -308,3 +308,33 @@ def test_errors_share_one_root():
     with pytest.raises(PlanarVoError):
         solve_1ac(np.zeros((3, 3)), GOOD_Q, GOOD_A)
     assert issubclass(InputError, ValueError)
+
+
+def test_scalar_options_of_the_solvers_are_checked():
+    """(a user test: iterations=1.5 raised a bare TypeError and -1 was taken; min_weight='x'
+    raised numpy's UFuncTypeError and NaN made every output NaN)"""
+    rng = np.random.default_rng(4)
+    acs = random_exact_acs(rng, 5)
+    q1, q2, A = acs.normalized.p1, acs.normalized.p2, acs.normalized.A
+    for bad in (1.5, -1, True, '3'):
+        with pytest.raises(InputError, match=r'^iterations: expected a non-negative integer'):
+            solve_1ac(q1, q2, A, refine=True, iterations=bad)
+    assert np.isfinite(solve_1ac(q1, q2, A, refine=True, iterations=np.int64(2))[0]).all()
+    for bad in ('x', float('nan'), -0.1, float('inf'), None):
+        with pytest.raises(InputError, match=r'^min_weight: expected a finite weight >= 0'):
+            solve_1acf(*acs.centered, acs.acs.A, min_weight=bad)
+
+
+def test_correspondences_refuse_negative_weights_and_cameras_stay_read_only_when_pickled():
+    import pickle
+
+    from planar_vo.core import AffineCorrespondences, CameraModel
+
+    p = np.zeros((2, 2))
+    A = np.broadcast_to(np.eye(2), (2, 2, 2))
+    with pytest.raises(InputError, match=r'^weights: expected non-negative weights, got minimum '
+                                         r'-1\.0$'):
+        AffineCorrespondences(p, p, A, weights=[1.0, -1.0])
+    assert len(AffineCorrespondences(p, p, A, weights=[0.0, 2.0])) == 2
+    camera = pickle.loads(pickle.dumps(CameraModel.pinhole(64, 48, 50.0)))
+    assert camera == CameraModel.pinhole(64, 48, 50.0) and not camera.K.flags.writeable

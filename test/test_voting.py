@@ -309,3 +309,36 @@ def test_straight_driving_does_not_reveal_the_focal_length(rng):
     acs = shared_motion_acs(rng, 3000, 0.5, alpha=0.0, beta=-np.pi / 2)
     motion, stats = vote_planar_motion_focal(*acs.centered, acs.acs.A)
     assert not stats.reliable and stats.flag == 'focal_unobservable'
+
+
+@pytest.mark.parametrize('alpha', [0.0, 0.05])
+def test_a_camera_that_did_not_move_is_flagged_no_parallax(alpha):
+    """A standing (alpha 0) or only turning camera: every heading fits, the vote's beta is
+    noise however sharp its peak; flagged (a user test: reliable, with a confident arbitrary
+    heading), its covariance infinite. A moving camera's vote stays reliable, its covariance
+    symmetric."""
+    from planar_vo.core.conventions import rotation_y
+    from planar_vo.sim.synthetic import street_pair
+
+    rng = np.random.default_rng(3)
+    n = 400
+    q1 = np.column_stack([rng.uniform(-0.8, 0.8, n), rng.uniform(-0.2, 0.25, n)])
+    R = rotation_y(alpha)
+    h = np.column_stack([q1, np.ones(n)]) @ R.T
+    q2 = h[:, :2] / h[:, 2:] + rng.normal(0.0, 1e-4, (n, 2))
+    # The rotation's exact local affine at each point (the Jacobian of the map above).
+    u = q1[:, 0]
+    z = -np.sin(alpha) * u + np.cos(alpha)
+    A = np.zeros((n, 2, 2))
+    A[:, 0, 0] = 1.0 / z ** 2
+    A[:, 1, 0] = q1[:, 1] * np.sin(alpha) / z ** 2
+    A[:, 1, 1] = 1.0 / z
+    A += rng.normal(0.0, 1e-4, (n, 2, 2))
+    motion, stats = vote_planar_motion(q1, q2, A)
+    assert motion.alpha == pytest.approx(alpha, abs=1e-3)
+    assert (stats.reliable, stats.flag) == (False, 'no_parallax')
+    assert np.isinf(stats.covariance).all()
+    pair = street_pair(rng, 800, sigma_px=0.3, sigma_affine=0.01, tilt_deg=0.0)
+    level = pair.normalized.mapped(pair.level)
+    _, moving = vote_planar_motion(level.p1, level.p2, level.A)
+    assert moving.reliable and np.array_equal(moving.covariance, moving.covariance.T)

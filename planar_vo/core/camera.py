@@ -147,6 +147,11 @@ class CameraModel:
         object.__setattr__(self, 'width', int(self.width))
         object.__setattr__(self, 'height', int(self.height))
 
+    def __reduce__(self):
+        # Rebuilt through the constructor: checked, and K read-only again (a user test: a
+        # pickled and unpickled model's K was writable).
+        return type(self), (self.width, self.height, self.K, self.distortion_model, self.D)
+
     # -- construction ------------------------------------------------------------------------
 
     @classmethod

@@ -14,6 +14,7 @@ import numpy as np
 
 from planar_vo.core.checks import as_array, same_length
 from planar_vo.core.homography import homography_jacobian
+from planar_vo.errors import InputError
 
 __all__ = ['AffineCorrespondences']
 
@@ -41,6 +42,9 @@ class AffineCorrespondences:
         w = np.ones(len(p1)) if self.weights is None else as_array(
             'weights', self.weights, (None,), min_items=0)
         same_length(p1=p1, p2=p2, A=A, weights=w)
+        if w.size and not w.min() >= 0.0:
+            # (a user test: accepted here, refused only by the estimator later)
+            raise InputError(f'weights: expected non-negative weights, got minimum {w.min()}')
         for name, value in (('p1', p1), ('p2', p2), ('A', A), ('weights', w)):
             object.__setattr__(self, name, value)
 

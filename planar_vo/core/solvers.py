@@ -17,10 +17,13 @@ image-1 -> image-2 mapping at ``q1``. A degenerate sample yields NaN, never an e
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from planar_vo.core.checks import as_array, same_length
 from planar_vo.core.conventions import wrap_angle
+from planar_vo.errors import InputError
 
 __all__ = [
     'ac_residuals',
@@ -268,11 +271,16 @@ def solve_1ac(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, *, refine: bool = F
         AC is degenerate (rank-deficient ``B``).
 
     Raises:
-        InputError: wrong shapes, non-finite values, no items, or mismatched lengths.
+        InputError: wrong shapes, non-finite values, no items, mismatched lengths, or
+            ``iterations`` not a non-negative integer.
     """
     q1, q2, A = _check_ac('q1', q1, 'q2', q2, A)
     if not refine:
         return _solve_1ac_unchecked(q1, q2, A)
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) \
+            or iterations < 0:
+        # (a user test: 1.5 raised a bare TypeError, -1 was taken)
+        raise InputError(f'iterations: expected a non-negative integer, got {iterations!r}')
     B = _ac_matrix(q1, q2, A)
     n = _ac_null_vectors(q1, q2, A)
     degenerate = (np.hypot(n[:, 0], n[:, 1]) == 0.0) | (np.hypot(n[:, 2], n[:, 3]) == 0.0)
@@ -316,9 +324,17 @@ def solve_1acf(p1: np.ndarray, p2: np.ndarray, A: np.ndarray, *, return_weight: 
         ``return_weight=True`` also ``weight`` ``(N,)`` (0 where NaN).
 
     Raises:
-        InputError: wrong shapes, non-finite values, no items, or mismatched lengths.
+        InputError: wrong shapes, non-finite values, no items, mismatched lengths, or
+            ``min_weight`` not a finite number >= 0.
     """
     p1, p2, A = _check_ac('p1', p1, 'p2', p2, A)
+    try:
+        finite = math.isfinite(min_weight) and min_weight >= 0.0
+    except TypeError:
+        finite = False
+    if isinstance(min_weight, bool) or not finite:
+        # (a user test: 'x' raised numpy's UFuncTypeError, NaN made every output NaN)
+        raise InputError(f'min_weight: expected a finite weight >= 0, got {min_weight!r}')
     scale = float(np.sqrt(np.mean(p1 ** 2) + np.mean(p2 ** 2))) or 1.0
     s1, s2 = p1 / scale, p2 / scale
     n = _null_vectors(_ac_matrix(s1, s2, A))

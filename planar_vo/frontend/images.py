@@ -75,8 +75,8 @@ def as_gray(name: str, image: object) -> np.ndarray:
             `MIN_IMAGE_SIZE` pixels on a side.
     """
     if not isinstance(image, np.ndarray):
-        raise ImageError(f'{name}: expected a numpy uint8 image array (H, W) or (H, W, 3), got '
-                         f'{type(image).__name__}')
+        raise ImageError(f'{name}: expected a numpy uint8 image array (H, W), (H, W, 1), '
+                         f'(H, W, 3) or (H, W, 4), got {type(image).__name__}')
     if image.size == 0:
         raise ImageError(f'{name}: expected a non-empty image, got an array of shape '
                          f'{image.shape}')

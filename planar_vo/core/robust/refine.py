@@ -181,7 +181,8 @@ def to_alpha_beta_cov(cov_tb: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(cov_tb)):
         return np.full((2, 2), np.inf)
     J = np.array([[1.0, -1.0], [0.0, 1.0]])
-    return J @ cov_tb @ J.T
+    cov = J @ cov_tb @ J.T
+    return 0.5 * (cov + cov.T)          # (symmetric to the last bit: a user test found it not)
 
 
 def spatial_clusters(q: np.ndarray, k: int) -> np.ndarray:

@@ -44,8 +44,9 @@ class VotingStats:
         covariance: 2x2 covariance of ``(alpha, beta)`` in rad^2 (infinite when unreliable).
         reliable: the estimate can be used.
         flag: why not, when not reliable: ``'too_few_candidates'``, ``'too_few_inliers'``,
-            ``'unstable'`` (the refinement left the voted peak), ``'ambiguous'`` or
-            ``'weak_peak'``.
+            ``'unstable'`` (the refinement left the voted peak), ``'ambiguous'``,
+            ``'weak_peak'`` or ``'no_parallax'`` (the points moved by the rotation alone: a
+            camera that did not move or only turned, whose heading beta is not observed).
         point_scale, affine_scale: robust noise scales of the epipolar (normalised
             coordinates) and affine residuals.
         iterations: RANSAC iterations (0 for voting).
