@@ -196,7 +196,7 @@ def _no_parallax(q1: np.ndarray, q2: np.ndarray, inliers: np.ndarray, alpha: flo
     camera that did not move (or only turned) fits every heading, and the vote's beta is then
     noise, however sharp its peak (a user test: a standing camera's vote was reliable with a
     confident arbitrary heading)."""
-    idx = np.flatnonzero(inliers)
+    idx = thin(np.flatnonzero(inliers))            # (a quantile: an even sample will do)
     if idx.size == 0 or not (math.isfinite(alpha) and math.isfinite(sp)):
         return False
     c, s = math.cos(alpha), math.sin(alpha)
