@@ -24,6 +24,7 @@ import threading
 from collections.abc import Iterator, Sequence
 
 from planar_vo import __version__
+from planar_vo.early_stops import catch_early_stops, pending_stop
 from planar_vo.errors import PlanarVoError, one_line
 
 __all__ = ['CommandParser', 'Once', 'build_parser', 'main', 'print_final', 'relabel',
@@ -132,20 +133,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# Stop signals that came while the command started (`_early_stops`), noted, not raised: an
-# exception raised inside an extension's import (numpy's) became that import's error ('exit 1,
-# PyCapsule_Import could not import module "datetime"') or lost its signal (exit 130 for a
-# SIGTERM); `_stop_if_noted` raises the first once the imports are done.
-_EARLY: list[signal.Signals] = []
-
-
-def _stop_early(signum: int, frame: object) -> None:
-    _EARLY.append(signal.Signals(signum))
-
-
 def _stop_if_noted() -> None:
-    if _EARLY:
-        raise KeyboardInterrupt(_EARLY[0].name)
+    """Raise the first stop signal noted while the command started (`_early_stops`) as a
+    ``KeyboardInterrupt`` naming it, once the imports are done."""
+    signum = pending_stop()
+    if signum is not None:
+        raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
 def _typed_command(argv: Sequence[str] | None) -> str:
@@ -162,27 +155,26 @@ def _typed_command(argv: Sequence[str] | None) -> str:
 
 def _signal_of(err: KeyboardInterrupt) -> signal.Signals:
     name = str(err)
-    if name in signal.Signals.__members__:
-        return signal.Signals[name]
-    return _EARLY[-1] if _EARLY else signal.SIGINT
+    return signal.Signals[name] if name in signal.Signals.__members__ else signal.SIGINT
 
 
 @contextlib.contextmanager
 def _early_stops() -> Iterator[None]:
-    """SIGINT and SIGTERM are noted while the command starts (standard library only:
-    `planar_vo.io.outputs`, whose handlers take over for the run, imports rosbags and numpy)
-    and stop it once its imports are done (`_stop_if_noted`); the previous handlers come back
-    after."""
+    """SIGINT and SIGTERM are noted while the command starts (`planar_vo.early_stops`: raised
+    inside numpy's import, one became that import's error, 'exit 1, PyCapsule_Import could not
+    import module "datetime"', or lost its signal, exit 130 for a SIGTERM) and stop it once its
+    imports are done (`_stop_if_noted`); the previous handlers come back after, and a noted
+    signal not acted on is forgotten."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {s: signal.signal(s, _stop_early) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = catch_early_stops()
     try:
         yield
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-        _EARLY.clear()
+        pending_stop()
 
 
 def relabel(err: PlanarVoError, names: dict[str, str]) -> None:

@@ -74,12 +74,6 @@ def run(args: argparse.Namespace) -> int:
     from planar_vo.tools.replay import replay_bag
 
     config = speed_scale(with_sets(args.config, args.set), args.speed_topic, args.set)
-    if args.two_pass and not config.camera.estimate_focal:
-        from planar_vo.errors import ConfigError
-
-        raise ConfigError('two_pass: the first pass self-calibrates the focal length: give '
-                          '--set camera.estimate_focal=true (with the bag\'s CameraInfo, or '
-                          'camera.fx, there is nothing to calibrate)')
     for item in args.set:
         key = item.partition('=')[0].strip()
         if key.startswith('ros.') and key not in REPLAY_ROS_KEYS:

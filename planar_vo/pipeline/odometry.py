@@ -776,7 +776,7 @@ class VisualOdometry:
                 else:
                     self._new_size = None
                     if self._focal is not None:
-                        # Another image size: a new calibration, and the keyframe's pixels do
+                        # Another image size: its own calibration, and the keyframe's pixels do
                         # not mean what they did (a new chain, as for a new camera model); the
                         # focal sums' pixels become the new image's.
                         k = width / self._focal.width
@@ -785,32 +785,8 @@ class VisualOdometry:
                         if self._keyframes.current is not None:
                             self._keyframes.clear()
                             self._restart = 'a camera model change'
-                    nominal = (focal_for_field_of_view(width, c.nominal_fov,
-                                                       c.distortion_model)
-                               if c.nominal_fov > 0 else float(max(width, height)))
                     self._focal_stride = None
-                    size = (width, height)
-                    # A first pass's calibration of this size, else this size's own from
-                    # before (a user test: two stray frames in a row, and the drive's turn was
-                    # lost when the old size came back), else a new one.
-                    self._focal = (self._first_pass.pop(size, None)
-                                   or self._calibrations.pop(size, None))
-                    if self._focal is None:
-                        self._focal = OnlineFocalCalibrator(
-                            width, height, nominal, pp_std=1.0 if c.cx and c.cy else None,
-                            prior_fov=field_of_view_for_focal(width, nominal, c.distortion_model),
-                            stated=c.nominal_fov > 0,
-                            prior_sigma=(prior_sigma_for_fov(c.nominal_fov, c.nominal_fov_std,
-                                                             c.distortion_model == 'equidistant')
-                                         if c.nominal_fov_std > 0 else None),
-                            prior_fov_std=c.nominal_fov_std,
-                            tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
-                            max_queue=c.focal_queue, block_frames=c.focal_block_frames,
-                            min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,
-                            config=self.config.voting)
-                    self._calibrations[size] = self._focal
-                    while len(self._calibrations) > _FOCAL_SIZES:
-                        del self._calibrations[next(iter(self._calibrations))]
+                    self._focal = self._focal_calibration(width, height)
                     self._turns = TurnPairSelector(width)
                 f = self._focal.provisional
                 if self._in_use is not None:
@@ -827,6 +803,34 @@ class VisualOdometry:
                 return self._in_use
         self._in_use = self._camera
         return self._camera
+
+    def _focal_calibration(self, width: int, height: int) -> OnlineFocalCalibrator:
+        """The focal self-calibration of images of this size: a first pass's
+        (`start_from_first_pass`), else this size's own from before (a user test: two stray
+        frames in a row, and the drive's turn was lost when the old size came back), else a new
+        one at the prior of ``camera.nominal_fov``; kept for the last `_FOCAL_SIZES` sizes."""
+        c = self.config.camera
+        size = (width, height)
+        focal = self._first_pass.pop(size, None) or self._calibrations.pop(size, None)
+        if focal is None:
+            nominal = (focal_for_field_of_view(width, c.nominal_fov, c.distortion_model)
+                       if c.nominal_fov > 0 else float(max(width, height)))
+            focal = OnlineFocalCalibrator(
+                width, height, nominal, pp_std=1.0 if c.cx and c.cy else None,
+                prior_fov=field_of_view_for_focal(width, nominal, c.distortion_model),
+                stated=c.nominal_fov > 0,
+                prior_sigma=(prior_sigma_for_fov(c.nominal_fov, c.nominal_fov_std,
+                                                 c.distortion_model == 'equidistant')
+                             if c.nominal_fov_std > 0 else None),
+                prior_fov_std=c.nominal_fov_std,
+                tolerance=c.focal_tolerance, max_acs=c.focal_max_acs,
+                max_queue=c.focal_queue, block_frames=c.focal_block_frames,
+                min_blocks=c.focal_min_blocks, max_blocks=c.focal_max_blocks,
+                config=self.config.voting)
+        self._calibrations[size] = focal
+        while len(self._calibrations) > _FOCAL_SIZES:
+            del self._calibrations[next(iter(self._calibrations))]
+        return focal
 
     def _refocus(self, ratio: float) -> None:
         """The focal length in use changed (self-calibration; ``ratio = f_old / f_new``, of the

@@ -106,7 +106,7 @@ from planar_vo.ros.messages import (
     stamp_problem,
     stamp_to_ns,
 )
-from planar_vo.ros.early_stops import pending_stop
+from planar_vo.early_stops import pending_stop
 
 try:  # tf2_ros comes with a ROS installation; it is not on PyPI.
     from tf2_ros import TransformBroadcaster

@@ -6,7 +6,7 @@ that time (a launch stopped right after it started the node) ended the process w
 handlers that only note the signal before it imports anything heavy; the node then stops as if
 the signal had come while it spun: at once, exit 0, with its summary line.
 
-Light on purpose: only the standard library and `planar_vo.ros.early_stops` (the noted
+Light on purpose: only the standard library and `planar_vo.early_stops` (the noted
 signals, which the node reads) are imported before the node.
 """
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import sys
 
-from planar_vo.ros.early_stops import catch_early_stops, pending_stop
+from planar_vo.early_stops import catch_early_stops, pending_stop
 
 __all__ = ['catch_early_stops', 'main', 'pending_stop']
 

@@ -377,10 +377,14 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
             raise OutputError(f"tum: cannot write '{tum_path}' (its folder '{folder}' does not "
                               f'exist or is not writable)')
     config = getattr(processor, 'config', None)
-    if two_pass and not (isinstance(config, PlanarVoConfig) and config.camera.estimate_focal
+    if two_pass and not (isinstance(config, PlanarVoConfig)
                          and hasattr(processor, 'start_from_first_pass')):
-        raise ConfigError('two_pass: expected a VisualOdometry with camera.estimate_focal (a '
-                          'first pass calibrates the focal length for the second)')
+        raise ConfigError('two_pass: expected a VisualOdometry (a first pass calibrates its '
+                          'focal length for the second)')
+    if two_pass and not config.camera.estimate_focal:
+        raise ConfigError("two_pass: the first pass self-calibrates the focal length: give --set "
+                          "camera.estimate_focal=true (with the bag's CameraInfo, or camera.fx, "
+                          'there is nothing to calibrate)')
     own = _own_intrinsics(config) if isinstance(config, PlanarVoConfig) else ''
     if own and camera_info_topic is not None:
         raise ConfigError(f"camera_info_topic: '{camera_info_topic}' would not be used: {own} "
@@ -469,9 +473,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                     f'replay was {why})')
             marks = [summary.partial_input, done]
             writer.custom_data[PARTIAL_KEY] = '; '.join(m for m in marks if m)
-            focal = getattr(processor, 'focal_status', None)
-            if callable(focal):
-                writer.custom_data['planar_vo.focal'] = focal()
+            _record_focal(writer, processor)
 
         writer.on_stop = stopped
         try:
@@ -509,11 +511,10 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                             continue
                         # The pipeline counts it towards lost tracking, as the node's does.
                         image = ImageError(frame.error)
-                    end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
-                    for k in range(next_speed, end):
-                        processor.add_speed(stamps_ns[k] / 1_000_000_000, speeds[k])
-                    summary.speed_messages += max(0, end - next_speed)
-                    next_speed = max(next_speed, end)
+                    fed = _feed_speeds(processor, stamps_ns, speeds, next_speed,
+                                       frame.stamp_ns)
+                    summary.speed_messages += fed - next_speed
+                    next_speed = fed
                     result = processor.process(image, frame.stamp, frame.camera)
                     reason = None if result.ok else getattr(result.reason, 'value',
                                                             str(result.reason))
@@ -533,11 +534,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                         _count_drop(dropped, reason, frame, result.message, first)
                     log.debug('frame %d (%d ns): %s', frame.index, frame.stamp_ns,
                               reason or 'odometry')
-                # The focal length the odometry ended on, in the bag (eval's metrics.json then
-                # records it: a user test found it in the summary only).
-                focal = getattr(processor, 'focal_status', None)
-                if callable(focal):
-                    writer.custom_data['planar_vo.focal'] = focal()
+                _record_focal(writer, processor)
         except BaseException as err:   # noqa: BLE001 - noted and re-raised, interrupts too
             if tum_path is not None:
                 err.add_note(poses.save(tum_path))
@@ -581,6 +578,24 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
     return summary
 
 
+def _record_focal(writer: OdometryBagWriter, processor) -> None:
+    """The focal length the odometry ended on, in the bag's custom data (eval's metrics.json
+    then records it: a user test found it in the summary only)."""
+    focal = getattr(processor, 'focal_status', None)
+    if callable(focal):
+        writer.custom_data['planar_vo.focal'] = focal()
+
+
+def _feed_speeds(processor, stamps_ns: list[int], speeds: list[float], start: int,
+                 until_ns: int) -> int:
+    """Feed ``processor`` the speeds from index ``start`` stamped up to ``until_ns``; returns
+    the index of the next one."""
+    end = max(start, bisect.bisect_right(stamps_ns, until_ns))
+    for k in range(start, end):
+        processor.add_speed(stamps_ns[k] / 1_000_000_000, speeds[k])
+    return end
+
+
 def _first_pass(bag, image_topic: str, processor, stamps_ns: list[int], speeds: list[float],
                 shift: int, progress: bool) -> str:
     """`replay_bag`'s first pass (``two_pass``): a `VisualOdometry` of the processor's
@@ -605,10 +620,7 @@ def _first_pass(bag, image_topic: str, processor, stamps_ns: list[int], speeds: 
             frames += 1
             if frame.bad_stamp:
                 continue                          # (as in the second pass: not a time at all)
-            end = bisect.bisect_right(stamps_ns, frame.stamp_ns)
-            for k in range(next_speed, end):
-                first.add_speed(stamps_ns[k] / 1_000_000_000, speeds[k])
-            next_speed = max(next_speed, end)
+            next_speed = _feed_speeds(first, stamps_ns, speeds, next_speed, frame.stamp_ns)
             first.process(frame.image if frame.image is not None else ImageError(frame.error),
                           frame.stamp, None)
     seconds = time.perf_counter() - start
