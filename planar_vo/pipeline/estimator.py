@@ -417,7 +417,7 @@ class MotionEstimator:
             w_rest = w[unexplained]
             m2, v2 = vote_planar_motion(level.p1[unexplained], level.p2[unexplained],
                                         level.A[unexplained], w_rest, self.voting,
-                                        covariance=False, check=False)
+                                        covariance=False, check=False, scan=False)
             # The revote's inliers, counted at its own coarse scales, overstate the support
             # its motion would keep at the first answer's: one below the screen's bar cannot
             # matter (with random outliers, 0.09 of the first answer's support typically and

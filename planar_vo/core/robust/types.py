@@ -44,7 +44,8 @@ class VotingStats:
         covariance: 2x2 covariance of ``(alpha, beta)`` in rad^2 (infinite when unreliable).
         reliable: the estimate can be used.
         flag: why not, when not reliable: ``'too_few_candidates'``, ``'too_few_inliers'``,
-            ``'unstable'`` (the refinement left the voted peak), ``'ambiguous'``,
+            ``'unstable'`` (the refinement left the voted peak), ``'ambiguous'`` (a second
+            alpha peak nearly as high, or another basin of the cost nearly as low),
             ``'weak_peak'`` or ``'no_parallax'`` (the points moved by the rotation alone: a
             camera that did not move or only turned, whose heading beta is not observed).
         point_scale, affine_scale: robust noise scales of the epipolar (normalised
