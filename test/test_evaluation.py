@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 
 import cv2
@@ -676,6 +677,12 @@ def test_frame_pairs_across_dropped_frames_are_not_per_frame_errors():
     assert yaw.shape == (30,) and np.isnan(yaw[9]) and np.isnan(ev.heading_error_deg[9])
     assert np.all(np.abs(np.delete(yaw, 9)) < 1e-9)
     assert ev.metrics()['yaw_change_error_deg']['count'] == 29
+    # The relative pose error per frame likewise (a user test: its maximum, 37.6 m, spanned a
+    # gap of 100 frames).
+    for rpe in (ev.rpe_translation, ev.rpe_rotation_deg):
+        assert rpe.shape == (30,) and np.isnan(rpe[9])
+        assert np.all(np.abs(np.delete(rpe, 9)) < 1e-9)
+    assert ev.metrics()['rpe_frame']['translation_m']['count'] == 29
 
 
 def test_kitti_rotation_drift_of_a_yaw_rate_bias():
@@ -828,3 +835,91 @@ def test_cli_eval_kitti_pose_file_errors_are_one_line(tmp_path, rng, capsys, ext
     assert capsys.readouterr().err == (
         f"planar_vo eval: error: --est-times: only for a KITTI pose file EST (12 numbers per "
         f"line); '{tmp_path / 'cam.tum'}' is not one\n")
+
+
+def test_a_topic_on_two_time_bases_is_read_by_its_longest_part(tmp_path, rng, caplog, capsys):
+    """A replay across a restarted clock (stamps 2.3 s back from the 21st frame on, every topic;
+    the odometry restarted at its origin): sorted by stamp the two time bases interleaved and
+    eval scored garbage without a word (a user test: ATE 48 m). The longest part is read,
+    with a warning; small steps back (out of order) stay one part."""
+    gt = _drive(rng, 30)
+    est = gt.transformed(np.eye(3), np.array([0.5, 0.0, 0.0]))
+    jump = 2_300_000_000
+    stamps = gt.stamps_ns.copy()
+    stamps[20:] -= jump
+    path = tmp_path / 'restarted'
+    with OdometryBagWriter(path, topic='/odom') as writer:
+        writer.add_topic('/ground_truth/odom', 'nav_msgs/msg/Odometry')
+        for k in range(30):
+            origin = est.poses[20] if k >= 20 else np.eye(4)
+            # (recorded in order: the log times increase, as replay writes them)
+            log = int(gt.stamps_ns[k])
+            writer.write(int(stamps[k]), np.linalg.inv(origin) @ est.poses[k], log_time_ns=log)
+            writer.write_odometry('/ground_truth/odom', int(stamps[k]), gt.poses[k],
+                                  log_time_ns=log)
+    with caplog.at_level('WARNING'):
+        got = read_bag_trajectory(path, '/odom')
+    np.testing.assert_array_equal(got.stamps_ns, stamps[:20])
+    np.testing.assert_allclose(got.poses, est.poses[:20], atol=1e-12)
+    warned = [r.getMessage() for r in caplog.records if 'go back' in r.getMessage()]
+    assert warned == ["topic '/odom': its stamps go back 1 time(s) (first at message 20, "
+                      f'{stamps[20] // 10 ** 9}.{stamps[20] % 10 ** 9:09d} s after '
+                      f'{stamps[19] // 10 ** 9}.{stamps[19] % 10 ** 9:09d} '
+                      's: a restarted clock or recording, where an odometry restarts from its '
+                      'origin); evaluating the longest part, messages 0-19 (20 of 30)'], warned
+    caplog.clear()
+    assert main(['eval', str(path)]) == 0
+    table = capsys.readouterr().out
+    assert re.search(r'\| matched poses +\| 20 \(unmatched: 0 estimated, 0 reference\) \|',
+                     table), table
+    ate = next(line for line in table.splitlines() if line.startswith('| ATE'))
+    assert float(ate.split('|')[2].split('/')[0]) < 1e-9, ate        # (the first part, exact)
+    # Messages a little out of order (0.3 s back) are one time base, sorted.
+    shuffled = gt.stamps_ns.copy()
+    shuffled[[10, 11]] = shuffled[[11, 10]]
+    path2 = tmp_path / 'shuffled'
+    with OdometryBagWriter(path2, topic='/odom') as writer:
+        for k in range(30):
+            writer.write(int(shuffled[k]), gt.poses[int(np.flatnonzero(gt.stamps_ns
+                                                                       == shuffled[k])[0])],
+                         log_time_ns=int(gt.stamps_ns[k]))
+    caplog.clear()
+    with caplog.at_level('WARNING'):
+        got = read_bag_trajectory(path2, '/odom')
+    np.testing.assert_array_equal(got.stamps_ns, gt.stamps_ns)
+    assert not [r for r in caplog.records if 'go back' in r.getMessage()]
+
+
+def test_cli_eval_warns_when_the_estimate_origin_has_no_reference_pose(tmp_path, rng, caplog):
+    """Ground truth stamped 5 s late (50 frames at 10 Hz): the later poses still match, to the
+    wrong frames (a user test: 252 of 300 matched, ATE 17 m, no word). The origin's missing
+    partner is said."""
+    gt = _drive(rng, 120)
+    late = Trajectory(gt.stamps_ns + 5_000_000_000, gt.poses)
+    write_tum(tmp_path / 'est.tum', gt)
+    write_tum(tmp_path / 'late.tum', late)
+    with caplog.at_level('WARNING', logger='planar_vo.eval'):
+        assert main(['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'late.tum')]) == 0
+    warned = [r.getMessage() for r in caplog.records if 'first pose' in r.getMessage()]
+    assert len(warned) == 1 and 'the nearest is 5.000 s away' in warned[0], warned
+    caplog.clear()
+    with caplog.at_level('WARNING', logger='planar_vo.eval'):
+        assert main(['eval', str(tmp_path / 'est.tum'), '--gt', str(tmp_path / 'est.tum')]) == 0
+    assert not [r for r in caplog.records if 'first pose' in r.getMessage()]
+
+
+def test_cli_eval_a_mistyped_gt_topic_lists_the_topics_only(tmp_path, rng, capsys):
+    path, _, _ = _bag_with(tmp_path, rng)
+    assert main(['eval', str(path), '--gt-topic', '/nope']) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("planar_vo eval: error: --gt-topic: '/nope' is not a topic of") and \
+        '/ground_truth/odom' in err and 'EST has no ground truth' not in err, err
+
+
+def test_cli_eval_a_drive_too_short_for_any_segment_says_so(tmp_path, capsys):
+    ref = _straight(8, step=1.0)                            # 7 m: not even a 10 m segment
+    write_tum(tmp_path / 'ref.tum', ref)
+    assert main(['eval', str(tmp_path / 'ref.tum'), '--gt', str(tmp_path / 'ref.tum')]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if 'KITTI protocol' in line]
+    assert rows and all('none: no segment of 10 m or more fits the 7.0 m path' in row
+                        for row in rows), rows

@@ -147,8 +147,10 @@ def is_bag_path(path: str | Path) -> bool:
 def read_bag_trajectory(path: str | Path, topic: str, *, role: str = 'topic') -> Trajectory:
     """Poses of an Odometry/PoseStamped/PoseWithCovarianceStamped topic, by header stamp.
 
-    Messages are sorted by stamp; a repeated stamp keeps its first message (logged). `role`
-    names the topic argument in error messages.
+    Messages are sorted by stamp; a repeated stamp keeps its first message (logged). Stamps
+    that go back by more than a second in recording order start another time base (a
+    restarted clock): only the longest part is read (logged). `role` names the topic argument
+    in error messages.
 
     Raises:
         BagError: unreadable bag, unknown topic (listing the available ones), wrong type.
@@ -195,7 +197,8 @@ def _read_pose_topic(path: str | Path, topic: str, role: str, *, covariances: bo
     if not poses:
         raise InputError(f"{role}: '{topic}' in '{path}' has no messages")
     stamps_arr = np.array(stamps, dtype=np.int64)
-    order = np.argsort(stamps_arr, kind='stable')
+    part = _longest_time_base(stamps_arr, topic)
+    order = part[np.argsort(stamps_arr[part], kind='stable')]
     keep = np.ones(len(order), dtype=bool)
     keep[1:] = np.diff(stamps_arr[order]) > 0
     if not np.all(keep):
@@ -206,6 +209,44 @@ def _read_pose_topic(path: str | Path, topic: str, role: str, *, covariances: bo
     if covariances and all(c is not None for c in covs):
         cov = np.array(covs)[order]
     return stamps_arr[order], np.array(poses)[order], cov
+
+
+# A stamp this far behind the latest one before it (in recording order) starts another time
+# base: a restarted clock or recording (the odometry's own rule, odometry.max_time_jump_back);
+# a smaller step back is a message out of order.
+_TIME_BASE_JUMP_NS = 1_000_000_000
+
+
+def _longest_time_base(stamps: np.ndarray, topic: str) -> np.ndarray:
+    """The indices of the longest run of messages on one time base (recording order; see
+    `_TIME_BASE_JUMP_NS`), warned when there are several: sorted by stamp, two time bases
+    interleave (a user test: a replay across a restarted clock scored 48 m ATE and an 11-deg
+    yaw-change error without a word; its odometry had restarted at the origin)."""
+    # A new part's latest stamp starts afresh (a loop over the stamps: one part, the usual
+    # case, costs one comparison per message).
+    starts, behind = [], []
+    latest = int(stamps[0])
+    for i, stamp in enumerate(stamps.tolist()):
+        if stamp < latest - _TIME_BASE_JUMP_NS:
+            starts.append(i)
+            behind.append(latest)
+            latest = stamp
+        elif stamp > latest:
+            latest = stamp
+    if not starts:
+        return np.arange(stamps.size)
+    starts = np.array(starts)
+    bounds = np.concatenate([[0], starts, [stamps.size]])
+    sizes = np.diff(bounds)
+    k = int(np.flatnonzero(sizes == sizes.max())[-1])       # (the last of equal ones)
+    first = int(starts[0])
+    log.warning("topic '%s': its stamps go back %d time(s) (first at message %d, %s s after "
+                '%s s: a restarted clock or recording, where an odometry restarts from its '
+                'origin); evaluating the longest part, messages %d-%d (%d of %d)', topic,
+                starts.size, first, _format_ns(int(stamps[first])), _format_ns(behind[0]),
+                bounds[k], bounds[k + 1] - 1, sizes[k],
+                stamps.size)
+    return np.arange(bounds[k], bounds[k + 1])
 
 
 def is_kitti_pose_file(path: str | Path) -> bool:

@@ -182,16 +182,26 @@ def ate_errors(ref: Trajectory, est: Trajectory) -> np.ndarray:
     return np.linalg.norm(ref.positions - est.positions, axis=1)
 
 
-def rpe_per_frame(ref: Trajectory, est: Trajectory, delta: int = 1
+def rpe_per_frame(ref: Trajectory, est: Trajectory, delta: int = 1, max_gap: float = 1.5
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Relative pose errors over `delta` frames: translation (m) and rotation (deg), ``(N-d,)``."""
+    """Relative pose errors over `delta` frames: translation (m) and rotation (deg), ``(N-d,)``.
+
+    A pair whose stamps lie more than ``max_gap`` times ``delta`` median intervals apart spans
+    dropped frames: NaN in both (left out of their statistics, as in `yaw_heading_errors`; a
+    user test: a maximum of 37.6 m over a gap of 100 frames)."""
     if delta < 1:
         raise InputError(f'delta: expected at least 1 frame, got {delta}')
     Q, P = ref.poses, est.poses
     dQ = invert(Q[:-delta]) @ Q[delta:]
     dP = invert(P[:-delta]) @ P[delta:]
     E = invert(dQ) @ dP
-    return np.linalg.norm(E[:, :3, 3], axis=1), np.degrees(rotation_angle(E[:, :3, :3]))
+    t, r = np.linalg.norm(E[:, :3, 3], axis=1), np.degrees(rotation_angle(E[:, :3, :3]))
+    stamps = ref.stamps_ns.astype(np.float64)
+    if stamps.size > delta:
+        span = stamps[delta:] - stamps[:-delta]
+        gap = span > max_gap * delta * float(np.median(np.diff(stamps)))
+        t[gap] = r[gap] = np.nan
+    return t, r
 
 
 def rpe_by_distance(ref: Trajectory, est: Trajectory,
@@ -387,6 +397,11 @@ class Evaluation:
                 continue                    # (a short drive: its 10-50 m rows instead)
             k = m[key]
             used = ', '.join(f'{v:g}' for v in k['lengths_m']) or 'none'
+            if k['segments'] == 0:          # (a user test: 'nan / nan (n=0, lengths none m)')
+                rows.append((f'{label}: t_rel (%) / r_rel (deg/100 m)',
+                             f"none: no segment of 10 m or more fits the "
+                             f"{m['path_length_m']:.1f} m path"))
+                continue
             rows.append((f'{label}: t_rel (%) / r_rel (deg/100 m)',
                          f"{k['t_rel_pct']:.3f} / {k['r_rel_deg_per_100m']:.3f} "
                          f"(n={k['segments']}, lengths {used} m)"))
