@@ -867,6 +867,10 @@ def test_a_topic_on_two_time_bases_is_read_by_its_longest_part(tmp_path, rng, ca
                       f'{stamps[19] // 10 ** 9}.{stamps[19] % 10 ** 9:09d} '
                       's: a restarted clock or recording, where an odometry restarts from its '
                       'origin); evaluating the longest part, messages 0-19 (20 of 30)'], warned
+    # The reference: the part of the estimate's stamps, whichever is longer.
+    got = read_bag_trajectory(path, '/ground_truth/odom', span=(int(stamps[20]),
+                                                                int(stamps[29])))
+    np.testing.assert_array_equal(got.stamps_ns, stamps[20:])
     caplog.clear()
     assert main(['eval', str(path)]) == 0
     table = capsys.readouterr().out

@@ -82,7 +82,8 @@ def register(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
-def _load(path: str, topic: str, name: str, topic_option: str, covariances: bool = False):
+def _load(path: str, topic: str, name: str, topic_option: str, covariances: bool = False,
+          span: tuple[int, int] | None = None):
     """The trajectory of `path` (`topic` of a bag), with its pose covariances (None without
     them: a TUM file, a PoseStamped topic) when asked for; errors call the path `name` (EST,
     --gt), not the library's 'trajectory', 'tum' or 'bag', and the topic `topic_option`."""
@@ -94,7 +95,7 @@ def _load(path: str, topic: str, name: str, topic_option: str, covariances: bool
     try:
         if covariances and is_bag_path(path):
             return read_bag_odometry(path, topic, role=topic_option)
-        trajectory = load_trajectory(path, topic, role=topic_option)
+        trajectory = load_trajectory(path, topic, role=topic_option, span=span)
         return (trajectory, None) if covariances else trajectory
     except PlanarVoError as err:
         relabel(err, dict.fromkeys(('trajectory', 'tum', 'bag'), name))
@@ -322,7 +323,9 @@ def run(args: argparse.Namespace) -> int:
                              'none')
         gt_path = args.est
     try:
-        ref = _load(gt_path, args.gt_topic, '--gt', '--gt-topic')
+        # (a topic on two time bases: the part of the estimate's stamps)
+        ref = _load(gt_path, args.gt_topic, '--gt', '--gt-topic',
+                    span=(int(est.stamps_ns[0]), int(est.stamps_ns[-1])))
     except PlanarVoError as err:
         if args.gt is None and args.gt_topic == DEFAULT_GT_TOPIC \
                 and 'is not a topic of' in str(err):
