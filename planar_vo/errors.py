@@ -10,6 +10,7 @@ from __future__ import annotations
 __all__ = [
     'BagError',
     'CameraModelError',
+    'ConcurrencyError',
     'ConfigError',
     'DependencyError',
     'ImageError',
@@ -51,6 +52,11 @@ class CameraModelError(PlanarVoError, ValueError):
 
 class DependencyError(PlanarVoError, ImportError):
     """An optional dependency (an extra such as ``planar_vo[fleet]``) is not installed."""
+
+
+class ConcurrencyError(PlanarVoError, RuntimeError):
+    """An object that is not thread-safe was called from two threads at once (one
+    `VisualOdometry` per camera and thread, or calls serialised by a lock)."""
 
 
 class ImageError(PlanarVoError, ValueError):

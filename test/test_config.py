@@ -262,7 +262,7 @@ def test_ranges_are_declared_once_and_checked_by_the_config():
                                              expected='a height above the ground of 0.01-100 m')
     assert str(declared['camera.focal_tolerance']) == 'in (0, 1)'
     assert str(declared['frontend.max_correspondences']) == 'in [1, 30000]'
-    assert str(declared['ros.path_max_length']) == 'in [1, 1e+06]'
+    assert str(declared['ros.path_max_length']) == 'in [1, 1000000]'
     fov = declared['camera.nominal_fov']                    # up to a fisheye's widest
     assert (fov.low, fov.high, fov.low_open, fov.high_open) == (0.0, 4.0, False, False)
     assert 'ros.odom_frame' not in declared and 'scale.source' not in declared

@@ -54,7 +54,7 @@ def test_constraints_vanish_on_exact_data_and_match_the_ac_relation():
     E = essential(s.R, s.t)
     M = ac_design(n.p1, n.p2, n.A)
     assert np.abs(M @ E.ravel()).max() < 1e-12
-    # The affine rows are (E^T h2)[:2] + A^T (E h1)[:2] (DESIGN.md section 2), for any E.
+    # The affine rows are (E^T h2)[:2] + A^T (E h1)[:2] (Barath et al. 2017), for any E.
     rng = np.random.default_rng(2)
     E = rng.normal(size=(3, 3))
     h1 = np.column_stack([n.p1, np.ones(len(n))])
@@ -269,7 +269,16 @@ def test_wrong_arguments_are_typed_errors():
     w[3] = -0.5
     with pytest.raises(InputError, match=r'^weights: expected non-negative weights'):
         AffineCorrespondences(level.p1, level.p2, level.A, w)
-    bad = AffineCorrespondences(level.p1, level.p2, level.A, level.weights.copy())
+    # The container keeps read-only copies: the caller's array written afterwards does not
+    # reach it (a user test: a NaN did, past every check), nor does a write into its own.
+    caller = level.weights.copy()
+    bad = AffineCorrespondences(level.p1, level.p2, level.A, caller)
+    caller[3] = -0.5
+    assert bad.weights[3] >= 0.0 and not np.shares_memory(bad.weights, caller)
+    with pytest.raises(ValueError, match='read-only'):
+        bad.weights[3] = -0.5
+    # (forced writable, the estimator still refuses what its votes would not check again)
+    bad.weights.flags.writeable = True
     bad.weights[3] = -0.5
     with pytest.raises(InputError, match=r'^level: expected non-negative weights, got minimum '
                                          r'-0.5$'):

@@ -92,6 +92,16 @@ def test_1ac_forward_motion_gives_beta_minus_90(rng):
     np.testing.assert_allclose(beta, -np.pi / 2, atol=EXACT)
 
 
+def test_ac_residuals_refuse_angles_of_another_length(rng):
+    s = random_exact_acs(rng, 20)
+    n = s.normalized
+    with pytest.raises(InputError, match=r'^alpha: expected one angle or one per AC, shape \(\) '
+                                         r'or \(20,\), got \(21,\)$'):
+        ac_residuals(n.p1, n.p2, n.A, np.zeros(21), 0.0)
+    with pytest.raises(InputError, match=r'^alpha, beta: expected angles in radians'):
+        ac_residuals(n.p1, n.p2, n.A, 0.0, 'left')
+
+
 def test_1ac_residuals_vanish_at_truth(rng):
     s = random_exact_acs(rng, 500)
     r = ac_residuals(s.normalized.p1, s.normalized.p2, s.normalized.A, s.alpha, s.beta)
@@ -338,3 +348,21 @@ def test_correspondences_refuse_negative_weights_and_cameras_stay_read_only_when
     assert len(AffineCorrespondences(p, p, A, weights=[0.0, 2.0])) == 2
     camera = pickle.loads(pickle.dumps(CameraModel.pinhole(64, 48, 50.0)))
     assert camera == CameraModel.pinhole(64, 48, 50.0) and not camera.K.flags.writeable
+
+
+def test_affine_correspondences_compare_by_identity_and_keep_read_only_copies(rng):
+    """A frozen dataclass of arrays compared and hashed its fields (a user test: ``a == b``
+    raised 'truth value of an array is ambiguous', ``{a}`` unhashable); the caller's arrays
+    were kept, writable, past the checks."""
+    from planar_vo.core import AffineCorrespondences
+
+    p1, p2 = rng.uniform(0, 100, (5, 2)), rng.uniform(0, 100, (5, 2))
+    A = np.tile(np.eye(2), (5, 1, 1))
+    a, b = AffineCorrespondences(p1, p2, A), AffineCorrespondences(p1, p2, A)
+    assert a == a and a != b and a in [a] and b not in [a] and len({a, b}) == 2
+    p1[0, 0] = np.nan                       # the caller's array, written afterwards
+    assert np.isfinite(a.p1).all() and not np.shares_memory(a.p1, p1)
+    for name in ('p1', 'p2', 'A', 'weights'):
+        assert not getattr(a, name).flags.writeable, name
+    sub = a.subset(np.array([0, 2]))        # derived containers are read-only too
+    assert not sub.p1.flags.writeable and np.array_equal(sub.p1, a.p1[[0, 2]])

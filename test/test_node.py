@@ -640,6 +640,10 @@ def test_warning_throttle_admits_one_per_period_per_key_and_counts_the_rest():
     assert throttle.admit('bad_image', now=105.0) == 2         # two held back since 100.0
     assert throttle.admit('bad_image', now=110.0) == 0
     assert WarningThrottle(0.0).admit('x', now=1.0) == 0
+    # A condition restated while it lasts (no images) is not counted as held-back warnings.
+    assert throttle.admit('no_image', now=100.0, count=False) == 0
+    assert throttle.admit('no_image', now=101.0, count=False) is None
+    assert throttle.admit('no_image', now=105.0, count=False) == 0
 
 
 # -- in-process node: TF and pipeline failures -----------------------------------------------------

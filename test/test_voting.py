@@ -240,6 +240,15 @@ def test_input_errors(rng):
     with pytest.raises(InputError, match=r'weights: expected finite values, got a number too '
                                          r'large for float64'):
         vote_planar_motion(q1, q2, A, weights=huge)
+    # The focal variant's own arguments (a user test: ValueError, IndexError, TypeError, and
+    # starts=0 or 2.5 accepted).
+    p1, p2 = acs.centered
+    for bad in (('a', 'b'), (600,), None, (800, 600), (0, 10)):
+        with pytest.raises(ConfigError, match=r'^focal_range: expected \(min, max\) pixels'):
+            vote_planar_motion_focal(p1, p2, acs.acs.A, focal_range=bad)
+    for bad in (0, -1, 2.5, True):
+        with pytest.raises(ConfigError, match=r'^starts: expected a positive integer'):
+            vote_planar_motion_focal(p1, p2, acs.acs.A, starts=bad)
 
 
 @pytest.mark.parametrize('clusters, match', [

@@ -456,7 +456,7 @@ def normalize_points(K: np.ndarray, p: np.ndarray) -> np.ndarray:
 def normalize_affines(K1: np.ndarray, K2: np.ndarray, A: np.ndarray) -> np.ndarray:
     """Affines in normalised coordinates, ``A_n = L2^-1 A L1`` with ``L`` the 2x2 block of ``C``.
 
-    For zero skew this is ``diag(1/fx2, 1/fy2) A diag(fx1, fy1)`` (DESIGN.md section 2).
+    For zero skew this is ``diag(1/fx2, 1/fy2) A diag(fx1, fy1)``.
     """
     K1, K2 = _check_K(K1), _check_K(K2)
     A = as_array('A', A, (None, 2, 2), min_items=0)

@@ -1,5 +1,5 @@
 """Conventions, written once and used everywhere: the frames of a vehicle-mounted camera
-(REP-103/105), rigid transforms, and the planar-motion parametrisation (DESIGN.md section 1).
+(REP-103/105), rigid transforms, and the planar-motion parametrisation.
 
 Frames:
 

@@ -2,8 +2,7 @@
 renderer, synthetic data) and taken by every consumer.
 
 Any smooth map applied to the images (normalisation by ``K^-1``, undistortion, a levelling
-rotation) acts on ACs by the chain rule: ``p' = g(p)``, ``A' = J_g(p2) A J_g(p1)^-1``
-(DESIGN.md section 4).
+rotation) acts on ACs by the chain rule: ``p' = g(p)``, ``A' = J_g(p2) A J_g(p1)^-1``.
 """
 
 from __future__ import annotations
@@ -19,9 +18,14 @@ from planar_vo.errors import InputError
 __all__ = ['AffineCorrespondences']
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class AffineCorrespondences:
     """N affine correspondences between two images.
+
+    The arrays are checked once, here, and kept read-only (copies of the caller's writable
+    ones): the estimators that take them skip their own checks (a user test: a NaN written
+    into the caller's array afterwards made a clean frame unreliable without a word).
+    Compared and hashed by identity (the fields' ``np.array_equal`` compares contents).
 
     Attributes:
         p1, p2: points in images 1 and 2, shape ``(N, 2)``, pixels unless stated otherwise.
@@ -46,6 +50,9 @@ class AffineCorrespondences:
             # (a user test: accepted here, refused only by the estimator later)
             raise InputError(f'weights: expected non-negative weights, got minimum {w.min()}')
         for name, value in (('p1', p1), ('p2', p2), ('A', A), ('weights', w)):
+            if value.flags.writeable or not value.flags.owndata:
+                value = value.copy()
+                value.flags.writeable = False
             object.__setattr__(self, name, value)
 
     def __len__(self) -> int:

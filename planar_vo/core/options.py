@@ -26,6 +26,12 @@ __all__ = ['Options', 'Range', 'bounded', 'finite', 'nest_dotted']
 _YAML12_FLOAT = re.compile(r'[-+]?([0-9]+(\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+')
 
 
+def _bound(value: float) -> str:
+    """A bound as a message shows it: an integer in full (a user test: a seed's 2**32 - 1 read
+    4.29497e+09), else ``%g``."""
+    return str(value) if isinstance(value, int) else f'{value:g}'
+
+
 @dataclasses.dataclass(frozen=True)
 class Range:
     """The interval a numeric option must lie in, declared once beside its field (`bounded`):
@@ -55,12 +61,12 @@ class Range:
         if self.expected:
             return self.expected
         if self.low is not None and self.high is not None:
-            return (f'in {"(" if self.low_open else "["}{self.low:g}, {self.high:g}'
-                    f'{")" if self.high_open else "]"}')
+            return (f'in {"(" if self.low_open else "["}{_bound(self.low)}, '
+                    f'{_bound(self.high)}{")" if self.high_open else "]"}')
         if self.low is not None:
-            return f'{"more than" if self.low_open else "at least"} {self.low:g}'
+            return f'{"more than" if self.low_open else "at least"} {_bound(self.low)}'
         if self.high is not None:
-            return f'{"less than" if self.high_open else "at most"} {self.high:g}'
+            return f'{"less than" if self.high_open else "at most"} {_bound(self.high)}'
         return 'a finite number'
 
 

@@ -193,8 +193,9 @@ def _solve_1ac_unchecked(q1: np.ndarray, q2: np.ndarray, A: np.ndarray
     beta = np.arctan2(n[:, 3], n[:, 2])
     alpha = theta - beta
     beta = np.where(_cheirality_flip(q1, q2, alpha, beta), beta + np.pi, beta)
-    alpha = np.remainder(alpha + np.pi, 2.0 * np.pi) - np.pi
-    beta = np.remainder(beta + np.pi, 2.0 * np.pi) - np.pi
+    # (-pi, pi], as documented and as the refined path returns it (a user test: beta = pi
+    # came out as -pi here, +pi refined)
+    alpha, beta = wrap_angle(alpha), wrap_angle(beta)
     alpha[degenerate] = np.nan
     beta[degenerate] = np.nan
     return alpha, beta
@@ -301,7 +302,7 @@ def solve_1acf(p1: np.ndarray, p2: np.ndarray, A: np.ndarray, *, return_weight: 
 
     With pixel coordinates centred on the principal point and ``A`` in pixels, ``B`` has the same
     form and its null vector is ``n ~ [cos(a+b)/f, sin(a+b)/f^2, cos b/f, sin b/f^2]``, hence in
-    closed form (DESIGN.md section 2; the paper's 16 sign permutations reduce to this)
+    closed form (the paper's 16 sign permutations reduce to this)
 
         f^2 = (n3^2 - n1^2) / (n2^2 - n4^2),  a + b = atan2(f n2, n1),  b = atan2(f n4, n3).
 
@@ -440,7 +441,16 @@ def ac_residuals(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, alpha: np.ndarra
     """
     q1, q2, A = _check_ac('q1', q1, 'q2', q2, A)
     B = _ac_matrix(q1, q2, A)
-    a = np.asarray(alpha, dtype=np.float64)
-    b = np.asarray(beta, dtype=np.float64)
+    n = q1.shape[0]
+    try:
+        a = np.asarray(alpha, dtype=np.float64)
+        b = np.asarray(beta, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise InputError(f'alpha, beta: expected angles in radians, got {err}') from None
+    for name, value in (('alpha', a), ('beta', b)):
+        # (a user test: (N+1,) angles raised numpy's broadcast ValueError)
+        if value.shape not in ((), (n,)):
+            raise InputError(f'{name}: expected one angle or one per AC, shape () or ({n},), '
+                             f'got {value.shape}')
     x = np.stack(np.broadcast_arrays(np.cos(a + b), np.sin(a + b), np.cos(b), np.sin(b)), -1)
     return np.einsum('nij,...j->ni', B, x) if x.ndim == 1 else np.einsum('nij,nj->ni', B, x)

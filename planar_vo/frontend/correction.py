@@ -1,7 +1,7 @@
 """Make ACs those of an ideal, level pinhole camera: undistortion and mount levelling.
 
 Both corrections are smooth per-image point maps ``g`` and act on an AC by the chain rule
-(DESIGN.md section 4, `AffineCorrespondences.transformed`):
+(`AffineCorrespondences.transformed`):
 
     p1' = g(p1),  p2' = g(p2),  A' = J_g(p2) A J_g(p1)^-1
 

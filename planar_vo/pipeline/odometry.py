@@ -65,6 +65,7 @@ from planar_vo.core.correspondences import AffineCorrespondences
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, median
 from planar_vo.errors import (
     CameraModelError,
+    ConcurrencyError,
     ConfigError,
     ImageError,
     InputError,
@@ -121,6 +122,9 @@ class VisualOdometry:
             CameraInfo does). With ``camera.estimate_focal`` one given here is a
             `ConfigError`; one given to `process` (a CameraInfo that arrived) replaces the
             self-calibration from then on (a warning says so, once).
+
+    One instance is one camera's state: not thread-safe (a second `process` call while one
+    runs is a `ConcurrencyError`); instances in different threads are independent.
 
     Attributes:
         pose: ``T_odom_base`` after the last frame (4x4).
@@ -258,6 +262,11 @@ class VisualOdometry:
         self._focal_sums = np.zeros((9, 3))      # `Keyframe.focal_sums` of the current pose
         self._lost = self._miss_run = 0
         self._restart = ''          # why the next usable frame starts a new keyframe chain
+        self._busy = False          # a `process` call runs (a second at once is refused)
+        # The last frame, when it was lost against the keyframe (too few ACs or an unreliable
+        # estimate): (image, stamp), for the next frame's `_bridge`; and the one this frame got.
+        self._bridge_from: tuple[np.ndarray, float] | None = None
+        self._bridge_source: tuple[np.ndarray, float] | None = None
         self._time_reset = False
         self._new_time_base = False
         self._state = TrackingState.INITIALISING
@@ -411,9 +420,29 @@ class VisualOdometry:
                 ``CameraFrame.stamp``) is judged exactly: 1 ns later is not a duplicate.
             camera: the camera model for this frame (e.g. from ``CameraInfo``); None keeps the
                 last one.
+
+        Raises:
+            ConcurrencyError: another call on this instance is running (another thread): an
+                instance is one camera's state, not thread-safe; give each thread its own, or
+                serialise the calls (a user test: two threads sharing one got internal errors).
         """
+        if self._busy:
+            raise ConcurrencyError('VisualOdometry.process: called while another call on this '
+                                   'instance runs (from another thread): an instance is not '
+                                   'thread-safe; give each thread its own instance, or '
+                                   'serialise the calls with a lock')
+        self._busy = True
+        try:
+            return self._process_frame(image, stamp, camera)
+        finally:
+            self._busy = False
+
+    def _process_frame(self, image, stamp, camera) -> FrameResult:
+        """`process` (one call at a time)."""
         start = time.perf_counter()
         timings: dict[str, float] = {}
+        # A frame lost against the keyframe is a bridge for this one only (`_bridge`).
+        self._bridge_from, self._bridge_source = None, self._bridge_from
         try:
             seconds = stamp if isinstance(stamp, Stamp) else float(stamp)
         except (TypeError, ValueError):
@@ -596,30 +625,41 @@ class VisualOdometry:
         t = time.perf_counter()
         acs = self._extractor.extract(keyframe.image, gray)
         timings['correspondences'] = time.perf_counter() - t
+        bridged = None
         if len(acs) < self.config.odometry.min_correspondences:
-            if self._miss_run >= _OUTGROWN_MISSES and len(acs) and not self._restart:
+            bridged = self._bridge(gray, stamp, camera, timings)
+            if bridged is None and self._miss_run >= _OUTGROWN_MISSES and len(acs) \
+                    and not self._restart:
                 # The keyframe's last chance (`_lost_frame`) failed too, and this frame, like
                 # the two before it, still sees some of the keyframe's scene: the frames have
                 # moved away from it, and this one starts a new chain.
                 self._keyframes.clear()
                 self._restart = 'lost tracking'
                 return self._start_chain(gray, stamp)
-            return self._lost_frame(stamp, DropReason.TOO_FEW_CORRESPONDENCES,
-                                    f'{len(acs)} correspondences (minimum '
-                                    f'{self.config.odometry.min_correspondences})', len(acs))
-        keyframe.matched = True
-        parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
-        if parallax < self.config.keyframe.stationary_parallax:
-            return self._stationary(keyframe, stamp, len(acs))
-
-        t = time.perf_counter()
-        est = self._estimate(acs, camera)
-        timings['solve'] = time.perf_counter() - t
-        if not est.reliable:
-            return self._lost_frame(stamp, DropReason.UNRELIABLE,
-                                    f'motion estimate flagged {est.flag!r} '
-                                    f'({est.num_inliers} inliers of {len(acs)})', len(acs),
-                                    est.num_inliers)
+            if bridged is None:
+                if len(acs):
+                    self._bridge_from = (gray, stamp)
+                return self._lost_frame(stamp, DropReason.TOO_FEW_CORRESPONDENCES,
+                                        f'{len(acs)} correspondences (minimum '
+                                        f'{self.config.odometry.min_correspondences})', len(acs))
+        else:
+            keyframe.matched = True
+            parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
+            if parallax < self.config.keyframe.stationary_parallax:
+                return self._stationary(keyframe, stamp, len(acs))
+            t = time.perf_counter()
+            est = self._estimate(acs, camera)
+            timings['solve'] = time.perf_counter() - t
+            if not est.reliable:
+                bridged = self._bridge(gray, stamp, camera, timings)
+                if bridged is None:
+                    self._bridge_from = (gray, stamp)
+                    return self._lost_frame(stamp, DropReason.UNRELIABLE,
+                                            f'motion estimate flagged {est.flag!r} '
+                                            f'({est.num_inliers} inliers of {len(acs)})',
+                                            len(acs), est.num_inliers)
+        if bridged is not None:
+            keyframe, acs, est, parallax = bridged
         t = time.perf_counter()
         scale, var_scale, source, bias = self._scale(acs, camera, est, keyframe, stamp)
         timings['scale'] = time.perf_counter() - t
@@ -673,7 +713,46 @@ class VisualOdometry:
             timings['focal'] = time.perf_counter() - t
         return self._result(stamp, True, keyframe=new_keyframe, scale_source=source,
                             num_correspondences=len(acs), num_inliers=est.num_inliers,
-                            alpha=float(alpha), beta=float(beta))
+                            alpha=float(alpha), beta=float(beta),
+                            message='' if bridged is None else
+                            'tracked from the frame before, lost against the keyframe: a new '
+                            'keyframe chain from it, its pose extrapolated')
+
+    def _bridge(self, gray: np.ndarray, stamp: float, camera: CameraModel | None,
+                timings: dict[str, float]):
+        """This frame, lost against the keyframe, against the frame before it when that one
+        was lost against the keyframe too (`_bridge_source`): a reliable motion between the two
+        restarts the chain at the frame before, at the pose extrapolated to it, and this frame
+        is tracked from there. Frames that moved away from the keyframe (a lost frame makes the
+        next step twice as long, the one after three times) lost six frames and the chain for
+        two frames missing in transport (a user test); a frame the two share a disturbance with
+        (a truck across both) stays lost. Returns ``(keyframe, acs, estimate, parallax)``, or
+        None (nothing changed but the estimator's fit of this frame)."""
+        source, self._bridge_source = self._bridge_source, None
+        if source is None or camera is None or self._restart or \
+                self._keyframes.current is None or source[0].shape != gray.shape:
+            return None
+        previous, when = source
+        t = time.perf_counter()
+        acs = self._extractor.extract(previous, gray)
+        timings['bridge'] = time.perf_counter() - t
+        if len(acs) < self.config.odometry.min_correspondences:
+            return None
+        parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
+        if parallax < self.config.keyframe.stationary_parallax:
+            return None
+        est = self._estimate(acs, camera)
+        if not est.reliable:
+            return None
+        self._keyframes.clear()
+        if self._window is not None:
+            self._window.clear()
+        self._extrapolate(when)
+        keyframe = self._keyframes.add(previous, when, self.camera_pose, self._camera_cov,
+                                       self._bias, self._tilt_gain, self._focal_sums)
+        keyframe.matched = True
+        self._last_out = (when, self.camera_pose.copy())
+        return keyframe, acs, est, parallax
 
     # -- steps ---------------------------------------------------------------------------------
 
@@ -1296,6 +1375,12 @@ class VisualOdometry:
             self._frozen_why = moved
         elif not self._frozen_why:
             self._frozen_why = self._moving(stamp)
+        elif self._frozen_why.startswith('image identical to the previous frame'):
+            # The run goes on, judged at its first frame (a user test: every frame of the run
+            # named that frame's interval as its own).
+            return ('image identical to the previous frame\'s, pixel for pixel, in a run of '
+                    'identical frames that began ' + self._frozen_why.split(
+                        'pixel for pixel, ', 1)[1])
         return self._frozen_why
 
     def _wheels_moved(self, stamp: float) -> str | None:
@@ -1437,7 +1522,9 @@ class VisualOdometry:
             # finds some but too few, starts a new chain itself (`process`). Garbled frames
             # find none: they wait for odometry.max_lost_frames, and never become keyframes.
             message += ('; two frames in a row found too few correspondences with the keyframe: '
-                        'the next one starts a new keyframe chain unless it matches it')
+                        'the next one that finds some but too few too starts a new keyframe '
+                        'chain (one that matches it keeps the chain; one that finds none, a '
+                        'garbled frame, waits for odometry.max_lost_frames)')
         return self._drop(stamp, reason, message, count, inliers)
 
     def _start_chain(self, gray: np.ndarray, stamp: float) -> FrameResult:

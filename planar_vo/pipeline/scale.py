@@ -1,4 +1,4 @@
-"""Metric scale for monocular motion (DESIGN.md section 5).
+"""Metric scale for monocular motion.
 
 A single camera observes the direction of translation only. Sources of the step length ``s``:
 

@@ -205,12 +205,14 @@ class WarningThrottle:
         self._last: dict[str, float] = {}
         self._held: Counter[str] = Counter()
 
-    def admit(self, key: str, now: float | None = None) -> int | None:
-        """None to stay quiet; else how many warnings of ``key`` were held back since the last."""
+    def admit(self, key: str, now: float | None = None, count: bool = True) -> int | None:
+        """None to stay quiet; else how many warnings of ``key`` were held back since the last
+        (``count`` False: a restated condition, not an event, is not counted)."""
         now = time.monotonic() if now is None else now
         last = self._last.get(key)
         if last is not None and now - last < self.period:
-            self._held[key] += 1
+            if count:
+                self._held[key] += 1
             return None
         self._last[key] = now
         return self._held.pop(key, 0)
@@ -974,10 +976,12 @@ class PlanarVoNode(Node):
     def _warn_no_image(self, silent: float) -> None:
         image_topic = self._image_sub.topic_name
         publishers = self.count_publishers(image_topic)
+        # (restated every ros.warn_period while the silence lasts, its length growing; a user
+        # test: 'suppressed' counted the diagnostics ticks' restatements as warnings)
         self._warn('no_image', f'no image for {silent:.1f} s on {image_topic} '
                                f'({publishers} publisher(s)); listening on '
                                f'{", ".join(self.listened_topics())}; check the remapping '
-                               f'(-r image:=...) and the QoS')
+                               f'(-r image:=...) and the QoS', count=False)
 
     def _on_diagnostics_timer(self) -> None:
         """``/diagnostics``: the state and rates since the last message, for
@@ -1096,10 +1100,12 @@ class PlanarVoNode(Node):
         return (f": its publishers' type is {', '.join(others)}, not {wanted}"
                 + ''.join(hint.get(t, '') for t in others))
 
-    def _warn(self, key: str, message: str, label: str | None = None) -> None:
+    def _warn(self, key: str, message: str, label: str | None = None,
+              count: bool = True) -> None:
         """`message` at warning level, rate-limited per ``key`` (``ros.warn_period``); the
-        note of the ones held back names ``label`` (default: the key)."""
-        held = self._throttle.admit(key)
+        note of the ones held back names ``label`` (default: the key); ``count`` False for a
+        condition restated while it lasts (not events to count as suppressed)."""
+        held = self._throttle.admit(key, count=count)
         if held is None:
             return
         if held:

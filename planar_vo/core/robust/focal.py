@@ -99,10 +99,12 @@ def vote_planar_motion_focal(p1: np.ndarray, p2: np.ndarray, A: np.ndarray,
     ``min_conditioning`` or the focal standard deviation exceeds ``max_focal_rel_std`` of it.
 
     Args:
-        p1, p2: pixel coordinates relative to the principal point, shape ``(N, 2)``.
+        p1, p2: pixel coordinates relative to the principal point, shape ``(N, 2)`` (not
+            normalised ones: their candidates, about 1 px, fall below ``focal_range`` and the
+            result is ``'too_few_candidates'``).
         A: local affines in pixels, shape ``(N, 2, 2)``.
         weights, config, clusters: as for `vote_planar_motion`.
-        focal_range: plausible focal lengths in pixels.
+        focal_range: plausible focal lengths in pixels, ``(min, max)``.
         min_conditioning, max_focal_rel_std: observability thresholds (see above).
         starts: number of focal modes tried.
 
@@ -110,9 +112,17 @@ def vote_planar_motion_focal(p1: np.ndarray, p2: np.ndarray, A: np.ndarray,
         ``(motion, stats)`` with ``motion.focal`` and ``stats.focal_std`` (pixels).
     """
     p1, p2, A, w, config = check_inputs(p1, p2, A, weights, config)
-    lo, hi = float(focal_range[0]), float(focal_range[1])
+    # (a user test: ('a', 'b'), (600,) and None raised ValueError, IndexError, TypeError)
+    try:
+        lo, hi = (float(v) for v in focal_range)
+    except (TypeError, ValueError):
+        lo = hi = math.nan
     if not (0.0 < lo < hi and math.isfinite(hi)):
-        raise ConfigError(f'focal_range: expected 0 < min < max, got {focal_range}')
+        raise ConfigError(f'focal_range: expected (min, max) pixels with 0 < min < max, got '
+                          f'{focal_range!r}')
+    if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or starts < 1:
+        raise ConfigError(f'starts: expected a positive integer number of focal modes, got '
+                          f'{starts!r}')
     n = p1.shape[0]
     clusters = check_clusters(clusters, n)
     if clusters is None:

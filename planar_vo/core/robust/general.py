@@ -5,8 +5,8 @@ forward), relative pose ``X2 = R X1 + t`` with ``|t| = 1``, essential matrix ``E
 normalised coordinates ``q = K^-1 p`` and ``A`` the Jacobian of the image-1 -> image-2 map at
 ``q1`` in normalised units.
 
-Constraints of one AC ``(q1, q2, A)`` on a general ``E`` (Barath et al. 2017; DESIGN.md
-section 2), with ``h1 = [q1; 1]``, ``h2 = [q2; 1]``:
+Constraints of one AC ``(q1, q2, A)`` on a general ``E`` (Barath et al. 2017), with
+``h1 = [q1; 1]``, ``h2 = [q2; 1]``:
 
     r0 = h2^T E h1                                        (epipolar)
     r_{1+k} = (E^T h2)[k] + sum_{j<2} A[j, k] (E h1)[j]   (affine, k = 0, 1)

@@ -121,8 +121,8 @@ class MountTiltEstimator:
     of motion (`TiltEstimate`).
 
     Pitch wobble. A car's relative rotation is a yaw about the normal plus a wobble: its pitch
-    and roll on the suspension and the road's unevenness (KITTI: 0.04-0.11 deg per frame pair,
-    DESIGN.md section 6). When the rotation angle is comparable to the wobble, its axis is the
+    and roll on the suspension and the road's unevenness (KITTI: 0.04-0.11 deg per frame pair
+    of the ground truth). When the rotation angle is comparable to the wobble, its axis is the
     wobble's, not the normal: fitted as an axis, straight driving turned the normal towards the
     camera's x axis (KITTI 05 pairs 0-99: roll 85-88 deg, pitch 0.15-0.40 deg, with
     ground-truth and five-point poses alike). So a rotation informs the axis only if its angle

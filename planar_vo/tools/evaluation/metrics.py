@@ -13,7 +13,7 @@ Definitions (poses ``T = [R | p]`` in the reference world frame, after associati
   ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` (KITTI's devkit writes the inverse, which has the same
   translation norm and angle); errors ``|t(E)| / L`` (reported in %) and
   ``angle(E) / L`` (deg/m), averaged over all segments.
-- KITTI odometry protocol (`kitti_drift`, DESIGN.md section 7): the same segment errors with
+- KITTI odometry protocol (`kitti_drift`): the same segment errors with
   a start every 10 frames and lengths 100, 200, ..., 800 m (those the drive is long enough
   for), on the estimate as it is (no scale alignment: a scale error counts), reported as
   ``t_rel`` (%) and ``r_rel`` (deg/100 m), in 3D and on SE(2) (z, roll and pitch dropped from
@@ -247,7 +247,7 @@ def flatten_se2(trajectory: Trajectory) -> Trajectory:
 def kitti_drift(ref: Trajectory, est: Trajectory, *, planar: bool = False,
                 lengths: tuple[float, ...] = KITTI_LENGTHS, step: int = KITTI_STEP
                 ) -> dict[str, float]:
-    """Drift by the KITTI odometry protocol (Geiger et al., CVPR 2012; DESIGN.md section 7).
+    """Drift by the KITTI odometry protocol (Geiger et al., CVPR 2012).
 
     Args:
         ref, est: associated trajectories (same length, pose by pose); the estimate is used as
