@@ -756,6 +756,40 @@ def test_a_second_pass_starts_from_the_first_passes_focal_calibration():
     assert cal.work(10.0) == 0
 
 
+def test_a_focal_calibration_carries_over_to_the_next_drive():
+    """A self-calibrated focal length as the settings of the camera's next drive
+    (``camera.nominal_fov`` and its standard deviation, `focal_carry`): the next drive starts
+    at the same focal length with the same uncertainty (a straight drive cannot calibrate
+    it). Nothing before any turning pair."""
+    config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
+                                       'camera': {'estimate_focal': True}})
+    trajectory, images, _ = _drive('left')
+    first = VisualOdometry(config)
+    assert first.focal_carry() == {}
+    first.process(images[0], float(trajectory.stamps[0]))
+    assert first.focal_carry() == {}                       # no turning pair yet
+    for t, image in zip(trajectory.stamps[1:], images[1:]):
+        first.process(image, float(t))
+    cal = first.focal_calibrator
+    carry = first.focal_carry()
+    assert set(carry) == {'camera.nominal_fov', 'camera.nominal_fov_std'}, carry
+    f, rel = cal.provisional, cal.relative_std
+    assert carry['camera.nominal_fov'] == pytest.approx(2 * math.atan(320.0 / f), abs=1e-4)
+    assert carry['camera.nominal_fov_std'] == pytest.approx(
+        math.log1p(rel) * math.sin(carry['camera.nominal_fov']), abs=1e-4)
+    assert VisualOdometry(PlanarVoConfig()).focal_carry() == {}        # not self-calibrating
+    # The next drive (straight: nothing to calibrate from) runs on it, as uncertain.
+    nxt = VisualOdometry(PlanarVoConfig.from_dict({
+        'mount': {'height': HEIGHT},
+        'camera': {'estimate_focal': True, **{k.split('.')[1]: v for k, v in carry.items()}}}))
+    straight, images2, _ = _drive('straight')
+    for t, image in zip(straight.stamps[:5], images2[:5]):
+        nxt.process(image, float(t))
+    again = nxt.focal_calibrator
+    assert again.provisional == pytest.approx(f, rel=2e-4)
+    assert again.relative_std == pytest.approx(rel, rel=2e-3)
+
+
 def test_a_new_focal_length_carries_the_tilt_and_road_normal_measured_through_the_old_one(
         monkeypatch):
     # Uncalibrated, a pitched and rolled mount: every change of the provisional focal length
@@ -1707,43 +1741,51 @@ def test_tracking_lost_before_any_motion_leaves_the_travel_unknown():
     assert np.sqrt(last.pose_covariance[0, 0]) < 10.0
 
 
-@pytest.mark.parametrize('shared', [False, True])
-def test_a_frame_lost_against_the_keyframe_bridges_the_next_one(shared):
+@pytest.mark.parametrize('case', ['bridged', 'shared', 'sideways'])
+def test_a_frame_lost_against_the_keyframe_bridges_the_next_one(case, monkeypatch):
     """Frames that moved away from the keyframe (two single frames lost in transport made the
     next steps two and three frames long: six frames and the chain lost, a user test): frame 6
     is lost against the keyframe (its estimate flagged here), so is frame 7, but frame 7
     against frame 6 is reliable: the chain restarts at frame 6, its pose extrapolated, and
     frame 7 is tracked from it, honestly. A disturbance the two share (``shared``: the bridge's
     estimate flagged too, and frame 8's against the keyframe) leaves frame 7 lost, and frame 8
-    bridges from it."""
+    bridges from it; so does a bridge motion the car could not have made (``sideways``: a
+    passing truck's, say, travelling at right angles to the last velocity)."""
     import dataclasses
+
+    from planar_vo.core.conventions import rotation_y
+    from planar_vo.pipeline.estimator import MotionEstimator
 
     trajectory, images, _ = _drive('straight')
     stamps = [float(t) for t in trajectory.stamps]
     vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
     for i in range(6):
         assert vo.process(images[i], stamps[i]).ok or i == 0
-    real, calls = vo._estimate, []
+    real, calls = MotionEstimator.estimate, []
 
-    def flagged(acs, camera):
-        est = real(acs, camera)
+    def altered(self, acs, level):
+        est = real(self, acs, level)
         calls.append(est)
-        if len(calls) <= (4 if shared else 2):
+        if len(calls) <= (2 if case == 'bridged' else 4 if case == 'shared' else 0):
             return dataclasses.replace(est, reliable=False, flag='noisy')
+        if case == 'sideways' and len(calls) <= 4:
+            if len(calls) in (1, 2, 4):
+                return dataclasses.replace(est, reliable=False, flag='noisy')
+            return dataclasses.replace(est, t=rotation_y(np.pi / 2) @ est.t)   # the bridge
         return est
 
-    vo._estimate = flagged
+    monkeypatch.setattr(MotionEstimator, 'estimate', altered)
     assert vo.process(images[6], stamps[6]).reason is DropReason.UNRELIABLE
     r7 = vo.process(images[7], stamps[7])
-    bridged = 8 if shared else 7
-    if shared:
+    bridged = 7 if case == 'bridged' else 8
+    if case == 'bridged':
+        assert len(calls) == 3 and r7.ok        # against the keyframe, then against frame 6
+    else:
         assert r7.reason is DropReason.UNRELIABLE and len(calls) == 3   # keyframe, bridge
         r8 = vo.process(images[8], stamps[8])
         assert len(calls) == 5 and r8.ok        # against the keyframe, then against frame 7
-    else:
-        assert len(calls) == 3 and r7.ok        # against the keyframe, then against frame 6
-    vo._estimate = real
-    last = r8 if shared else r7
+    monkeypatch.setattr(MotionEstimator, 'estimate', real)
+    last = r7 if case == 'bridged' else r8
     assert 'tracked from the frame before' in last.message
     err = last.pose[:2, 3] - (trajectory.xy[bridged] - trajectory.xy[0])
     assert float(err @ np.linalg.solve(last.pose_covariance[:2, :2], err)) < 9.0
@@ -2035,11 +2077,14 @@ def test_a_capture_loop_refilling_one_buffer_is_tracked():
 
 
 @pytest.mark.parametrize('after_loss', [False, True])
-def test_a_chain_started_on_a_garbled_frame_restarts_after_two_misses(after_loss):
+@pytest.mark.parametrize('bridged', [True, False])
+def test_a_chain_started_on_a_garbled_frame_restarts_after_two_misses(after_loss, bridged):
     """Noise is not blank, so a garbled frame can start a keyframe chain (the first frame, or
-    the first after lost tracking). No real frame can match it: when the first two frames after
-    it find no correspondences with it, it is dropped and the next frame starts a new chain,
-    instead of max_lost_frames (5) frames lost against the noise."""
+    the first after lost tracking). No real frame can match it. The second real frame is
+    tracked from the first (`_bridge`: the chain restarts there). Where it cannot be (a frame
+    far from the first: ``bridged`` False), when the first two frames after the noise find no
+    correspondences with it, it is dropped and the next frame starts a new chain, instead of
+    max_lost_frames (5) frames lost against the noise."""
     trajectory, images, _ = _drive('straight')
     stamps = [float(t) for t in trajectory.stamps]
     vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
@@ -2056,12 +2101,18 @@ def test_a_chain_started_on_a_garbled_frame_restarts_after_two_misses(after_loss
     first = vo.process(images[k + 1], stamps[k + 1])
     assert first.reason is DropReason.TOO_FEW_CORRESPONDENCES
     assert 'matched nothing' not in first.message
-    second = vo.process(images[k + 2], stamps[k + 2])
-    assert second.reason is DropReason.TOO_FEW_CORRESPONDENCES
-    assert 'first keyframe matched nothing' in second.message
-    again = vo.process(images[k + 3], stamps[k + 3])
-    assert again.reason is DropReason.REINITIALISED
-    assert all(vo.process(images[i], stamps[i]).ok for i in range(k + 4, k + 7))
+    j = k + 2 if bridged else k + 20              # (20 frames on: nothing in common with k + 1)
+    second = vo.process(images[j], stamps[j])
+    if bridged:
+        assert second.ok and 'tracked from the frame before' in second.message
+    else:
+        assert second.reason is DropReason.TOO_FEW_CORRESPONDENCES
+        assert 'first keyframe matched nothing' in second.message
+        again = vo.process(images[j + 1], stamps[j + 1])
+        assert again.reason is DropReason.REINITIALISED
+        j += 1
+    assert all(vo.process(images[i], stamps[i]).ok
+               for i in range(j + 1, min(j + 4, len(images))))
 
 
 def test_one_garbled_frame_after_a_chain_starts_leaves_its_keyframe():

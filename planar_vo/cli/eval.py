@@ -83,7 +83,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def _load(path: str, topic: str, name: str, topic_option: str, covariances: bool = False,
-          span: tuple[int, int] | None = None):
+          span: tuple[str, int, int] | None = None, part: dict | None = None):
     """The trajectory of `path` (`topic` of a bag), with its pose covariances (None without
     them: a TUM file, a PoseStamped topic) when asked for; errors call the path `name` (EST,
     --gt), not the library's 'trajectory', 'tum' or 'bag', and the topic `topic_option`."""
@@ -94,7 +94,7 @@ def _load(path: str, topic: str, name: str, topic_option: str, covariances: bool
 
     try:
         if covariances and is_bag_path(path):
-            return read_bag_odometry(path, topic, role=topic_option)
+            return read_bag_odometry(path, topic, role=topic_option, part=part)
         trajectory = load_trajectory(path, topic, role=topic_option, span=span)
         return (trajectory, None) if covariances else trajectory
     except PlanarVoError as err:
@@ -149,7 +149,8 @@ def _load_estimate(args: argparse.Namespace):
                 raise InputError(f'--est-start: expected seconds, got '
                                  f'{args.est_start!r}') from None
         return read_kitti_trajectory(args.est, args.est_times, start, args.camera_height), None
-    est, covariances = _load(args.est, args.est_topic, 'EST', '--est-topic', covariances=True)
+    est, covariances = _load(args.est, args.est_topic, 'EST', '--est-topic', covariances=True,
+                             part=args.est_part)
     if args.est_frame == 'camera':
         if covariances is not None:
             raise InputError(f"--est-frame camera: '{args.est}' carries a pose covariance in "
@@ -308,6 +309,7 @@ def run(args: argparse.Namespace) -> int:
             args.est_topic = made
     # With the pose covariance the odometry published (Odometry, PoseWithCovarianceStamped):
     # its consistency with the errors is evaluated too.
+    args.est_part = {}                  # the part of EST read (`_load_estimate`)
     try:
         est, covariances = _load_estimate(args)
     except PlanarVoError as err:
@@ -323,9 +325,13 @@ def run(args: argparse.Namespace) -> int:
                              'none')
         gt_path = args.est
     try:
-        # (a topic on two time bases: the part of the estimate's stamps)
-        ref = _load(gt_path, args.gt_topic, '--gt', '--gt-topic',
-                    span=(int(est.stamps_ns[0]), int(est.stamps_ns[-1])))
+        # A topic on two time bases: the part recorded with the estimate's in the same bag
+        # (by log time: a simulator's clock restarting at the same time each run gives equal
+        # stamps, a review), else the part of its stamps.
+        span = (('log', *args.est_part['log_span'])
+                if args.gt is None and args.est_part.get('split') else
+                ('stamp', int(est.stamps_ns[0]), int(est.stamps_ns[-1])))
+        ref = _load(gt_path, args.gt_topic, '--gt', '--gt-topic', span=span)
     except PlanarVoError as err:
         if args.gt is None and args.gt_topic == DEFAULT_GT_TOPIC \
                 and 'is not a topic of' in str(err):

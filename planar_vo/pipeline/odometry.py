@@ -35,6 +35,7 @@ from __future__ import annotations
 import copy
 import logging
 import math
+import threading
 import time
 from collections import deque
 
@@ -135,6 +136,9 @@ class VisualOdometry:
 
     def __init__(self, config: PlanarVoConfig | None = None,
                  camera: CameraModel | None = None) -> None:
+        # Held while a `process` call runs (a second at once is refused; a review: a flag
+        # set in `reset`, which a call may run, let a second call in).
+        self._busy = threading.Lock()
         self.config = PlanarVoConfig() if config is None else config
         if not isinstance(self.config, PlanarVoConfig):      # (a user test: AttributeError)
             raise ConfigError(f'config: expected a PlanarVoConfig (PlanarVoConfig.from_dict '
@@ -262,7 +266,6 @@ class VisualOdometry:
         self._focal_sums = np.zeros((9, 3))      # `Keyframe.focal_sums` of the current pose
         self._lost = self._miss_run = 0
         self._restart = ''          # why the next usable frame starts a new keyframe chain
-        self._busy = False          # a `process` call runs (a second at once is refused)
         # The last frame, when it was lost against the keyframe (too few ACs or an unreliable
         # estimate): (image, stamp), for the next frame's `_bridge`; and the one this frame got.
         self._bridge_from: tuple[np.ndarray, float] | None = None
@@ -350,6 +353,20 @@ class VisualOdometry:
         origin = 'CameraInfo' if source == 'camera_info' else source
         return f'focal length {px:.1f} px ({origin})'
 
+    def focal_carry(self) -> dict[str, float]:
+        """The self-calibrated focal length as the settings that start this camera's next
+        drive (or the node) from it, ``{'camera.nominal_fov': rad, 'camera.nominal_fov_std':
+        rad}`` (with ``camera.estimate_focal``: the calibration goes on from there, and the
+        odometry's covariance carries its uncertainty from the first frame); empty when not
+        self-calibrating or before any turning pair was profiled."""
+        if self._focal is None or self._camera is not None:
+            return {}
+        carried = self._focal.carry(self.config.camera.distortion_model == 'equidistant')
+        if carried is None:
+            return {}
+        return {'camera.nominal_fov': round(carried[0], 4),
+                'camera.nominal_fov_std': round(carried[1], 4)}
+
     def scale_status(self) -> str:
         """Where the steps' metric scale comes from, one line (a replay summary's): ``ground at
         the camera height 1.65 +- 0.01 m (mount.height)``, the speed topic, a fixed speed or
@@ -426,16 +443,15 @@ class VisualOdometry:
                 instance is one camera's state, not thread-safe; give each thread its own, or
                 serialise the calls (a user test: two threads sharing one got internal errors).
         """
-        if self._busy:
+        if not self._busy.acquire(blocking=False):
             raise ConcurrencyError('VisualOdometry.process: called while another call on this '
                                    'instance runs (from another thread): an instance is not '
                                    'thread-safe; give each thread its own instance, or '
                                    'serialise the calls with a lock')
-        self._busy = True
         try:
             return self._process_frame(image, stamp, camera)
         finally:
-            self._busy = False
+            self._busy.release()
 
     def _process_frame(self, image, stamp, camera) -> FrameResult:
         """`process` (one call at a time)."""
@@ -637,8 +653,9 @@ class VisualOdometry:
                 self._restart = 'lost tracking'
                 return self._start_chain(gray, stamp)
             if bridged is None:
-                if len(acs):
-                    self._bridge_from = (gray, stamp)
+                # (also with none: frames that moved away from the keyframe can go from some
+                # to none at once, a review; a garbled one fails the next frame's bridge)
+                self._bridge_from = (gray, stamp)
                 return self._lost_frame(stamp, DropReason.TOO_FEW_CORRESPONDENCES,
                                         f'{len(acs)} correspondences (minimum '
                                         f'{self.config.odometry.min_correspondences})', len(acs))
@@ -729,9 +746,13 @@ class VisualOdometry:
         (a truck across both) stays lost. Returns ``(keyframe, acs, estimate, parallax)``, or
         None (nothing changed but the estimator's fit of this frame)."""
         source, self._bridge_source = self._bridge_source, None
-        if source is None or camera is None or self._restart or \
-                self._keyframes.current is None or source[0].shape != gray.shape:
+        keyframe = self._keyframes.current
+        if source is None or camera is None or self._restart or keyframe is None or \
+                source[0].shape != gray.shape:
             return None
+        if not keyframe.matched and self._keyframes.previous is not None:
+            return None     # a keyframe nothing matched yet: the one before it may take over
+        #                     (`_lost_frame`), exactly, without extrapolating
         previous, when = source
         t = time.perf_counter()
         acs = self._extractor.extract(previous, gray)
@@ -741,9 +762,15 @@ class VisualOdometry:
         parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
         if parallax < self.config.keyframe.stationary_parallax:
             return None
-        est = self._estimate(acs, camera)
-        if not est.reliable:
+        # On a copy of the estimator (its own would take a refused motion as the car's last),
+        # kept when the motion is taken.
+        trial = copy.deepcopy(self._estimator)
+        norm, level = self._levelled(acs, camera)
+        est = trial.estimate(norm, level)
+        if not (est.reliable and self._plausible_bridge(est, seconds_between(stamp, when))):
             return None
+        self._estimator, self._norm = trial, norm
+        self._calibrate_tilt(est)
         self._keyframes.clear()
         if self._window is not None:
             self._window.clear()
@@ -753,6 +780,23 @@ class VisualOdometry:
         keyframe.matched = True
         self._last_out = (when, self.camera_pose.copy())
         return keyframe, acs, est, parallax
+
+    def _plausible_bridge(self, est, dt: float) -> bool:
+        """Whether a bridge's motion is one the vehicle could have made since its last step:
+        the frames lost against the keyframe may be the ones a passing truck covers, whose
+        motion a bridge would take for the car's (a review). The travel within
+        `_BRIDGE_DIRECTION` of the last velocity's direction (when it moved at 0.5 m/s or
+        more), the yaw within `_BRIDGE_YAW` of the last turn rate's over ``dt``."""
+        T = self._T_base_camera[:3, :3]
+        alpha = float(yaw_of(T @ est.R.T @ T.T))
+        moved = T @ (-est.R.T @ est.t)               # the camera's travel, base_link axes
+        velocity, rate = self._twist[:3], float(self._twist[5])
+        speed = float(np.linalg.norm(velocity))
+        if speed >= 0.5:
+            cos = float(moved @ velocity) / max(float(np.linalg.norm(moved)) * speed, 1e-300)
+            if cos < math.cos(_BRIDGE_DIRECTION):
+                return False
+        return abs(alpha - rate * max(dt, 0.0)) <= _BRIDGE_YAW
 
     # -- steps ---------------------------------------------------------------------------------
 
@@ -2024,6 +2068,10 @@ _UNMATCHED_MISSES = 2
 # Frames in a row with too few correspondences against any keyframe that start a new chain at
 # the next usable frame (`_lost_frame`): the frames have moved away from it, or it is garbled.
 _OUTGROWN_MISSES = 2
+# A bridge's motion (`VisualOdometry._plausible_bridge`) against the last step's: its travel
+# within this angle of the last velocity, its yaw within this of the last turn rate's over
+# the interval (about a frame: a car's heading rate does not change by 50 deg/s within 0.1 s).
+_BRIDGE_DIRECTION, _BRIDGE_YAW = math.radians(30.0), math.radians(5.0)
 # A keyframe whose contrast is below this share of the one before it is a dim one (see
 # `VisualOdometry._lost_frame`).
 _DIM_KEYFRAME = 0.5

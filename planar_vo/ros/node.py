@@ -1137,7 +1137,16 @@ class PlanarVoNode(Node):
                 + (f' ({self._counters["speed_errors"]} refused)'
                    if self._counters["speed_errors"] else '') + '; '
                 f'{self._counters["resets"]} resets; mean {mean} per frame; '
-                f'{self._vo.focal_status()}')
+                f'{self._vo.focal_status()}' + self._carry_note())
+
+    def _carry_note(self) -> str:
+        """The self-calibrated focal length as the parameters that start this camera's next
+        run from it (`VisualOdometry.focal_carry`), or ''."""
+        carry = self._vo.focal_carry()
+        if not carry:
+            return ''
+        return ('; the next run of this camera starts from it with '
+                + ' '.join(f'-p {k}:={v:g}' for k, v in carry.items()))
 
 
 def _parameter_file_entries(path: str) -> tuple[list[str], set[str]]:

@@ -127,6 +127,8 @@ class ReplaySummary:
         partial_input: the input's own record of an import cut short (``'F of N frames (the
             import was interrupted)'``, its ``metadata.yaml``), or empty.
         first_pass: with ``two_pass``, what the first pass did (frames, seconds), else empty.
+        carry: a self-calibrated focal length as the settings that start this camera's next
+            drive from it (the processor's ``focal_carry()``), else empty.
     """
 
     input: str
@@ -158,6 +160,7 @@ class ReplaySummary:
     tum_note: str = ''
     partial_input: str = ''
     first_pass: str = ''
+    carry: dict[str, float] = field(default_factory=dict)
 
     @property
     def motion_out(self) -> int:
@@ -208,6 +211,11 @@ class ReplaySummary:
             f'  camera info errors {self.camera_info_errors}',
             f'  camera             {self.focal or "unknown"}',
             *([f'  first pass         {self.first_pass}'] if self.first_pass else []),
+            *(['  carry it over      '
+               + ' '.join(f'--set {k}={v:g}' for k, v in self.carry.items())
+               + " (this camera's next drive starts from this focal length; the node: -p "
+               + ' -p '.join(f'{k}:={v:g}' for k, v in self.carry.items()) + ')']
+              if self.carry else []),
             *([f'  scale              {self.scale}'] if self.scale else []),
             f'  step lengths       {sources}'
             + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups})')
@@ -584,6 +592,11 @@ def _record_focal(writer: OdometryBagWriter, processor) -> None:
     focal = getattr(processor, 'focal_status', None)
     if callable(focal):
         writer.custom_data['planar_vo.focal'] = focal()
+    carry = getattr(processor, 'focal_carry', None)
+    settings = carry() if callable(carry) else {}
+    if settings:
+        writer.custom_data['planar_vo.focal_carry'] = ' '.join(
+            f'{k}={v:g}' for k, v in settings.items())
 
 
 def _feed_speeds(processor, stamps_ns: list[int], speeds: list[float], start: int,
@@ -657,6 +670,8 @@ def _fill(summary: ReplaySummary, processor, writer, copy, dropped, first, sourc
     summary.camera_info_errors = decoder.camera_errors
     status = getattr(processor, 'focal_status', None)
     summary.focal = status() if callable(status) else ''
+    carry = getattr(processor, 'focal_carry', None)
+    summary.carry = carry() if callable(carry) else {}
     scale = getattr(processor, 'scale_status', None)
     summary.scale = scale() if callable(scale) else ''
     summary.scale_sources = dict(sources)

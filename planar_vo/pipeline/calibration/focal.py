@@ -467,6 +467,22 @@ class OnlineFocalCalibrator:
             return self.adopted_std / self.adopted
         return math.exp(self._posterior()[1]) - 1.0
 
+    def carry(self, fisheye: bool = False) -> tuple[float, float] | None:
+        """The focal length in use and its uncertainty as the horizontal field of view (rad)
+        and its standard deviation, ``camera.nominal_fov`` and ``nominal_fov_std`` of this
+        camera's next drive or node (the inverse of `prior_sigma_for_fov`: ``sigma_fov =
+        sigma_ln_f sin(fov)``, through an equidistant fisheye ``sigma_ln_f fov``); None before
+        any turning pair was profiled (nothing learnt beyond the prior)."""
+        if not self._blocks:
+            return None
+        f, rel = self.provisional, self.relative_std
+        if not (math.isfinite(f) and f > 0 and math.isfinite(rel)):
+            return None
+        sigma = math.log1p(rel)
+        fov = self.width / f if fisheye else 2.0 * math.atan(0.5 * self.width / f)
+        gain = fov if fisheye else math.sin(fov)
+        return fov, min(max(sigma * gain, 1e-4), 1.0)
+
     def update_adoption(self, frame: int) -> bool:
         """Adopt (or update the adopted) estimate when its uncertainty allows (see the class
         docstring); `adopted_at` is the frame of the adoption.

@@ -6,6 +6,7 @@ Stamps are kept as integer nanoseconds so that a stamp written and read back is 
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 from decimal import Decimal, InvalidOperation
@@ -145,44 +146,50 @@ def is_bag_path(path: str | Path) -> bool:
 
 
 def read_bag_trajectory(path: str | Path, topic: str, *, role: str = 'topic',
-                        span: tuple[int, int] | None = None) -> Trajectory:
+                        span: tuple[str, int, int] | None = None,
+                        part: dict | None = None) -> Trajectory:
     """Poses of an Odometry/PoseStamped/PoseWithCovarianceStamped topic, by header stamp.
 
     Messages are sorted by stamp; a repeated stamp keeps its first message (logged). Stamps
     that go back by more than a second in recording order start another time base (a
-    restarted clock): only one part is read (logged): the longest, or with ``span`` (first and
-    last stamp, ns: the estimate's) the one with the most stamps in it. `role` names the topic
-    argument in error messages.
+    restarted clock, confirmed by the next message; `_one_time_base`): only one part is read
+    (logged): the longest, or with ``span`` (``('log', first, last)`` log times, ns, of the
+    estimate's part in the same bag, else ``('stamp', first, last)``) the one with the most
+    messages in it. ``part``, a dict, receives the read part's ``log_span`` and whether the
+    topic was ``split``. `role` names the topic argument in error messages.
 
     Raises:
         BagError: unreadable bag, unknown topic (listing the available ones), wrong type.
         InputError: no messages on the topic.
     """
-    stamps, poses, _ = _read_pose_topic(path, topic, role, covariances=False, span=span)
+    stamps, poses, _ = _read_pose_topic(path, topic, role, covariances=False, span=span,
+                                        part=part)
     return Trajectory.from_poses(stamps, poses)
 
 
-def read_bag_odometry(path: str | Path, topic: str, *, role: str = 'topic'
-                      ) -> tuple[Trajectory, np.ndarray | None]:
+def read_bag_odometry(path: str | Path, topic: str, *, role: str = 'topic',
+                      part: dict | None = None) -> tuple[Trajectory, np.ndarray | None]:
     """`read_bag_trajectory` and, in the same order, the pose covariances ``(N, 6, 6)`` of an
     Odometry or PoseWithCovarianceStamped topic (REP-103 order: x, y, z, then rotations about
     x, y, z); None for a topic without them (PoseStamped). One pass over the bag. Raises as
     `read_bag_trajectory`."""
-    stamps, poses, covariances = _read_pose_topic(path, topic, role, covariances=True)
+    stamps, poses, covariances = _read_pose_topic(path, topic, role, covariances=True,
+                                                  part=part)
     return Trajectory.from_poses(stamps, poses), covariances
 
 
 def _read_pose_topic(path: str | Path, topic: str, role: str, *, covariances: bool,
-                     span: tuple[int, int] | None = None
+                     span: tuple[str, int, int] | None = None, part: dict | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Sorted, de-duplicated stamps, poses and (when asked for and present) covariances."""
     from planar_vo.io import iter_messages, open_bag
     from planar_vo.ros.messages import pose_from_message
 
-    stamps, poses, covs = [], [], []
+    stamps, logs, poses, covs = [], [], [], []
     with open_bag(path) as bag:
         for item in iter_messages(bag, topic, POSE_TYPES, role=role):
             stamps.append(item.stamp_ns)
+            logs.append(item.log_time_ns)
             try:
                 poses.append(pose_from_message(item.msg))
             except InputError as err:
@@ -200,8 +207,12 @@ def _read_pose_topic(path: str | Path, topic: str, role: str, *, covariances: bo
     if not poses:
         raise InputError(f"{role}: '{topic}' in '{path}' has no messages")
     stamps_arr = np.array(stamps, dtype=np.int64)
-    part = _one_time_base(stamps_arr, topic, span)
-    order = part[np.argsort(stamps_arr[part], kind='stable')]
+    logs_arr = np.array(logs, dtype=np.int64)
+    kept = _one_time_base(stamps_arr, logs_arr, topic, span)
+    if part is not None:
+        part.update(log_span=(int(logs_arr[kept].min()), int(logs_arr[kept].max())),
+                    split=bool(kept.size < stamps_arr.size))
+    order = kept[np.argsort(stamps_arr[kept], kind='stable')]
     keep = np.ones(len(order), dtype=bool)
     keep[1:] = np.diff(stamps_arr[order]) > 0
     if not np.all(keep):
@@ -214,38 +225,45 @@ def _read_pose_topic(path: str | Path, topic: str, role: str, *, covariances: bo
     return stamps_arr[order], np.array(poses)[order], cov
 
 
-# A stamp this far behind the latest one before it (in recording order) starts another time
-# base: a restarted clock or recording (the odometry's own rule, odometry.max_time_jump_back);
-# a smaller step back is a message out of order.
+# A stamp this far behind the ones before it (in recording order), and the next message's
+# too, starts another time base: a restarted clock or recording (the odometry's own rule,
+# odometry.max_time_jump_back, confirmed by the next frame); a smaller step back, or a single
+# message, is out of order.
 _TIME_BASE_JUMP_NS = 1_000_000_000
+# The stamps before: the median of the last so many of the part (a run of up to ten stamped
+# ahead, which the odometry publishes after a gap and then rewinds, moves it but little).
+_TIME_BASE_WINDOW = 21
 
 
-def _one_time_base(stamps: np.ndarray, topic: str, span: tuple[int, int] | None
-                   ) -> np.ndarray:
+def _one_time_base(stamps: np.ndarray, logs: np.ndarray, topic: str,
+                   span: tuple[str, int, int] | None) -> np.ndarray:
     """The indices of the messages on one time base (recording order; see
-    `_TIME_BASE_JUMP_NS`): all of them when the stamps never go back that far, else the
-    longest part, or with ``span`` the part with the most stamps within it (the estimate's,
-    for its ground truth: the same part), warned. Sorted by stamp, two time bases interleave
-    (a user test: a replay across a restarted clock scored 48 m ATE and an 11-deg yaw-change
-    error without a word; its odometry had restarted at the origin)."""
-    # A new part's latest stamp starts afresh (a loop over the stamps: one part, the usual
-    # case, costs one comparison per message).
+    `_TIME_BASE_JUMP_NS`): all of them when the stamps never restart, else the longest part,
+    or with ``span`` (``('log' | 'stamp', first, last)``) the part with the most log times or
+    stamps within it (the estimate's part, for its ground truth), warned. Sorted by stamp, two
+    time bases interleave (a user test: a replay across a restarted clock scored 48 m ATE and
+    an 11-deg yaw-change error without a word; its odometry had restarted at the origin)."""
     starts, behind = [], []
-    latest = int(stamps[0])
-    for i, stamp in enumerate(stamps.tolist()):
-        if stamp < latest - _TIME_BASE_JUMP_NS:
-            starts.append(i)
-            behind.append(latest)
-            latest = stamp
-        elif stamp > latest:
-            latest = stamp
+    recent: collections.deque[int] = collections.deque(maxlen=_TIME_BASE_WINDOW)
+    values = stamps.tolist()
+    for i, stamp in enumerate(values):
+        if recent:
+            before = sorted(recent)[len(recent) // 2]
+            nxt = values[i + 1] if i + 1 < len(values) else stamp
+            if stamp < before - _TIME_BASE_JUMP_NS and nxt < before - _TIME_BASE_JUMP_NS:
+                starts.append(i)
+                behind.append(values[i - 1])
+                recent.clear()
+        recent.append(stamp)
     if not starts:
         return np.arange(stamps.size)
     bounds = np.array([0, *starts, stamps.size])
     sizes = np.diff(bounds)
     score = sizes
     if span is not None:
-        score = np.array([np.count_nonzero((stamps[a:b] >= span[0]) & (stamps[a:b] <= span[1]))
+        kind, lo, hi = span
+        values_in = logs if kind == 'log' else stamps
+        score = np.array([np.count_nonzero((values_in[a:b] >= lo) & (values_in[a:b] <= hi))
                           for a, b in zip(bounds[:-1], bounds[1:])]) * (stamps.size + 1) + sizes
     k = int(np.flatnonzero(score == score.max())[-1])       # (the last of equal ones)
     first = starts[0]
@@ -253,7 +271,7 @@ def _one_time_base(stamps: np.ndarray, topic: str, span: tuple[int, int] | None
                 '%s s: a restarted clock or recording, where an odometry restarts from its '
                 'origin); evaluating %s, messages %d-%d (%d of %d)', topic, len(starts),
                 first, _format_ns(int(stamps[first])), _format_ns(behind[0]),
-                'the longest part' if span is None else "the part of the estimate's stamps",
+                'the longest part' if span is None else "the part of the estimate's",
                 bounds[k], bounds[k + 1] - 1, sizes[k], stamps.size)
     return np.arange(bounds[k], bounds[k + 1])
 
@@ -313,7 +331,7 @@ def read_kitti_trajectory(path: str | Path, times: str | Path, start: float | st
 
 
 def load_trajectory(path: str | Path, topic: str | None = None, *, role: str = 'topic',
-                    span: tuple[int, int] | None = None) -> Trajectory:
+                    span: tuple[str, int, int] | None = None) -> Trajectory:
     """A TUM file, or `topic` of a bag (see `is_bag_path`; ``span`` as for
     `read_bag_trajectory`); `role` names the argument."""
     if is_bag_path(path):
