@@ -847,7 +847,13 @@ def test_an_uncalibrated_camera_reports_and_logs_its_focal_length(local_node, dr
     assert last['focal_source'] == source
     assert float(last['focal_std_px']) == pytest.approx(std, rel=1e-5)
     logged = [ln for level, ln in lines if ln.startswith('focal length')]
-    assert logged[0] == first['focal'] and node.summary().endswith(node._vo.focal_status())
+    # The summary ends with the focal length and, once a turning pair was profiled, the
+    # parameters that start the camera's next run from it.
+    carry = node._vo.focal_carry()
+    assert carry, 'a turning pair was profiled'
+    assert logged[0] == first['focal'] and node.summary().endswith(
+        node._vo.focal_status() + '; the next run of this camera starts from it with '
+        + ' '.join(f'-p {k}:={v:g}' for k, v in carry.items()))
     values = [float(ln.split()[2]) for ln in logged]
     assert len(values) >= 2 and values[-1] != 640.0       # the turn moved it, and it said so
     assert all(abs(b / a - 1.0) >= 0.02 for a, b in zip(values, values[1:])), logged

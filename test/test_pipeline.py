@@ -1797,6 +1797,26 @@ def test_a_frame_lost_against_the_keyframe_bridges_the_next_one(case, monkeypatc
     assert float(np.linalg.norm(err)) < 0.3
 
 
+def test_frames_after_a_gap_that_find_nothing_of_a_new_keyframe_are_bridged():
+    """Five frames lost in a turn just after a keyframe was set: the first frames after the
+    gap find no correspondence with it at all (a review: from some to none at once, so no
+    bridge, and the chain was lost for six frames). The second is tracked from the first, and
+    the pose stays honest though extrapolated across the gap."""
+    trajectory, images, _ = _drive('left')
+    stamps = [float(t) for t in trajectory.stamps]
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    for i in range(10):
+        assert vo.process(images[i], stamps[i]).ok or i == 0
+    first = vo.process(images[15], stamps[15])
+    assert first.reason is DropReason.TOO_FEW_CORRESPONDENCES and first.num_correspondences == 0
+    results = [vo.process(images[i], stamps[i]) for i in range(16, 23)]
+    assert results[0].ok and 'tracked from the frame before' in results[0].message
+    assert all(r.ok for r in results)
+    truth = invert(trajectory.poses[0]) @ trajectory.poses[22]
+    err = results[-1].pose[:2, 3] - truth[:2, 3]
+    assert float(err @ np.linalg.solve(results[-1].pose_covariance[:2, :2], err)) < 11.6
+
+
 _FROZEN = (r"image identical to the previous frame's, pixel for pixel, (\S+) s after moving at "
            r"(\S+) \+- (\S+) m/s \(the last step's mean\), too fast to stop since at "
            r"odometry\.max_deceleration (\S+) m/s\^2: a frozen camera or a repeated frame")

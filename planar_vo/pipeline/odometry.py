@@ -750,8 +750,10 @@ class VisualOdometry:
         if source is None or camera is None or self._restart or keyframe is None or \
                 source[0].shape != gray.shape:
             return None
-        if not keyframe.matched and self._keyframes.previous is not None:
-            return None     # a keyframe nothing matched yet: the one before it may take over
+        previous = self._keyframes.previous
+        if not keyframe.matched and previous is not None and \
+                keyframe.contrast < _DIM_KEYFRAME * previous.contrast:
+            return None     # a dim keyframe nothing matched yet: the one before it takes over
         #                     (`_lost_frame`), exactly, without extrapolating
         previous, when = source
         t = time.perf_counter()
