@@ -422,4 +422,21 @@ def test_a_refinement_in_the_wrong_basin_is_left_or_flagged():
         counts[scan] = (reliable, wrong)
     (_, wrong_before), (reliable, wrong) = counts[False], counts[True]
     assert wrong_before >= 9                        # (11 of 48 measured)
-    assert wrong <= 7 and reliable >= 40, counts   # (5 of 45 measured)
+    assert wrong <= 5 and reliable >= 38, counts   # (3 of 42 measured)
+
+
+def test_the_scan_leaves_straight_ahead_answers_as_they_were():
+    """Straight ahead on one plane (the paper's forward protocol, affines from the fitted
+    homography): the plane's two decompositions explain its points alike and the fitted
+    affines can favour the wrong one; the scan's first version left two correct answers of
+    600 for ones 8 and 17 deg off, reliable. The points decide, or the answer is flagged: no
+    answer gets worse."""
+    from planar_vo.sim.synthetic import paper_trial
+
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        acs = paper_trial(rng, 1.0, motion='forward')
+        scanned, stats = _vote(acs)
+        plain, _ = _vote(acs, scan=False)
+        if stats.reliable:
+            assert _errors_deg(scanned, acs)[0] <= _errors_deg(plain, acs)[0] + 0.2, trial

@@ -51,16 +51,20 @@ class OtherBasin:
 
 def sampson_costs(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, rows: np.ndarray,
                   theta: np.ndarray, beta: np.ndarray, sp: float, sa: float,
-                  w: np.ndarray | None, gate: float) -> np.ndarray:
+                  w: np.ndarray | None, gate: float, epipolar_only: bool = False
+                  ) -> np.ndarray:
     """Robust cost ``sum_i w_i min(chi2_i, gate)`` of each of K motions ``(theta, beta)``
     ``(K,)`` (``chi2_i``: AC ``i``'s three residuals whitened at that motion, as
-    `refine.residual_terms` does for one); ``rows``: the ACs' `refine.design_rows`. ``(K,)``;
-    with ``w`` None each AC's chi-square instead, ``(K, N)``."""
+    `refine.residual_terms` does for one; ``epipolar_only``: its epipolar residual alone);
+    ``rows``: the ACs' `refine.design_rows`. ``(K,)``; with ``w`` None each AC's chi-square
+    instead, ``(K, N)``."""
     theta = np.asarray(theta, dtype=np.float64)
     beta = np.asarray(beta, dtype=np.float64)
     x = np.stack([np.cos(theta), np.sin(theta), np.cos(beta), np.sin(beta)], axis=1)
     chi2 = np.zeros((theta.shape[0], q1.shape[0]))
     for k, inv in enumerate(_inverse_variances(q1, q2, A, theta, beta, sp, sa)):
+        if epipolar_only and k:
+            break
         r = x @ rows[:, k::3]                                                # (K, N)
         chi2 += r * r * inv
     return chi2 if w is None else np.minimum(chi2, gate) @ w
@@ -170,21 +174,27 @@ def other_basin(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, w: np.ndarray,
 
 def cost_change(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, w: np.ndarray,
                 mask: np.ndarray, first: tuple[float, float, float, float],
-                second: tuple[float, float, float, float], gate: float) -> float:
+                second: tuple[float, float, float, float], gate: float
+                ) -> tuple[float, float, int]:
     """The robust cost of motion ``second`` minus that of ``first`` (each ``(theta, beta, sp,
     sa)``) on an even sample of the ACs in ``mask`` (at most 256), both whitened at their own
     motion with the smaller of their noise scales (the better fit's), in chi-square units of
-    the mean AC weight (see `other_basin`)."""
+    the mean AC weight (see `other_basin`): all three residuals, the epipolar one alone (the
+    points' own evidence: affines derived from one fitted surface may fit the other
+    decomposition of its homography better, by its fit's error; a check of the scan's first
+    version: a correct straight-ahead answer left for one 17 deg off), and the number of ACs
+    compared."""
     idx = thin(np.flatnonzero(mask & (w > 0)), _SAMPLE)
     if idx.size == 0:
-        return 0.0
+        return 0.0, 0.0, 0
     q1, q2, A = q1[idx], q2[idx], A[idx]
     ws = w[idx] / float(np.mean(w[idx]))
     rows = refine.design_rows(q1, q2, A)
     sp, sa = min(first[2], second[2]), min(first[3], second[3])
-    c = sampson_costs(q1, q2, A, rows, np.array([first[0], second[0]]),
-                      np.array([first[1], second[1]]), sp, sa, ws, gate)
-    return float(c[1] - c[0])
+    theta, beta = np.array([first[0], second[0]]), np.array([first[1], second[1]])
+    c = sampson_costs(q1, q2, A, rows, theta, beta, sp, sa, ws, gate)
+    e = sampson_costs(q1, q2, A, rows, theta, beta, sp, sa, ws, gate, epipolar_only=True)
+    return float(c[1] - c[0]), float(e[1] - e[0]), int(idx.size)
 
 
 def polish(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, w: np.ndarray, mask: np.ndarray,
