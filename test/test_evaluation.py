@@ -937,6 +937,7 @@ def test_one_clock_with_frames_stamped_ahead_or_a_stale_message_is_one_part(tmp_
     stamps = ref.stamps_ns.copy()
     stamps[40:42] += 3_050_000_000                  # two frames stamped 3 s ahead
     stamps[70] -= 2_050_000_000                     # one stale message
+    stamps[99] -= 2_050_000_000                     # ... and the last one
     path = tmp_path / 'one_clock'
     with OdometryBagWriter(path, topic='/odom') as writer:
         for k in range(100):

@@ -249,8 +249,9 @@ def _one_time_base(stamps: np.ndarray, logs: np.ndarray, topic: str,
     for i, stamp in enumerate(values):
         if recent:
             before = sorted(recent)[len(recent) // 2]
-            nxt = values[i + 1] if i + 1 < len(values) else stamp
-            if stamp < before - _TIME_BASE_JUMP_NS and nxt < before - _TIME_BASE_JUMP_NS:
+            # (the last message has no next one to confirm it: out of order, like any single)
+            if i + 1 < len(values) and stamp < before - _TIME_BASE_JUMP_NS and \
+                    values[i + 1] < before - _TIME_BASE_JUMP_NS:
                 starts.append(i)
                 behind.append(values[i - 1])
                 recent.clear()
