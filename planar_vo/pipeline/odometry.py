@@ -743,8 +743,9 @@ class VisualOdometry:
         is tracked from there. Frames that moved away from the keyframe (a lost frame makes the
         next step twice as long, the one after three times) lost six frames and the chain for
         two frames missing in transport (a user test); a frame the two share a disturbance with
-        (a truck across both) stays lost. Returns ``(keyframe, acs, estimate, parallax)``, or
-        None (nothing changed but the estimator's fit of this frame)."""
+        (a truck across both, or a motion the car could not have made: `_plausible_bridge`)
+        stays lost. Returns ``(keyframe, acs, estimate, parallax)``, or None (nothing
+        changed: the estimate ran on a copy of the estimator)."""
         source, self._bridge_source = self._bridge_source, None
         keyframe = self._keyframes.current
         if source is None or camera is None or self._restart or keyframe is None or \
@@ -755,9 +756,9 @@ class VisualOdometry:
                 keyframe.contrast < _DIM_KEYFRAME * previous.contrast:
             return None     # a dim keyframe nothing matched yet: the one before it takes over
         #                     (`_lost_frame`), exactly, without extrapolating
-        previous, when = source
+        before, when = source
         t = time.perf_counter()
-        acs = self._extractor.extract(previous, gray)
+        acs = self._extractor.extract(before, gray)
         timings['bridge'] = time.perf_counter() - t
         if len(acs) < self.config.odometry.min_correspondences:
             return None
@@ -777,7 +778,7 @@ class VisualOdometry:
         if self._window is not None:
             self._window.clear()
         self._extrapolate(when)
-        keyframe = self._keyframes.add(previous, when, self.camera_pose, self._camera_cov,
+        keyframe = self._keyframes.add(before, when, self.camera_pose, self._camera_cov,
                                        self._bias, self._tilt_gain, self._focal_sums)
         keyframe.matched = True
         self._last_out = (when, self.camera_pose.copy())
