@@ -102,10 +102,11 @@ def _load(path: str, topic: str, name: str, topic_option: str, covariances: bool
         raise
 
 
-def _load_estimate(args: argparse.Namespace):
+def _load_estimate(args: argparse.Namespace, part: dict):
     """EST and its pose covariances (None without them): a bag topic or a TUM file, in the
     vehicle's frame or the camera's (--est-frame), or a KITTI pose file with --est-times (a
-    user test: KITTI's own poses as a TUM file scored 101 % t_rel, without a word)."""
+    user test: KITTI's own poses as a TUM file scored 101 % t_rel, without a word). ``part``
+    receives the part of a bag topic read (`read_bag_odometry`)."""
     from planar_vo.errors import InputError
     from planar_vo.core.trajectory import Trajectory
     from planar_vo.io.kitti import camera_to_vehicle
@@ -150,7 +151,7 @@ def _load_estimate(args: argparse.Namespace):
                                  f'{args.est_start!r}') from None
         return read_kitti_trajectory(args.est, args.est_times, start, args.camera_height), None
     est, covariances = _load(args.est, args.est_topic, 'EST', '--est-topic', covariances=True,
-                             part=args.est_part)
+                             part=part)
     if args.est_frame == 'camera':
         if covariances is not None:
             raise InputError(f"--est-frame camera: '{args.est}' carries a pose covariance in "
@@ -309,9 +310,9 @@ def run(args: argparse.Namespace) -> int:
             args.est_topic = made
     # With the pose covariance the odometry published (Odometry, PoseWithCovarianceStamped):
     # its consistency with the errors is evaluated too.
-    args.est_part = {}                  # the part of EST read (`_load_estimate`)
+    est_part: dict = {}                 # the part of EST's topic read (time bases)
     try:
-        est, covariances = _load_estimate(args)
+        est, covariances = _load_estimate(args, est_part)
     except PlanarVoError as err:
         if args.est_topic == DEFAULT_EST_TOPIC and _is_camera_bag(args.est):
             # A user test: the bag of images itself, given for EST, named only the topic.
@@ -328,8 +329,8 @@ def run(args: argparse.Namespace) -> int:
         # A topic on two time bases: the part recorded with the estimate's in the same bag
         # (by log time: a simulator's clock restarting at the same time each run gives equal
         # stamps, a review), else the part of its stamps.
-        span = (('log', *args.est_part['log_span'])
-                if args.gt is None and args.est_part.get('split') else
+        span = (('log', *est_part['log_span'])
+                if args.gt is None and est_part.get('split') else
                 ('stamp', int(est.stamps_ns[0]), int(est.stamps_ns[-1])))
         ref = _load(gt_path, args.gt_topic, '--gt', '--gt-topic', span=span)
     except PlanarVoError as err:

@@ -758,21 +758,12 @@ class VisualOdometry:
         #                     (`_lost_frame`), exactly, without extrapolating
         before, when = source
         t = time.perf_counter()
-        acs = self._extractor.extract(before, gray)
+        found = self._trial_motion(before, gray, camera, self.config.keyframe.stationary_parallax)
         timings['bridge'] = time.perf_counter() - t
-        if len(acs) < self.config.odometry.min_correspondences:
+        if found is None or not self._plausible_bridge(found[2], seconds_between(stamp, when)):
             return None
-        parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
-        if parallax < self.config.keyframe.stationary_parallax:
-            return None
-        # On a copy of the estimator (its own would take a refused motion as the car's last),
-        # kept when the motion is taken.
-        trial = copy.deepcopy(self._estimator)
-        norm, level = self._levelled(acs, camera)
-        est = trial.estimate(norm, level)
-        if not (est.reliable and self._plausible_bridge(est, seconds_between(stamp, when))):
-            return None
-        self._estimator, self._norm = trial, norm
+        acs, parallax, est, trial, norm = found
+        self._estimator, self._norm = trial, norm       # (the copy's fit, kept with the motion)
         self._calibrate_tilt(est)
         self._keyframes.clear()
         if self._window is not None:
@@ -790,9 +781,7 @@ class VisualOdometry:
         motion a bridge would take for the car's (a review). The travel within
         `_BRIDGE_DIRECTION` of the last velocity's direction (when it moved at 0.5 m/s or
         more), the yaw within `_BRIDGE_YAW` of the last turn rate's over ``dt``."""
-        T = self._T_base_camera[:3, :3]
-        alpha = float(yaw_of(T @ est.R.T @ T.T))
-        moved = T @ (-est.R.T @ est.t)               # the camera's travel, base_link axes
+        alpha, moved = self._base_motion(est)
         velocity, rate = self._twist[:3], float(self._twist[5])
         speed = float(np.linalg.norm(velocity))
         if speed >= 0.5:
@@ -800,6 +789,31 @@ class VisualOdometry:
             if cos < math.cos(_BRIDGE_DIRECTION):
                 return False
         return abs(alpha - rate * max(dt, 0.0)) <= _BRIDGE_YAW
+
+    def _trial_motion(self, before: np.ndarray, gray: np.ndarray, camera: CameraModel,
+                      min_parallax: float):
+        """The motion from image ``before`` to ``gray`` on a copy of the estimator (its own
+        would take the motion, perhaps backwards, as the car's latest; its answer's direction
+        is resolved by the cheirality of its inliers: the planar vote's alone put a car
+        starting off on KITTI 05 backwards, a user test): ``(acs, parallax, estimate, the
+        copy, the normalised ACs)``, or None with too few correspondences, a parallax below
+        ``min_parallax`` or an unreliable estimate (`_bridge`, `_mis_stamp_fits`)."""
+        acs = self._extractor.extract(before, gray)
+        if len(acs) < self.config.odometry.min_correspondences:
+            return None
+        parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
+        if not parallax >= min_parallax:
+            return None
+        trial = copy.deepcopy(self._estimator)
+        norm, level = self._levelled(acs, camera)
+        est = trial.estimate(norm, level)
+        return (acs, parallax, est, trial, norm) if est.reliable else None
+
+    def _base_motion(self, est) -> tuple[float, np.ndarray]:
+        """A relative pose's yaw (rad) and the camera's displacement direction, in base_link
+        axes (``X2 = R X1 + t``: the centre moves by ``-R^T t``)."""
+        T = self._T_base_camera[:3, :3]
+        return float(yaw_of(T @ est.R.T @ T.T)), T @ (-est.R.T @ est.t)
 
     # -- steps ---------------------------------------------------------------------------------
 
@@ -1621,23 +1635,11 @@ class VisualOdometry:
         if (across is None or across[3] not in ('ground', 'unit') or camera is None
                 or previous is None or previous.shape != gray.shape or first == self._late_gap):
             return False
-        acs = self._extractor.extract(previous, gray)
-        if len(acs) < self.config.odometry.min_correspondences:
+        found = self._trial_motion(previous, gray, camera, self.config.keyframe.min_parallax)
+        if found is None:
             return False
-        parallax = median(np.linalg.norm(acs.p2 - acs.p1, axis=1))
-        if not parallax >= self.config.keyframe.min_parallax:
-            return False
-        # A copy of the estimator (its own would take this motion, perhaps backwards, as the
-        # car's latest); its answer's direction is resolved by the cheirality of its inliers
-        # (the planar vote's alone put a car starting off on KITTI 05 backwards: a user test).
-        est = copy.deepcopy(self._estimator).estimate(*self._levelled(acs, camera))
-        if not est.reliable:
-            return False
-        alpha = float(yaw_of(self._T_base_camera[:3, :3] @ est.R.T
-                             @ self._T_base_camera[:3, :3].T))
-        # The camera's displacement from the last frame to this one (camera-1 frame), in
-        # base_link: X2 = R X1 + t, so the centre moves by -R^T t.
-        moved = self._T_base_camera[:3, :3] @ (-est.R.T @ est.t)
+        # The camera's displacement from the last frame to this one, in base_link.
+        alpha, moved = self._base_motion(found[2])
         velocity, rate = across[2][:3], float(across[2][5])
         if abs(velocity[0]) > 0.5 * float(np.linalg.norm(velocity)) and \
                 abs(moved[0]) > 0.5 * float(np.linalg.norm(moved)):

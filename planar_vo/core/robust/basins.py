@@ -75,7 +75,8 @@ def sampson_costs(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, rows: np.ndarra
 def _best_headings(alphas: np.ndarray, M: np.ndarray) -> np.ndarray:
     """For each yaw, the heading ``beta`` minimising ``x^T M_k x`` with ``x = [cos(alpha +
     beta), sin(alpha + beta), cos beta, sin beta] = Q(alpha) [cos beta, sin beta]``: the
-    eigenvector of the smallest eigenvalue of ``Q^T M_k Q`` (2x2). ``M`` ``(K, 4, 4)``."""
+    eigenvector of the smallest eigenvalue of ``Q^T M Q`` (2x2); ``M`` the whitened rows'
+    weighted Gram matrix ``(4, 4)``."""
     ca, sa = np.cos(alphas), np.sin(alphas)
     Q = np.zeros((alphas.size, 4, 2))
     Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 0], Q[:, 1, 1] = ca, -sa, sa, ca
@@ -91,7 +92,8 @@ def _best_headings(alphas: np.ndarray, M: np.ndarray) -> np.ndarray:
 def _inverse_variances(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, theta: np.ndarray,
                        beta: np.ndarray, sp: float, sa: float) -> tuple[np.ndarray, ...]:
     """The inverse first-order variances of the ACs' three residuals at each of K motions,
-    three ``(K, N)`` arrays (the terms of `refine.residual_terms`, all motions at once)."""
+    three ``(K, N)`` arrays: the terms of `refine.residual_terms` for all motions at once
+    (called once per motion, the 21 calls cost twice as much)."""
     theta, beta = theta[:, None], beta[:, None]
     ct, st, cb, sb = np.cos(theta), np.sin(theta), np.cos(beta), np.sin(beta)
     u1, v1, u2, v2 = q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1]
@@ -106,17 +108,6 @@ def _inverse_variances(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, theta: np.
     var1 = sp2 * ((a3 * st) ** 2 + (a1 * sb) ** 2 + st * st) + h
     var2 = sp2 * ((a4 * st) ** 2 + (a2 * sb) ** 2 + sb * sb) + h
     return 1.0 / var0, 1.0 / var1, 1.0 / var2
-
-
-def _grams(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, rows: np.ndarray, theta: np.ndarray,
-           beta: np.ndarray, sp: float, sa: float, w: np.ndarray) -> np.ndarray:
-    """The weighted Gram matrices ``(K, 4, 4)`` of the rows whitened at each of K motions:
-    ``sum_r rows[i, r] rows[j, r] w_r / var_kr``, three matrix products."""
-    total = np.zeros((theta.shape[0], 16))
-    for k, inv in enumerate(_inverse_variances(q1, q2, A, theta, beta, sp, sa)):
-        r = rows[:, k::3]                                                    # (4, N)
-        total += (inv * w) @ (r[:, None, :] * r[None, :, :]).reshape(16, -1).T
-    return total.reshape(-1, 4, 4)
 
 
 def other_basin(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, w: np.ndarray,
@@ -144,8 +135,9 @@ def other_basin(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, w: np.ndarray,
     # Headings with the estimate's whitening (a second pass with each grid motion's own did
     # about as well on the paper's protocol, 10 against 11 wrong of 96, at twice the cost),
     # costs with their own.
-    M0 = _grams(q1, q2, A, rows, np.array([theta]), np.array([beta]), sp, sa, ws)
-    betas = _best_headings(alphas, np.broadcast_to(M0, (alphas.size, 4, 4)))
+    _, g, h = refine.residual_terms(q1, q2, A, rows, theta, beta)
+    whitened = refine.whiten_rows(rows, g, h, sp, sa)        # (a copy: the costs use rows)
+    betas = _best_headings(alphas, (whitened * np.repeat(ws, 3)) @ whitened.T)
     costs = sampson_costs(q1, q2, A, rows, alphas + betas, betas, sp, sa, ws, gate)
     centre = int(np.flatnonzero(steps == 0)[0])
     costs[centre] = min(costs[centre],

@@ -202,6 +202,13 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
 _BASIN_MARGIN = 2.0 * math.log(100.0)
 
 
+def _noise_caps(config: VotingConfig) -> tuple[float, float]:
+    """The most the data-driven point and affine noise scales may be (``max_noise_factor``
+    times the nominal levels)."""
+    return (config.max_noise_factor * config.point_noise,
+            config.max_noise_factor * config.affine_noise)
+
+
 def _two_rounds(q1, q2, A, w, theta0, beta0, members, config, clusters, covariance):
     """Selection and refinement from ``(theta0, beta0)``: noise scales from ``members`` (the
     lower quartile: a share of them may be outliers) and one refinement, then, with
@@ -213,8 +220,7 @@ def _two_rounds(q1, q2, A, w, theta0, beta0, members, config, clusters, covarian
     # within a degree, where the first-order standard deviations barely change).
     rows = refine.design_rows(q1, q2, A)
     r, g, h = refine.residual_terms(q1, q2, A, rows, theta0, beta0)
-    sp_cap = config.max_noise_factor * config.point_noise
-    sa_cap = config.max_noise_factor * config.affine_noise
+    sp_cap, sa_cap = _noise_caps(config)
     sp, sa = refine.robust_scales(r[members], g[members], h[members])
     sp, sa = min(sp, sp_cap), min(sa, sa_cap)
     # The rows are whitened in place (and rebuilt in the same buffer for the second round):
@@ -250,8 +256,7 @@ def _settle(q1, q2, A, w, theta, beta, members, config, clusters, covariance):
     inliers, cov, rms, sp, sa``."""
     rows = refine.design_rows(q1, q2, A)
     r, g, h = refine.residual_terms(q1, q2, A, rows, theta, beta)
-    sp_cap = config.max_noise_factor * config.point_noise
-    sa_cap = config.max_noise_factor * config.affine_noise
+    sp_cap, sa_cap = _noise_caps(config)
     sp, sa = refine.robust_scales(r[members], g[members], h[members])
     inliers = np.zeros(w.shape[0], bool)
     for quantile in (0.25, 0.5):
