@@ -95,6 +95,34 @@ def test_ransac_comparison_is_accurate_too(outliers):
         assert ea < 0.1 and eb < 0.5
 
 
+def test_first_round_on_a_sample_is_as_accurate_as_on_all(monkeypatch):
+    # Above STAT_SAMPLE ACs the vote's first selection and refinement round (only a start for
+    # the second, which selects and refines on all of them) runs on an even sample: each answer
+    # stays within a fraction of its standard deviation of the whole first round's, and the
+    # errors are as small.
+    from planar_vo.core.robust import vote as vote_module
+
+    errors = {True: [], False: []}
+    for seed in range(24):
+        acs = shared_motion_acs(np.random.default_rng(seed), 4000, 0.5,
+                                outlier_ratio=(0.0, 0.5, 0.7)[seed % 3])
+        answers = {}
+        for sampled in (True, False):
+            if not sampled:
+                monkeypatch.setattr(vote_module, '_FIRST_ROUND_SAMPLE', 10 ** 9)
+            motion, stats = _vote(acs, clusters=acs.planes)
+            monkeypatch.undo()
+            assert stats.reliable, (seed, sampled, stats.flag)
+            answers[sampled] = motion, stats
+            errors[sampled].append(_errors_deg(motion, acs))
+        (m1, _), (m2, s2) = answers[True], answers[False]
+        sigma = np.sqrt(np.diag(s2.covariance))
+        assert abs(float(angle_difference(m1.alpha, m2.alpha))) < 0.5 * sigma[0], seed
+        assert abs(float(angle_difference(m1.beta, m2.beta))) < 0.5 * sigma[1], seed
+    rms = {k: np.sqrt(np.mean(np.square(v), axis=0)) for k, v in errors.items()}
+    assert np.all(rms[True] <= 1.05 * rms[False]), rms
+
+
 def test_errors_shrink_with_more_correspondences():
     spread = []
     for n in (250, 4000):

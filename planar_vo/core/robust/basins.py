@@ -63,12 +63,13 @@ def sampson_costs(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, rows: np.ndarra
     theta = np.asarray(theta, dtype=np.float64)
     beta = np.asarray(beta, dtype=np.float64)
     x = np.stack([np.cos(theta), np.sin(theta), np.cos(beta), np.sin(beta)], axis=1)
-    chi2 = np.zeros((theta.shape[0], q1.shape[0]))
-    for k, inv in enumerate(_inverse_variances(q1, q2, A, theta, beta, sp, sa)):
-        if epipolar_only and k:
-            break
-        r = x @ rows[:, k::3]                                                # (K, N)
-        chi2 += r * r * inv
+    r = (x @ rows).reshape(theta.shape[0], -1, 3)                            # (K, N, 3)
+    r *= r
+    inv = _inverse_variances(q1, q2, A, x, sp, sa, epipolar_only)
+    chi2 = r[..., 0] * inv[0]
+    if not epipolar_only:
+        chi2 += r[..., 1] * inv[1]
+        chi2 += r[..., 2] * inv[2]
     return chi2 if w is None else np.minimum(chi2, gate) @ w
 
 
@@ -89,25 +90,36 @@ def _best_headings(alphas: np.ndarray, M: np.ndarray) -> np.ndarray:
     return np.where(flat, np.where(a <= c, 0.0, 0.5 * np.pi), np.arctan2(lam - a, b))
 
 
-def _inverse_variances(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, theta: np.ndarray,
-                       beta: np.ndarray, sp: float, sa: float) -> tuple[np.ndarray, ...]:
-    """The inverse first-order variances of the ACs' three residuals at each of K motions,
-    three ``(K, N)`` arrays: the terms of `refine.residual_terms` for all motions at once
-    (called once per motion, the 21 calls cost twice as much)."""
-    theta, beta = theta[:, None], beta[:, None]
-    ct, st, cb, sb = np.cos(theta), np.sin(theta), np.cos(beta), np.sin(beta)
+def _inverse_variances(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, x: np.ndarray,
+                       sp: float, sa: float, epipolar_only: bool = False) -> np.ndarray:
+    """The inverse first-order variances of the ACs' three residuals at each of K motions
+    ``x = [cos theta, sin theta, cos beta, sin beta]`` ``(K, 4)``, ``(3, K, N)`` (only the
+    first with ``epipolar_only``): the terms of `refine.residual_terms`, each a sum of
+    products of the motion's ``st^2, sb^2, cb sb, st ct, ct^2, cb^2`` with the AC's own
+    coefficients, so all K motions are one small matrix product (``d/du1`` of the epipolar
+    row ``(u1 st - ct)^2 = u1^2 st^2 - 2 u1 st ct + ct^2`` and so on)."""
     u1, v1, u2, v2 = q1[:, 0], q1[:, 1], q2[:, 0], q2[:, 1]
-    a1, a2, a3, a4 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
+    ct, st, cb, sb = x.T
+    C = np.stack([st * st, sb * sb, -2.0 * cb * sb, -2.0 * st * ct, ct * ct, cb * cb], 1)
     sp2, sa2 = sp * sp, sa * sa
-    lift = u1 * st - ct
-    lift *= lift
-    vs = v1 * sb
-    vs *= vs
-    h = sa2 * (vs + lift) + 1e-300
-    var0 = sp2 * ((v2 * st) ** 2 + (cb - u2 * sb) ** 2 + vs + lift) + 1e-300
-    var1 = sp2 * ((a3 * st) ** 2 + (a1 * sb) ** 2 + st * st) + h
-    var2 = sp2 * ((a4 * st) ** 2 + (a2 * sb) ** 2 + sb * sb) + h
-    return 1.0 / var0, 1.0 / var1, 1.0 / var2
+    uu, vv = u1 * u1, v1 * v1
+    F = np.zeros((1 if epipolar_only else 3, 6, u1.size))
+    # Epipolar: (v2 st)^2 + (cb - u2 sb)^2 + (v1 sb)^2 + (u1 st - ct)^2, point noise only.
+    F[0] = np.stack([v2 * v2 + uu, u2 * u2 + vv, u2, u1, np.ones_like(u1), np.ones_like(u1)])
+    F[0] *= sp2
+    if not epipolar_only:
+        a1, a2, a3, a4 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
+        # Affine rows: their affine noise sa^2 ((v1 sb)^2 + (u1 st - ct)^2) in both, and the
+        # point noise sp^2 ((a3 st)^2 + (a1 sb)^2 + st^2), sp^2 ((a4 st)^2 + (a2 sb)^2 + sb^2).
+        F[1, 0], F[1, 1] = sp2 * (a3 * a3 + 1.0), sp2 * (a1 * a1)
+        F[2, 0], F[2, 1] = sp2 * (a4 * a4), sp2 * (a2 * a2 + 1.0)
+        F[1:, 0] += sa2 * uu
+        F[1:, 1] += sa2 * vv
+        F[1:, 3] += sa2 * u1
+        F[1:, 4] += sa2
+    var = C @ F
+    var += 1e-300
+    return np.reciprocal(var, out=var)
 
 
 def other_basin(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, w: np.ndarray,
@@ -138,11 +150,12 @@ def other_basin(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, w: np.ndarray,
     _, g, h = refine.residual_terms(q1, q2, A, rows, theta, beta)
     whitened = refine.whiten_rows(rows, g, h, sp, sa)        # (a copy: the costs use rows)
     betas = _best_headings(alphas, (whitened * np.repeat(ws, 3)) @ whitened.T)
-    costs = sampson_costs(q1, q2, A, rows, alphas + betas, betas, sp, sa, ws, gate)
+    # (and the estimate itself, last: the grid's centre is its yaw with the best heading)
+    both = sampson_costs(q1, q2, A, rows, np.append(alphas + betas, theta),
+                         np.append(betas, beta), sp, sa, ws, gate)
+    costs = both[:-1]
     centre = int(np.flatnonzero(steps == 0)[0])
-    costs[centre] = min(costs[centre],
-                        float(sampson_costs(q1, q2, A, rows, np.array([theta]),
-                                            np.array([beta]), sp, sa, ws, gate)[0]))
+    costs[centre] = min(costs[centre], float(both[-1]))
     # The estimate's basin: the slopes rising from the minimum its descent of the profile
     # reaches. Every other local minimum is a candidate; one outside that basin is a rival.
     own = centre

@@ -43,7 +43,7 @@ from planar_vo.core.conventions import wrap_angle
 from planar_vo.core.robust import basins, histogram, refine
 from planar_vo.core.robust.options import VotingConfig
 from planar_vo.core.robust.ransac import ransac_planar_motion
-from planar_vo.core.robust.stats import MAD_TO_SIGMA, lower_quantile, thin
+from planar_vo.core.robust.stats import MAD_TO_SIGMA, STAT_SAMPLE, lower_quantile, thin
 from planar_vo.core.robust.types import (
     PlanarMotion,
     VotingStats,
@@ -213,30 +213,41 @@ def _two_rounds(q1, q2, A, w, theta0, beta0, members, config, clusters, covarian
     """Selection and refinement from ``(theta0, beta0)``: noise scales from ``members`` (the
     lower quartile: a share of them may be outliers) and one refinement, then, with
     ``config.refine`` and enough inliers, scales from the inliers (the median) and up to three
-    more. Returns ``theta, beta, inliers, cov, rms, sp, sa`` and whether the second round
-    ran."""
-    # Residual terms at the start: the members (near both modes of the vote) calibrate the
-    # noise scales, and the resulting whitening is kept for a first refinement (the vote is
-    # within a degree, where the first-order standard deviations barely change).
-    rows = refine.design_rows(q1, q2, A)
-    r, g, h = refine.residual_terms(q1, q2, A, rows, theta0, beta0)
+    more (above `_FIRST_ROUND_SAMPLE` ACs the first round runs on an even sample of them:
+    `_sampled_first_round`). Returns ``theta, beta, inliers, cov, rms, sp, sa`` and whether the
+    second round ran."""
     sp_cap, sa_cap = _noise_caps(config)
-    sp, sa = refine.robust_scales(r[members], g[members], h[members])
-    sp, sa = min(sp, sp_cap), min(sa, sa_cap)
-    # The rows are whitened in place (and rebuilt in the same buffer for the second round):
-    # with one scratch buffer for the fits, two arrays of the rows' size serve every step
-    # below (see `refine.select_and_refine` on why).
-    wrows, scratch = refine.whiten_rows(rows, g, h, sp, sa, out=rows), np.empty_like(rows)
-    theta, beta, inliers, cov, rms = refine.select_and_refine(
-        wrows, w, theta0, beta0, config, passes=1, covariance=not config.refine,
-        scratch=scratch)
-    twice = config.refine and np.count_nonzero(inliers) >= max(config.min_inliers, 4)
+    sampled = _sampled_first_round(q1, q2, A, w, theta0, beta0, members, config)
+    if sampled is not None:
+        theta, beta, sp, sa = sampled
+        twice, scratch, wrows, sample = True, None, None, None
+    else:
+        # Residual terms at the start: the members (near both modes of the vote) calibrate
+        # the noise scales, and the resulting whitening is kept for a first refinement (the
+        # vote is within a degree, where the first-order standard deviations barely change).
+        rows = refine.design_rows(q1, q2, A)
+        r, g, h = refine.residual_terms(q1, q2, A, rows, theta0, beta0)
+        sp, sa = refine.robust_scales(r[members], g[members], h[members])
+        sp, sa = min(sp, sp_cap), min(sa, sa_cap)
+        # The rows are whitened in place (and rebuilt in the same buffer for the second
+        # round): with one scratch buffer for the fits, two arrays of the rows' size serve
+        # every step below (see `refine.select_and_refine` on why).
+        wrows, scratch = refine.whiten_rows(rows, g, h, sp, sa, out=rows), np.empty_like(rows)
+        theta, beta, inliers, cov, rms = refine.select_and_refine(
+            wrows, w, theta0, beta0, config, passes=1, covariance=not config.refine,
+            scratch=scratch)
+        twice = config.refine and np.count_nonzero(inliers) >= max(config.min_inliers, 4)
+        sample = thin(np.flatnonzero(inliers))
     if twice:
         # Second round: noise scales from the inliers at the refined motion (clean, so the
         # median is the right statistic), then the same selection and refinement again.
         rows = refine.design_rows(q1, q2, A, out=wrows)
         r, g, h = refine.residual_terms(q1, q2, A, rows, theta, beta)
-        sample = thin(np.flatnonzero(inliers))
+        if sample is None:
+            # (after a sampled first round: its inliers among all the ACs, at its motion)
+            chi2 = np.sum(refine.whitened(r, g, h, sp, sa) ** 2, axis=1)
+            sample = thin(np.flatnonzero((chi2 <= config.inlier_chi2) & (w > 0)))
+            scratch = np.empty_like(rows)
         sp, sa = refine.robust_scales(r[sample], g[sample], h[sample], quantile=0.5)
         sp, sa = min(sp, sp_cap), min(sa, sa_cap)
         wrows = refine.whiten_rows(rows, g, h, sp, sa, out=rows)
@@ -247,6 +258,41 @@ def _two_rounds(q1, q2, A, w, theta0, beta0, members, config, clusters, covarian
         _, _, _, cov, rms = refine.select_and_refine(wrows, w, theta, beta, config, clusters,
                                                      passes=1, scratch=scratch)
     return theta, beta, inliers, cov, rms, sp, sa, twice
+
+
+def _sampled_first_round(q1, q2, A, w, theta0, beta0, members, config):
+    """The first round of `_two_rounds` on an even sample of the ACs when there are more than
+    `_FIRST_ROUND_SAMPLE` (its motion only starts the second round, which selects and refines
+    on all of them, and its inliers only give the second round's noise scales, from a sample
+    anyway): ``theta, beta`` and its noise scales, or None (too few ACs to sample, or too few
+    members or inliers in the sample: the whole first round runs)."""
+    n = q1.shape[0]
+    if not config.refine or n <= _FIRST_ROUND_SAMPLE:
+        return None
+    sub = thin(np.arange(n), _FIRST_ROUND_SAMPLE)
+    in_sub = np.zeros(n, bool)
+    in_sub[sub] = True
+    at = np.cumsum(in_sub) - 1                       # position in the sample of a sampled AC
+    own = at[members[in_sub[members]]]
+    if own.size < max(config.min_inliers, 4):
+        return None
+    q1, q2, A, w = q1[sub], q2[sub], A[sub], w[sub]
+    rows = refine.design_rows(q1, q2, A)
+    r, g, h = refine.residual_terms(q1, q2, A, rows, theta0, beta0)
+    sp_cap, sa_cap = _noise_caps(config)
+    sp, sa = refine.robust_scales(r[own], g[own], h[own])
+    sp, sa = min(sp, sp_cap), min(sa, sa_cap)
+    wrows = refine.whiten_rows(rows, g, h, sp, sa, out=rows)
+    theta, beta, inliers, _, _ = refine.select_and_refine(wrows, w, theta0, beta0, config,
+                                                          passes=1, covariance=False)
+    if np.count_nonzero(inliers) < max(config.min_inliers, 4):
+        return None
+    return theta, beta, sp, sa
+
+
+# Above this many ACs the first round of `_two_rounds` runs on an even sample of about as many
+# (4,000 ACs of the speed benchmark: about 0.1 ms less; as accurate, a test).
+_FIRST_ROUND_SAMPLE = STAT_SAMPLE
 
 
 def _settle(q1, q2, A, w, theta, beta, members, config, clusters, covariance):
