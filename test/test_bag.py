@@ -382,7 +382,7 @@ def _replay_input(path, storage, rng, n=10, bad=(4,), nan_speeds=()):
 def test_replay_counts_a_header_stamp_that_is_no_ros_time(tmp_path, rng):
     """A user test: a first image stamped sec -1 aborted the replay when its odometry was
     written (the 9 frames after it never ran), and nanosec 4e9 read as 4 s later. Each is a
-    bad_image now, seen neither by the pipeline nor by the gap counter."""
+    bad_stamp now, seen neither by the pipeline nor by the gap counter."""
     entries = []
     for i in range(10):
         stamp = T0 + i * 100_000_000
@@ -396,7 +396,7 @@ def test_replay_counts_a_header_stamp_that_is_no_ros_time(tmp_path, rng):
     double = ConstantVelocityDouble()
     summary = replay_bag(write_bag(tmp_path / 'in', 'mcap', entries), tmp_path / 'out', double,
                          progress=False)
-    assert summary.frames_in == 10 and summary.dropped == {'bad_image': 2}
+    assert summary.frames_in == 10 and summary.dropped == {'bad_stamp': 2}
     assert summary.odometry_out == 8 and summary.origins == 1
     assert (summary.gaps, summary.missing_frames) == (0, 0)
     assert len(double.calls) == 8

@@ -1313,7 +1313,7 @@ def test_a_speed_topic_on_another_clock_is_reported(monkeypatch, local_node, dri
     assert '6 speed messages (1 refused); ' in node.summary()
 
 
-def test_an_image_stamp_that_is_no_ros_time_is_a_bad_image(local_node, drive_bag):
+def test_an_image_stamp_that_is_no_ros_time_is_a_bad_stamp(local_node, drive_bag):
     """A user test: nanosec 4e9 was read as 4 s later (replay drops such an image)."""
     node = local_node(MOUNT_PARAMS)
     info, images = _bag_messages(drive_bag, 6)
@@ -1321,11 +1321,11 @@ def test_an_image_stamp_that_is_no_ros_time_is_a_bad_image(local_node, drive_bag
     images[4].header.stamp.nanosec = 4_000_000_000
     for msg in images:
         node._on_image(msg)
-    assert node.outcomes == {'first_frame': 1, 'ok': 4, 'bad_image': 1}
+    assert node.outcomes == {'first_frame': 1, 'ok': 4, 'bad_stamp': 1}
     # ... and it came: it fills its slot in the stamps (a review: counted missing too).
     assert (node._counters['gaps'], node._counters['missing_frames']) == (0, 0)
     assert node.published['status'][4].status[0].message == (
-        'bad_image: header stamp sec 1700000000, nanosec 4000000000 is not a ROS time '
+        'bad_stamp: header stamp sec 1700000000, nanosec 4000000000 is not a ROS time '
         '(0 <= nanosec < 1e9, from 1970 to 2038)')
 
 

@@ -528,7 +528,7 @@ class FocalRun:
     def add(self, frame) -> None:
         """One `planar_vo.io.CameraFrame`; its CameraInfo is withheld (``camera=None``)."""
         if frame.image is None:
-            return                                   # replay counts it as bad_image too
+            return                       # replay counts it too (bad_image, bad_stamp)
         self.results.append(self.vo.process(frame.image, frame.stamp, None))
         self.stamps.append(frame.stamp)
         cal = self.vo.focal_calibrator

@@ -465,7 +465,7 @@ class VisualOdometry:
             seconds = math.nan
         try:
             if not math.isfinite(seconds):
-                result = self._drop(seconds, DropReason.BAD_IMAGE,
+                result = self._drop(seconds, DropReason.BAD_STAMP,
                                     f'timestamp {_short(stamp)} is not a finite number')
             elif camera is not None and not isinstance(camera, CameraModel):
                 result = self._drop(seconds, DropReason.NO_CAMERA_INFO,

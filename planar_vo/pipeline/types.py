@@ -32,6 +32,9 @@ class DropReason(str, enum.Enum):
     NO_CAMERA_INFO = 'no_camera_info'      # no usable intrinsics yet (none, refused, or of
     #                                        another image size), no focal self-calibration
     BAD_IMAGE = 'bad_image'                # undecodable, unsupported encoding, wrong size
+    BAD_STAMP = 'bad_stamp'                # the stamp is no time: not a finite number, or a ROS
+    #                                        stamp out of range (negative, nanosec of a second
+    #                                        or more, beyond 2038)
     BLANK_IMAGE = 'blank_image'            # black, saturated or textureless
     FROZEN_IMAGE = 'frozen_image'          # the previous frame again, pixel for pixel, while
     #                                        moving (a stalled camera republishing its image)

@@ -169,6 +169,10 @@ _IMAGE_WATCH_SLACK = 0.005
 _FIRST_FRAME = DropReason.FIRST_FRAME.value
 
 
+class _BadStamp(Exception):
+    """An image's header stamp is no ROS time (`stamp_problem`): a ``bad_stamp`` frame."""
+
+
 def _with_odometry(outcomes: Counter[str]) -> int:
     """Frames of ``outcomes`` that gave an odometry message: a motion or the origin."""
     return outcomes['ok'] + outcomes[_FIRST_FRAME]
@@ -687,7 +691,7 @@ class PlanarVoNode(Node):
                 # Not a time at all (a user test: nanosec 4e9 read as 4 s later): the pipeline
                 # does not see it; it fills a slot of the stamps' interval it came in.
                 self._gaps.refused()
-                raise ImageError(problem)
+                raise _BadStamp(problem)
             self._note_gap(stamp_ns)
             try:
                 image = decode(msg)
@@ -698,6 +702,8 @@ class PlanarVoNode(Node):
             result = self._vo.process(image, Stamp(stamp_ns), self._camera)
             if result.has_odometry:                          # a motion, or the origin
                 odom = self._odometry(msg.header, result)    # InputError if the pose is not finite
+        except _BadStamp as err:
+            result = self._dropped(stamp_ns, DropReason.BAD_STAMP, str(err))
         except ImageError as err:
             result = self._dropped(stamp_ns, DropReason.BAD_IMAGE, str(err))
         except Exception as err:  # noqa: BLE001 - a bug in the pipeline must not stop the node

@@ -71,6 +71,7 @@ SPEED_TYPES = (
     ODOMETRY_TYPE,
 )
 BAD_IMAGE = DropReason.BAD_IMAGE.value
+BAD_STAMP = DropReason.BAD_STAMP.value
 # Images the bag's index counts that reading skipped (damaged storage): replay's own reason.
 UNREADABLE = 'unreadable'
 
@@ -502,7 +503,7 @@ def replay_bag(in_path: str | Path, out_path: str | Path, processor: FrameProces
                         # Not a time at all: the pipeline does not see it; it fills a slot
                         # of the stamps' interval it came in.
                         gaps.refused()
-                        _count_drop(dropped, BAD_IMAGE, frame, frame.error, first)
+                        _count_drop(dropped, BAD_STAMP, frame, frame.error, first)
                         continue
                     gap = gaps.note(frame.stamp_ns)
                     if gap is not None and gap.rate_change is None and not warned_gap:
