@@ -165,6 +165,13 @@ def test_camera_info_errors(changes, match):
         CameraModel.from_camera_info(SimpleNamespace(**fields))
 
 
+def test_a_boolean_image_size_is_refused():
+    # (a user test: a width of True was taken as 1)
+    with pytest.raises(CameraModelError, match=r'^image size: expected positive integers, got '
+                                               r'Truex100$'):
+        CameraModel.pinhole(True, 100, 50.0)
+
+
 @pytest.mark.parametrize(('changes', 'match'), [
     # A focal length 100 times too long: a 0.7-degree view, no lens on a vehicle has that.
     ({'k': np.diag([50000.0, 50000.0, 1.0]) + np.array([[0, 0, 319.5], [0, 0, 239.5], [0, 0, 0]])},

@@ -277,6 +277,26 @@ def test_wrong_arguments_are_typed_errors():
     assert bad.weights[3] >= 0.0 and not np.shares_memory(bad.weights, caller)
     with pytest.raises(ValueError, match='read-only'):
         bad.weights[3] = -0.5
+    # The container's own methods raise InputError too (a user test: AttributeError and
+    # numpy's IndexError).
+    for call, message in (
+            (lambda: level.normalized('cam'), r'^normalized: camera1: expected a CameraModel, '
+                                              r'got str$'),
+            (lambda: level.normalized(None), r'^normalized: camera1: expected a CameraModel'),
+            (lambda: level.subset(np.array([len(level)])), rf'^subset of {len(level)} '
+                                                           rf'correspondences: index '
+                                                           rf'{len(level)} is out of bounds'),
+            (lambda: level.subset(np.array([1.5])), r'^subset of \d+ correspondences: expected '
+                                                    r'integer indices or a boolean mask, got '
+                                                    r'float64 values$'),
+            (lambda: level.subset(np.ones(3, bool)), r'^subset of \d+ correspondences: '
+                                                     r'boolean index did not match'),
+            (lambda: AffineCorrespondences.concatenate([level, 2]),
+             r'^concatenate: item 1: expected AffineCorrespondences, got int$')):
+        with pytest.raises(InputError, match=message):
+            call()
+    assert len(level.subset([])) == 0 and len(level.subset(slice(10, 20))) == 10
+    assert len(AffineCorrespondences.concatenate([level, level])) == 2 * len(level)
     # (forced writable, the estimator still refuses what its votes would not check again)
     bad.weights.flags.writeable = True
     bad.weights[3] = -0.5

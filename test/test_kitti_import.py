@@ -444,6 +444,21 @@ def test_an_excerpt_may_keep_its_first_frame_number(tmp_path, rng):
         read_kitti_sequence(tmp_path / 'seq')
 
 
+def test_text_files_saved_with_a_byte_order_mark_are_read(tmp_path, rng):
+    """A user test: a calib.txt saved by an editor with a UTF-8 byte-order mark was refused
+    ('got \\ufeff7.07...'); the same numbers without one are read alike."""
+    _write_sequence(tmp_path / 'plain', rng)
+    _write_sequence(tmp_path / 'bom', np.random.default_rng(0))
+    for name in ('calib.txt', 'times.txt', 'poses.txt'):
+        text = (tmp_path / 'plain' / name).read_text()
+        (tmp_path / 'bom' / name).write_text(text, encoding='utf-8-sig')
+    plain, bom = (read_kitti_sequence(tmp_path / k) for k in ('plain', 'bom'))
+    assert (tmp_path / 'bom' / 'calib.txt').read_bytes().startswith(b'\xef\xbb\xbf')
+    np.testing.assert_array_equal(bom.P0, plain.P0)
+    np.testing.assert_array_equal(bom.poses, plain.poses)
+    assert list(bom.times) == list(plain.times)
+
+
 def test_frames_numbered_without_zero_padding_are_taken_in_number_order(tmp_path, rng):
     """'0.png' ... '10.png' (a user test: sorted as text, '02.png' was reported missing)."""
     times = [f'{0.1 * i:.1f}' for i in range(11)]

@@ -100,6 +100,13 @@ def test_ac_residuals_refuse_angles_of_another_length(rng):
         ac_residuals(n.p1, n.p2, n.A, np.zeros(21), 0.0)
     with pytest.raises(InputError, match=r'^alpha, beta: expected angles in radians'):
         ac_residuals(n.p1, n.p2, n.A, 0.0, 'left')
+    # Non-finite angles, as the solvers refuse non-finite ACs (a user test: NaN residuals).
+    with pytest.raises(InputError, match=r'^alpha: expected finite angles, got nan$'):
+        ac_residuals(n.p1, n.p2, n.A, np.nan, -1.5)
+    beta = np.full(20, -1.5)
+    beta[7] = np.inf
+    with pytest.raises(InputError, match=r'^beta: expected finite angles, got a non-finite one$'):
+        ac_residuals(n.p1, n.p2, n.A, 0.0, beta)
 
 
 def test_1ac_residuals_vanish_at_truth(rng):

@@ -995,6 +995,11 @@ def test_focal_status_names_the_source():
     configured = VisualOdometry(PlanarVoConfig.from_dict({'camera': {'fx': 480.0}}))
     configured.process(images[0], float(trajectory.stamps[0]))
     assert configured.focal_status() == 'focal length 480.0 px (configured)'
+    # A camera model given to the constructor is configured too (a user test: 'CameraInfo').
+    given = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    given.process(images[0], float(trajectory.stamps[0]))
+    assert given.focal_status() == f'focal length {CAMERA.fx:.1f} px (configured)'
+    assert given.focal_length() == (CAMERA.fx, 0.0, 'configured')
     # A camera model of another size than the images is named, and why it is not used (a user
     # test: 'CameraInfo' was named while every frame was dropped for it).
     other = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}))

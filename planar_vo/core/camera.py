@@ -116,8 +116,10 @@ class CameraModel:
 
     def __post_init__(self) -> None:
         K = _check_K(self.K)
-        if not (int(self.width) == self.width and int(self.height) == self.height
+        if isinstance(self.width, bool) or isinstance(self.height, bool) or not (
+                int(self.width) == self.width and int(self.height) == self.height
                 and self.width > 0 and self.height > 0):
+            # (a user test: a width of True was taken as 1)
             raise CameraModelError(f'image size: expected positive integers, got '
                                    f'{self.width}x{self.height}')
         if self.distortion_model not in DISTORTION_MODELS:

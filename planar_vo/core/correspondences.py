@@ -59,9 +59,24 @@ class AffineCorrespondences:
         return int(self.p1.shape[0])
 
     def subset(self, index: np.ndarray | slice) -> AffineCorrespondences:
-        """The correspondences selected by a boolean mask, an index array or a slice."""
-        return AffineCorrespondences(self.p1[index], self.p2[index], self.A[index],
-                                     self.weights[index])
+        """The correspondences selected by a boolean mask, an index array or a slice.
+
+        Raises:
+            InputError: an index out of range, not an integer, or a mask of another length.
+        """
+        try:
+            if not isinstance(index, slice):
+                index = np.asarray(index)
+                if index.size == 0:
+                    index = index.astype(np.intp)                # (an empty list: nothing)
+                elif index.dtype != bool and not np.issubdtype(index.dtype, np.integer):
+                    raise IndexError(f'expected integer indices or a boolean mask, got '
+                                     f'{index.dtype} values')
+            return AffineCorrespondences(self.p1[index], self.p2[index], self.A[index],
+                                         self.weights[index])
+        except IndexError as err:
+            # (a user test: numpy's IndexError, where every other entry point raises InputError)
+            raise InputError(f'subset of {len(self)} correspondences: {err}') from None
 
     def transformed(self, map1, map2) -> AffineCorrespondences:
         """Apply point maps ``p -> (g(p), J_g(p))`` to each image: ``A' = J2 A J1^-1``.
@@ -119,13 +134,24 @@ class AffineCorrespondences:
         return self.transformed_kept(g, g)
 
     def normalized(self, camera1, camera2=None) -> AffineCorrespondences:
-        """Ideal normalised coordinates ``K^-1 undistort(p)`` of `CameraModel` s."""
+        """Ideal normalised coordinates ``K^-1 undistort(p)`` of `CameraModel` s (``camera2``:
+        image 2's, default ``camera1``); `InputError` for anything else."""
         camera2 = camera1 if camera2 is None else camera2
+        for name, camera in (('camera1', camera1), ('camera2', camera2)):
+            if not callable(getattr(camera, 'normalizing_map', None)):
+                raise InputError(f'normalized: {name}: expected a CameraModel, got '
+                                 f'{type(camera).__name__}')
         return self.transformed(camera1.normalizing_map(), camera2.normalizing_map())
 
     @staticmethod
     def concatenate(items: list[AffineCorrespondences]) -> AffineCorrespondences:
-        """Join several sets into one."""
+        """Join several sets into one (`InputError` for items that are not
+        `AffineCorrespondences`)."""
+        items = list(items)
+        for k, item in enumerate(items):
+            if not isinstance(item, AffineCorrespondences):
+                raise InputError(f'concatenate: item {k}: expected AffineCorrespondences, got '
+                                 f'{type(item).__name__}')
         if not items:
             return AffineCorrespondences(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2, 2)))
         return AffineCorrespondences(np.concatenate([c.p1 for c in items]),

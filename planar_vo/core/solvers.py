@@ -452,5 +452,9 @@ def ac_residuals(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, alpha: np.ndarra
         if value.shape not in ((), (n,)):
             raise InputError(f'{name}: expected one angle or one per AC, shape () or ({n},), '
                              f'got {value.shape}')
+        if not np.all(np.isfinite(value)):
+            # (a user test: NaN angles gave NaN residuals, where the solvers refuse NaN input)
+            got = value if value.ndim == 0 else 'a non-finite one'
+            raise InputError(f'{name}: expected finite angles, got {got}')
     x = np.stack(np.broadcast_arrays(np.cos(a + b), np.sin(a + b), np.cos(b), np.sin(b)), -1)
     return np.einsum('nij,...j->ni', B, x) if x.ndim == 1 else np.einsum('nij,nj->ni', B, x)

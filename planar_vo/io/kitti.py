@@ -132,9 +132,10 @@ def _numbers(path: Path, lineno: int, line: str, count: int, what: str) -> np.nd
 
 
 def _lines(path: Path) -> list[tuple[int, str]]:
-    """Non-empty lines with their 1-based numbers."""
+    """Non-empty lines with their 1-based numbers (a byte-order mark is not data: a user
+    test had a calib.txt saved with one refused)."""
     try:
-        text = path.read_text(encoding='utf-8')
+        text = path.read_text(encoding='utf-8-sig')
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(f'{path}: cannot read ({err})') from err
     return [(i, line) for i, line in enumerate(text.splitlines(), 1) if line.strip()]

@@ -154,7 +154,9 @@ class VisualOdometry:
         self._extractor = ACExtractor(self.config.frontend)
         self._estimator = MotionEstimator(self.config.estimator, self.config.voting)
         self._camera = camera
-        self._camera_from_config = False
+        # The model in use was configured: camera.fx, or the one given here (a user test: it
+        # was named the CameraInfo's); a camera model passed with the frames is a CameraInfo's.
+        self._camera_from_config = camera is not None
         self._size_matched = False                  # an image had the camera model's size
         self._camera_problem: str | None = None     # why the configured intrinsics are refused
         self._took_camera = False                   # a camera model replaced the calibration
@@ -395,7 +397,8 @@ class VisualOdometry:
         """``(pixels, standard deviation, source)`` of the focal length `focal_status`
         describes (the one the next frame uses): source ``'unknown'`` (NaN, inf; also while
         the camera model is of another size than the images, whose frames are dropped),
-        ``'camera_info'``, ``'configured'`` (standard deviation 0: given), ``'provisional'`` or
+        ``'camera_info'`` (a model passed with the frames), ``'configured'`` (standard
+        deviation 0: ``camera.fx`` or the model given to the constructor), ``'provisional'`` or
         ``'self-calibrated'``."""
         if self._focal is not None and self._camera is None:
             cal = self._focal
@@ -409,8 +412,7 @@ class VisualOdometry:
         return self._in_use.fx, 0.0, self._model_origin()
 
     def _model_origin(self) -> str:
-        return ('configured' if self.config.camera.fx > 0 and self._camera_from_config
-                else 'camera_info')
+        return 'configured' if self._camera_from_config else 'camera_info'
 
     def _unused_model(self) -> bool:
         """The camera model in use is of another size than the last image (whose frame was
