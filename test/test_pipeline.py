@@ -1186,6 +1186,34 @@ def test_frame_clock_needs_a_second_frame_to_jump_in_time():
     assert verdicts == [S.OK, S.FAR_BEHIND, S.JUMP_AHEAD, S.FAR_BEHIND, S.OK]
 
 
+def test_a_frame_stamped_early_among_the_first_is_not_said_to_follow_a_gap():
+    """A user test: frame 10 of an evenly stamped 8 Hz stream, stamped before frame 9, was
+    dropped with 'which came after a gap' (the first intervals are watched as gaps until the
+    usual interval is known); after a real gap it still says so."""
+    from planar_vo.pipeline.clock import FrameClock, StampCheck
+
+    clock = FrameClock(10.0, 1.0)
+    for i in range(10):
+        assert clock.check(100.0 + 0.125 * i) is StampCheck.OK
+    assert clock.check(100.0 + 0.125 * 10 - 0.16) is StampCheck.INSIDE_GAP
+    assert clock.inside_start
+    clock = FrameClock(10.0, 1.0)
+    for t in [100.0 + 0.1 * i for i in range(15)] + [101.8]:      # a real gap before 101.8
+        assert clock.check(t) is StampCheck.OK
+    assert clock.check(101.6) is StampCheck.INSIDE_GAP and not clock.inside_start
+    trajectory, images, _ = _drive('straight')
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}))
+    stamps = [Stamp(1_700_000_000_000_000_000 + 125_000_000 * i) for i in range(10)]
+    for image, stamp in zip(images, stamps):
+        vo.process(image, stamp, CAMERA)
+    result = vo.process(images[10], Stamp(stamps[9].ns - 35_000_000), CAMERA)
+    assert result.reason is DropReason.OUT_OF_ORDER
+    assert result.message == ('timestamp 1700000001.090000000 is older than the previous '
+                              '1700000001.125000000, one of the first frames, whose stamps are '
+                              'not yet known to be even: if the next frame is older too, that '
+                              'one was stamped ahead of its time')
+
+
 def test_a_frame_stamped_ahead_within_the_max_gap_is_confirmed_mis_stamped():
     """A frame stamped 3 s ahead (under max_frame_gap) opens what looks like a gap; the first
     frame inside it is refused, the second confirms that the one before them was mis-stamped:

@@ -139,8 +139,12 @@ class FrameClock:
         self._intervals: collections.deque[float] = collections.deque(maxlen=self.INTERVALS)
         # The gaps among the last `GAP_WATCH` accepted frames (and the first two intervals,
         # which may be ones): [stamp before, stamp after, frames accepted since (the one after
-        # included)]; the first frame refused inside one.
+        # included), whether it is one of the first two intervals]; the first frame refused
+        # inside one.
         self._gaps: list[list] = []
+        # The last `StampCheck.INSIDE_GAP` was inside one of the first two intervals (watched
+        # as gaps before the usual interval is known), not inside a gap seen as one.
+        self.inside_start = False
         self._inside: tuple[float, float] | None = None     # (first, latest)
         # After `StampCheck.REWOUND`: the stamp of the first frame after the gap and the
         # seconds by which it and the frames after it were ahead (the gap's slots shared
@@ -191,6 +195,7 @@ class FrameClock:
                 self._inside, self._proposed = (first_inside, stamp), (stamp, latest)
                 return StampCheck.REWOUND
             self._inside = (stamp, stamp)
+            self.inside_start = gap[3]
             return StampCheck.INSIDE_GAP
         if step < 0.0:
             if -step <= self.max_jump_back:
@@ -220,7 +225,7 @@ class FrameClock:
             g[2] += 1
         self._gaps = [g for g in self._gaps if g[2] <= GAP_WATCH]
         if len(self._intervals) < 2 or step > GAP_FACTOR * statistics.median(self._intervals):
-            self._gaps.append([last, stamp, 1])
+            self._gaps.append([last, stamp, 1, len(self._intervals) < 2])
         self._inside = self._proposed = None
         self.last, self._ahead, self._behind = stamp, None, None
         self._intervals.append(step)
@@ -240,7 +245,7 @@ class FrameClock:
         self.jump = seconds_between(stamp, self.last)
         self.last, self._ahead, self._behind = stamp, None, None
         self._inside = None
-        self._gaps = [[latest, stamp, 1]]
+        self._gaps = [[latest, stamp, 1, False]]
 
     def _follows(self, stamp: float, refused: float | None) -> bool:
         """``stamp`` confirms the time of the frame refused before it: it comes after it,
@@ -266,13 +271,15 @@ class RateChange:
 @dataclass(frozen=True)
 class Gap:
     """Frames lost before a stamp: the interval (ns), about how many frames are missing, the
-    nominal period (ns) it was judged against, and the rate change it completed (if any: then
-    it and the gaps before it are off the counts)."""
+    nominal period (ns) it was judged against, the rate change it completed (if any: then
+    it and the gaps before it are off the counts), and whether the frames were lost while the
+    receiver was busy (``behind``: `GapCounter.note`)."""
 
     interval_ns: int
     missing: int
     period_ns: float
     rate_change: RateChange | None = None
+    behind: bool = False
 
 
 class GapCounter:
@@ -295,6 +302,12 @@ class GapCounter:
     test: a frame out of order counted as missing too); a second one after it in order
     (`StampCheck.REWOUND`: a mis-stamped frame opened the gap, or the frames came late) fills
     one, the frames since the gap theirs, and every later frame stamped inside it one.
+
+    A gap that came while the receiver was busy (``note(..., busy=True)``: the frame was
+    waiting when the last one was done, so the frames between were dropped from its queue) is
+    counted in ``behind`` too, and never taken for a new frame rate (a user test: a node taking
+    22 ms per frame of a 60 Hz camera lost 83 of 300 frames, called the camera's rate 30 Hz
+    and counted 36 missing).
     """
 
     GAP_FACTOR = GAP_FACTOR     # an interval this many times the nominal period is a gap
@@ -316,14 +329,23 @@ class GapCounter:
         self._after_gap: list[int] = []     # stamps accepted since the last gap (a few)
         self.gaps = 0
         self.missing = 0
+        self.behind = 0         # of the missing frames, those lost while the receiver was busy
+
+    @property
+    def period_ns(self) -> float | None:
+        """The nominal frame interval (ns): the median of the recent intervals, or None
+        before two."""
+        return statistics.median(self._intervals) if len(self._intervals) >= 2 else None
 
     def refused(self) -> None:
         """A frame came whose stamp is no time at all (replay: not a ROS time): like one
         stamped far ahead or behind, it fills a slot of the interval it came in."""
         self._glitched += 1
 
-    def note(self, stamp_ns: int) -> Gap | None:
-        """Judge one frame's stamp (integer ns): the gap before it, or None."""
+    def note(self, stamp_ns: int, busy: bool = False) -> Gap | None:
+        """Judge one frame's stamp (integer ns): the gap before it, or None. ``busy``: the
+        frame was waiting while the receiver processed the one before (the frames of a gap
+        before it were dropped from the receiver's queue, not by the camera)."""
         check = self._clock.check(Stamp(stamp_ns))
         if check in (StampCheck.JUMP_AHEAD, StampCheck.FAR_BEHIND, StampCheck.DUPLICATE,
                      StampCheck.TOO_CLOSE):
@@ -344,10 +366,15 @@ class GapCounter:
             self._glitched, self._last_ns = 0, stamp_ns
             self._after_gap = [stamp_ns]
             return None
-        if check is StampCheck.INSIDE_GAP:
+        if check is StampCheck.INSIDE_GAP and self._open > 0:
             self._fill(1)                   # a late frame fills one slot of the gap
             return None
-        if check is StampCheck.OUT_OF_ORDER:
+        if check in (StampCheck.INSIDE_GAP, StampCheck.OUT_OF_ORDER):
+            # Stamped before the previous frame with no gap open here to fill (that frame's
+            # slot is taken): its stamp is wrong, and it fills a slot of the interval it came
+            # in (a user test: a frame stamped 56 ms early was counted out of order and its
+            # slot missing too).
+            self._glitched += 1
             return None
         last, self._last_ns = self._last_ns, stamp_ns
         glitched, self._glitched = self._glitched, 0
@@ -379,10 +406,15 @@ class GapCounter:
                     return None     # the refused frames filled it: no gap, no new period
                 self.gaps += 1
                 self.missing += missing
-                change = self._rate_change(dt, missing, period)
+                if busy:
+                    self.behind += missing
+                    self._run.clear()       # (the receiver's pace, not the camera's rate)
+                    change = None
+                else:
+                    change = self._rate_change(dt, missing, period)
                 self._open, self._open_age = (0 if change is not None else missing), 1
                 self._open_span = (last, stamp_ns)
-                return Gap(dt, missing, period, change)
+                return Gap(dt, missing, period, change, busy)
         self._run.clear()
         self._intervals.append(dt)
         return None
@@ -394,6 +426,7 @@ class GapCounter:
             return
         self._open -= frames
         self.missing -= frames
+        self.behind = min(self.behind, self.missing)
         if self._run:
             self._run[-1][1] -= frames
         if self._open == 0:                 # filled: no gap

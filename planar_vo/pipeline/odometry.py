@@ -524,10 +524,13 @@ class VisualOdometry:
                               f'the usual {1e3 * usual:.3g} ms: a duplicated or mis-stamped '
                               f'frame')
         if check is StampCheck.INSIDE_GAP:
+            # (a user test: 'after a gap' was said of a frame among the first, evenly stamped)
+            after = ('one of the first frames, whose stamps are not yet known to be even' if
+                     self._clock.inside_start else 'which came after a gap')
             return self._drop(stamp, DropReason.OUT_OF_ORDER,
                               f'timestamp {format_stamp(stamp)} is older than the previous '
-                              f'{format_stamp(last)}, which came after a gap: if the next '
-                              f'frame is older too, that one was stamped ahead of its time')
+                              f'{format_stamp(last)}, {after}: if the next frame is older '
+                              f'too, that one was stamped ahead of its time')
         if check is StampCheck.OUT_OF_ORDER:
             return self._drop(stamp, DropReason.OUT_OF_ORDER,
                               f'timestamp {format_stamp(stamp)} is older than the previous '

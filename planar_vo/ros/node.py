@@ -156,6 +156,9 @@ _INT64_MAX = 2 ** 63 - 1
 # that releases them when no image comes runs five times as often: 0.6 s at most).
 _PENDING_IMAGES = 3
 _CAMERA_INFO_WAIT = 0.5
+# An image whose callback starts within this share of the camera's frame interval after the
+# last one ended was waiting in the queue: the node runs back to back (`_waited`).
+_QUEUED_SHARE = 0.1
 _monotonic = time.monotonic            # the waiting images' clock (tests replace it)
 # The focal length is logged again when it moved by this share since the last line (the
 # self-calibration's progress: a handful of lines in a turn, none while it holds still).
@@ -267,6 +270,12 @@ class PlanarVoNode(Node):
         self._node_time = 0.0
         odometry = self.config.odometry
         self._gaps = GapCounter(odometry.max_frame_gap, odometry.max_time_jump_back)
+        # When the last image callback ended, and whether the image of this one was already
+        # waiting then (`_image`): the node is the bottleneck, frames are dropped from its
+        # subscription queue.
+        self._callback_end: float | None = None
+        self._queued = False
+        self._last_frame_time = 0.0
         self._path: deque[PoseStamped] = deque(maxlen=ros.path_max_length)
         self._path_tip: PoseStamped | None = None     # the latest pose, when not kept
         self._path_published = -math.inf
@@ -277,6 +286,7 @@ class PlanarVoNode(Node):
         self._period: Counter[str] = Counter()           # outcomes since the last diagnostics
         self._period_scale: Counter[str] = Counter()     # scale sources of its odometry
         self._period_time: list[float] = []
+        self._period_behind = 0          # frames dropped unprocessed in the period (`_note_gap`)
         self._started = self._last_image = time.monotonic()
 
         self._odom_pub = self.create_publisher(Odometry, 'odom', 10)
@@ -569,6 +579,25 @@ class PlanarVoNode(Node):
         publisher on the graph is counted at once, its status published with it. Nor for one
         that never comes: no image waits much longer than ``_CAMERA_INFO_WAIT`` seconds
         (`_release_overdue`, by the next image or a timer)."""
+        begin = time.perf_counter()
+        try:
+            self._queued = self._waited(begin)
+            self._take_image(msg, decode)
+        finally:
+            self._queued = False
+            self._callback_end = time.perf_counter()
+
+    def _waited(self, now: float) -> bool:
+        """Whether this image was already waiting when the last image callback ended: the
+        time between them is a small share (`_QUEUED_SHARE`) of the camera's frame interval,
+        so the node runs back to back and frames beyond its queue's depth are dropped."""
+        period = self._gaps.period_ns
+        if self._callback_end is None or period is None:
+            return False
+        return now - self._callback_end < _QUEUED_SHARE * period * 1e-9
+
+    def _take_image(self, msg: Image | CompressedImage, decode) -> None:
+        """`_image` (the callback's timing apart)."""
         self._last_image = time.monotonic()
         self._silence_reported = False
         self._image_watch.reset()                       # a whole timeout from now
@@ -724,6 +753,7 @@ class PlanarVoNode(Node):
             self._report_drop(stamp_ns, result)
         node_time = time.perf_counter() - start
         self._node_time += node_time
+        self._last_frame_time = node_time
         self._period_time.append(node_time)
         self._last_result = result
         focal = self._note_focal()
@@ -774,10 +804,22 @@ class PlanarVoNode(Node):
     def _note_gap(self, stamp_ns: int) -> None:
         """Count frames lost before reaching the node (`GapCounter`: an interval far above the
         usual one; a clock glitch, a looped bag or a new frame rate are none)."""
-        gap = self._gaps.note(stamp_ns)
+        gap = self._gaps.note(stamp_ns, busy=self._queued)
         self._counters['gaps'], self._counters['missing_frames'] = (self._gaps.gaps,
                                                                     self._gaps.missing)
+        self._counters['missing_behind'] = self._gaps.behind
         if gap is None:
+            return
+        if gap.behind:
+            self._period_behind += gap.missing
+            self._warn('behind', f'the node falls behind the camera: about '
+                                 f'{gap.missing} frame(s) before {_format_stamp(stamp_ns)} were '
+                                 f'dropped from its subscription queue unprocessed (an image '
+                                 f'took {1e3 * self._last_frame_time:.0f} ms here, the camera '
+                                 f'sends one every {gap.period_ns / 1e6:.0f} ms); lower the '
+                                 f"camera's frame rate (a throttle), the front-end's work "
+                                 f'(frontend.max_correspondences) or the load on this core; '
+                                 f'odometry bridges the gaps')
             return
         self._warn('gap', f'gap of {gap.interval_ns / 1e6:.0f} ms in the image stamps before '
                           f'{_format_stamp(stamp_ns)} (about {gap.missing} frame(s) missing at '
@@ -915,7 +957,7 @@ class PlanarVoNode(Node):
             if reason.value != _FIRST_FRAME:
                 values[f'dropped.{reason.value}'] = self.outcomes[reason.value]
         for name in ('camera_info_errors', 'camera_changes', 'speed_messages', 'speed_errors',
-                     'gaps', 'missing_frames', 'resets', 'tracking_changes'):
+                     'gaps', 'missing_frames', 'missing_behind', 'resets', 'tracking_changes'):
             values[name] = self._counters[name]
         return values
 
@@ -1030,6 +1072,11 @@ class PlanarVoNode(Node):
             status.message = (f'{state.value}; odometry from {_with_odometry(self._period)} '
                               f'of {frames} images in the last {period:g} s ({reason}: '
                               f'{count})')
+        elif self._period_behind:
+            status.level = DiagnosticStatus.WARN
+            status.message = (f'{state.value}; falling behind the camera: '
+                              f'{self._period_behind} images dropped unprocessed in the last '
+                              f'{period:g} s ({frames / period:.1f} images/s processed)')
         elif (unscaled := self._unscaled_period()) is not None:
             status.level = DiagnosticStatus.WARN
             status.message = f'{state.value}; {unscaled}'
@@ -1068,6 +1115,7 @@ class PlanarVoNode(Node):
         self._period.clear()
         self._period_scale.clear()
         self._period_time.clear()
+        self._period_behind = 0
 
     def _unscaled_period(self) -> str | None:
         """Why the odometry of the last diagnostics period had no step from the configured
@@ -1137,7 +1185,9 @@ class PlanarVoNode(Node):
                 f'{among}, '
                 f'{sum(drops.values())} dropped ({dropped}); '
                 f'{self._counters["missing_frames"]} frames missing in '
-                f'{self._counters["gaps"]} gaps; '
+                f'{self._counters["gaps"]} gaps'
+                + (f' ({self._counters["missing_behind"]} dropped unprocessed: the node fell '
+                   f'behind the camera)' if self._counters["missing_behind"] else '') + '; '
                 f'{self._counters["camera_info_errors"]} camera_info errors; '
                 f'{self._counters["speed_messages"]} speed messages'
                 + (f' ({self._counters["speed_errors"]} refused)'
