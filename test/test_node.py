@@ -871,6 +871,20 @@ def _bag_messages(bag: Path, count: int):
     return info, images
 
 
+def _diagnosed_node(monkeypatch, local_node, drive_bag, count: int, tracked: int):
+    """A node whose /diagnostics are recorded (`_diagnostics`), the CameraInfo and the first
+    ``tracked`` of ``count`` images of ``drive_bag`` given, then one diagnostics tick:
+    ``(node, sent, images)``."""
+    node = local_node(MOUNT_PARAMS)
+    sent = _diagnostics(monkeypatch, node)
+    info, images = _bag_messages(drive_bag, count)
+    node._on_camera_info(info)
+    for msg in images[:tracked]:
+        node._on_image(msg)
+    node._on_diagnostics_timer()
+    return node, sent, images
+
+
 def _diagnostics(monkeypatch, node) -> list:
     sent = []
     monkeypatch.setattr(node._diagnostics_pub, 'publish', sent.append)
@@ -1191,13 +1205,7 @@ def test_diagnostics_warn_when_the_node_falls_behind(monkeypatch, local_node, dr
     dropped from the queue is counted, and /diagnostics warns instead of an OK."""
     from diagnostic_msgs.msg import DiagnosticStatus
 
-    node = local_node(MOUNT_PARAMS)
-    sent = _diagnostics(monkeypatch, node)
-    info, images = _bag_messages(drive_bag, 24)
-    node._on_camera_info(info)
-    for msg in images[:8]:
-        node._on_image(msg)
-    node._on_diagnostics_timer()
+    node, sent, images = _diagnosed_node(monkeypatch, local_node, drive_bag, 24, 8)
     monkeypatch.setattr(node, '_waited', lambda now: True)
     for msg in images[9::2]:
         node._on_image(msg)
@@ -1268,13 +1276,7 @@ def test_diagnostics_warn_when_images_give_no_odometry(monkeypatch, local_node, 
     tracking, but /diagnostics warns that no image gave odometry."""
     from diagnostic_msgs.msg import DiagnosticStatus
 
-    node = local_node(MOUNT_PARAMS)
-    sent = _diagnostics(monkeypatch, node)
-    info, images = _bag_messages(drive_bag, 10)
-    node._on_camera_info(info)
-    for msg in images[:5]:
-        node._on_image(msg)
-    node._on_diagnostics_timer()
+    node, sent, images = _diagnosed_node(monkeypatch, local_node, drive_bag, 10, 5)
     for msg in images[5:]:
         msg.encoding = 'bayer_rggb8'
         node._on_image(msg)
