@@ -483,6 +483,28 @@ def test_a_signal_while_the_node_is_imported_stops_it_cleanly(ros_env, sig):
 
 
 @pytest.mark.timeout(60)
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_python_m_node_notes_a_signal_from_its_package_import(ros_env, sig):
+    """``python -m planar_vo.ros.node`` (the README's other form): a user test got a
+    KeyboardInterrupt traceback from numpy's import (exit -2) or a kill (exit -15), no summary.
+    ``-m`` imports the package first, with ``sys.argv[0]`` '-m': the signal is noted from
+    there. Here `runpy` runs the module as ``-m`` does, the signal sent right after the package
+    import, before the node's own imports."""
+    import subprocess
+
+    code = ('import os, runpy, signal, sys\n'
+            'sys.argv = ["-m", "--ros-args", "-p", "mount.height:=1.65"]\n'
+            'import planar_vo.ros\n'
+            f'os.kill(os.getpid(), {int(sig)})\n'
+            'runpy.run_module("planar_vo.ros.node", run_name="__main__", alter_sys=True)\n')
+    proc = subprocess.run([sys.executable, '-c', code], env=ros_env, capture_output=True,
+                          text=True, timeout=60)
+    output = proc.stdout + proc.stderr
+    assert proc.returncode == 0 and 'Traceback' not in output, output
+    assert 'summary: 0 frames in, 0 odometry out' in output, output
+
+
+@pytest.mark.timeout(60)
 def test_signals_during_the_clean_up_do_not_interrupt_it(prefix, ros_env, tmp_path):
     """An impatient Ctrl-C: SIGINT again every 20 ms after the first, until the node's summary
     (the end of its clean-up) is out. The clean-up finishes and the exit code stays 0."""
