@@ -1242,6 +1242,29 @@ def test_diagnostics_warn_when_the_node_falls_behind(monkeypatch, local_node, dr
     assert node.outcomes['ok'] == 7 + 8
 
 
+def test_a_new_cause_of_a_drop_is_logged_at_once(local_node, drive_bag):
+    """A user test: a zero-size image, then six of an unsupported encoding: the log named only
+    the first (bad_image, rate-limited per reason). The cause (a drop message's first clause,
+    numbers aside) is rate-limited on its own."""
+    node = local_node(MOUNT_PARAMS)
+    lines = []
+    logger = node.get_logger()
+    node.get_logger = lambda: _Recorder(logger, lines)
+    info, images = _bag_messages(drive_bag, 8)
+    node._on_camera_info(info)
+    node._on_image(images[0])
+    empty = images[1]
+    empty.height = empty.width = empty.step = 0
+    empty.data = []
+    node._on_image(empty)
+    for msg in images[2:]:
+        node._on_image(to_rclpy(image_msg(np.zeros((48, 64), np.float32), '32FC1',
+                                          stamp_to_ns(msg.header.stamp)), type(msg)))
+    dropped = [ln for level, ln in lines if 'dropped, bad_image' in ln]
+    assert node.outcomes['bad_image'] == 7 and len(dropped) == 2, dropped
+    assert 'image.encoding' in dropped[1] and '32FC1' in dropped[1]
+
+
 def test_a_frame_stamped_a_little_early_fills_its_own_slot(local_node):
     """A user test: at 8 Hz a frame stamped 160 ms early (before the one before it) was
     counted out of order by the pipeline and its slot missing too, one frame counted twice;

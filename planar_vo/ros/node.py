@@ -156,6 +156,8 @@ _INT64_MAX = 2 ** 63 - 1
 # that releases them when no image comes runs five times as often: 0.6 s at most).
 _PENDING_IMAGES = 3
 _CAMERA_INFO_WAIT = 0.5
+# Numbers in a drop's message (stamps, sizes): not part of its cause (`_report_drop`).
+_NUMBER = re.compile(r'\d+(?:\.\d+)?')
 # An image whose callback starts within this share of the camera's frame interval after the
 # last one ended was waiting in the queue: the node runs back to back (`_waited`).
 _QUEUED_SHARE = 0.1
@@ -928,8 +930,12 @@ class PlanarVoNode(Node):
             self.get_logger().info(f'{_format_stamp(stamp_ns)}: first frame of the keyframe '
                                    f'chain ({result.message}); odometry at the origin')
             return
-        self._warn(result.reason.value, f'frame {_format_stamp(stamp_ns)} dropped, '
-                                        f'{result.reason.value}: {result.message}')
+        # Rate-limited per reason and cause (the message's first clause, numbers aside): a
+        # new cause of the same reason is logged at once (a user test: six images of an
+        # unsupported encoding after a zero-size one were never named in the log).
+        cause = _NUMBER.sub('#', result.message.split(':', 1)[0])[:80]
+        self._warn(f'{result.reason.value}: {cause}', f'frame {_format_stamp(stamp_ns)} '
+                   f'dropped, {result.reason.value}: {result.message}', result.reason.value)
 
     def _focal_values(self, line: str | None = None) -> dict[str, Any]:
         """``focal_px``, ``focal_std_px``, ``focal_source`` (`VisualOdometry.focal_length`: the
