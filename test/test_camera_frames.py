@@ -191,6 +191,16 @@ def test_a_boolean_image_size_is_refused():
      r"the plumb_bob distortion \[1e\+308, 1e\+308, 0.0, 0.0, 0.0\] cannot be inverted over "
      r"the image \(\d+ of 81 grid pixels"),
     ({'distortion_model': 'equidistant', 'd': [1e308] * 4}, r'equidistant distortion .* cannot'),
+    # A distortion that folds over between the centre and the image's edge: Newton finds a
+    # root beyond the fold, not the lens's own (a user test).
+    ({'distortion_model': 'plumb_bob', 'd': [-2.0, 0, 0, 0, 0]},
+     r"the plumb_bob distortion \[-2.0, 0.0, 0.0, 0.0, 0.0\] cannot be inverted over the image "
+     r"\(\d+ of 81 grid pixels have no undistorted position on the lens's one-to-one part\)"),
+    # One-to-one, but the image squeezed into a degree (a user test: D = [1e6, -1e6, 0, 0, 1e6]
+    # was accepted; its frames ran on unit steps with a position std of 5 km).
+    ({'distortion_model': 'plumb_bob', 'd': [1e6, -1e6, 0, 0, 1e6]},
+     r'the plumb_bob distortion \[1000000.0, -1000000.0, 0.0, 0.0, 1000000.0\] leaves a '
+     r'horizontal field of view of 0.983 deg, outside the 3-160 deg of real rectilinear lenses'),
     ({'k': np.array([[500.0, 1e308, 319.5], [0, 500.0, 239.5], [0, 0, 1]])},
      r'skew 1e\+308 is more than 0.1 fx \(fx 500\)'),
     # The principal point of a 1920x1440 calibration on 640x480 images.
