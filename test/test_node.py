@@ -914,6 +914,24 @@ def _diagnostics(monkeypatch, node) -> list:
 
 
 @pytest.mark.timeout(60)
+def test_diagnostics_say_when_images_wait_for_the_camera_info(monkeypatch, local_node,
+                                                              drive_bag):
+    """A user test: images waiting for the first CameraInfo were '0.0 images/s; no image for
+    0.0 s'."""
+    node = local_node(MOUNT_PARAMS)
+    sent = _diagnostics(monkeypatch, node)
+    monkeypatch.setattr(node, 'count_publishers', lambda topic: 1)     # a driver on the graph
+    _, images = _bag_messages(drive_bag, 2)
+    for msg in images:
+        node._on_image(msg)
+    node._on_diagnostics_timer()
+    status = sent[-1].status[0]
+    assert status.level == DiagnosticStatus.WARN
+    assert status.message == (f'initialising; 2 image(s) waiting for the first CameraInfo on '
+                              f'{node._camera_info_sub.topic_name}')
+
+
+@pytest.mark.timeout(60)
 def test_the_no_image_warning_comes_at_the_timeout_and_diagnostics_name_the_silence(
         monkeypatch, local_node, drive_bag):
     """The no-image warning comes once the timeout passes (its own timer, not the 1 s

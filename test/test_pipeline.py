@@ -1102,6 +1102,12 @@ def test_stamps_1_ns_apart_are_different_frames_as_integer_nanoseconds():
     duplicate = floats.process(images[1], (t0 + 1) / 1e9)
     assert duplicate.reason is DropReason.DUPLICATE_STAMP
     assert duplicate.message == 'timestamp 1700000000.000000 repeats the previous frame'
+    # A driver that leaves the stamps at 0 (a user test: every frame said to repeat the last).
+    zeros = VisualOdometry(config, CAMERA)
+    zeros.process(images[0], Stamp(0))
+    assert zeros.process(images[1], Stamp(0)).message == (
+        'timestamp 0.000000000 repeats the previous frame (a stamp of 0: does the driver set '
+        'the header stamps?)')
 
 
 def test_a_frame_stamped_far_sooner_than_the_usual_interval_is_refused():

@@ -514,7 +514,9 @@ class VisualOdometry:
         check = self._clock.check(stamp)
         if check is StampCheck.DUPLICATE:
             return self._drop(stamp, DropReason.DUPLICATE_STAMP,
-                              f'timestamp {format_stamp(stamp)} repeats the previous frame')
+                              f'timestamp {format_stamp(stamp)} repeats the previous frame'
+                              + (' (a stamp of 0: does the driver set the header stamps?)'
+                                 if float(stamp) == 0.0 else ''))
         if check is StampCheck.TOO_CLOSE:
             usual = self._clock.usual_interval
             return self._drop(stamp, DropReason.DUPLICATE_STAMP,

@@ -1087,6 +1087,12 @@ class PlanarVoNode(Node):
             status.level = DiagnosticStatus.WARN
             status.message = f'{state.value}; {unscaled}'
             self._warn('scale', unscaled)
+        elif not frames and self._pending:
+            # Images came and wait for the first CameraInfo (a user test: '0.0 images/s; no
+            # image for 0.0 s').
+            status.level = DiagnosticStatus.WARN
+            status.message = (f'{state.value}; {len(self._pending)} image(s) waiting for the '
+                              f'first CameraInfo on {self._camera_info_sub.topic_name}')
         else:
             status.level = (DiagnosticStatus.OK if state is TrackingState.TRACKING
                             else DiagnosticStatus.WARN)
