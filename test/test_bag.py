@@ -163,6 +163,49 @@ def test_corruption_found_mid_way_keeps_earlier_frames(tmp_path, rng, storage):
         np.testing.assert_array_equal(frame.image, images[frame.index])
 
 
+def test_planar_vos_mcap_bags_carry_chunk_checksums(tmp_path, rng):
+    """rosbags' writer leaves every chunk's CRC 0 ('none'), so damaged chunk data read back
+    without an error (a user test: 64 KiB overwritten inside an imported bag replayed with the
+    poses 9 cm off and 'dropped 0'). planar_vo's bags get them (`stamp_chunk_crcs`), and the
+    same damage stops the replay with one line."""
+    import zlib
+
+    from planar_vo.io.writer import stamp_chunk_crcs
+
+    def chunks(file):
+        data, pos, found = file.read_bytes(), 8, []
+        while pos + 9 <= len(data) and data[pos] != 0x0F:
+            length = int.from_bytes(data[pos + 1:pos + 9], 'little')
+            if data[pos] == 0x06:
+                body = pos + 9
+                name = int.from_bytes(data[body + 28:body + 32], 'little')
+                start = body + 32 + name + 8
+                size = int.from_bytes(data[start - 8:start], 'little')
+                found.append((int.from_bytes(data[body + 24:body + 28], 'little'),
+                              zlib.crc32(data[start:start + size]), start))
+            pos += 9 + length
+        return found
+
+    bag_dir, _ = _big_image_bag(tmp_path / 'big', 'mcap', rng)
+    file = storage_file(bag_dir)
+    assert len(chunks(file)) >= 3 and all(crc == 0 for crc, _, _ in chunks(file))
+    assert stamp_chunk_crcs(file) == len(chunks(file))
+    assert all(crc == actual != 0 for crc, actual, _ in chunks(file))
+    assert stamp_chunk_crcs(file) == 0                     # (stamped ones are left alone)
+    # A replay's output bag has them from the start.
+    replay_bag(bag_dir, tmp_path / 'out', ConstantVelocityDouble(), progress=False)
+    out = chunks(storage_file(tmp_path / 'out'))
+    assert out and all(crc == actual != 0 for crc, actual, _ in out)
+    # Damage inside the second chunk's records: detected when it is read.
+    data = bytearray(file.read_bytes())
+    start = chunks(file)[1][2]
+    data[start + 5000:start + 5064] = bytes(64)
+    file.write_bytes(bytes(data))
+    with pytest.raises(BagError, match=r'Chunk checksum mismatch') as exc:
+        replay_bag(bag_dir, tmp_path / 'out2', ConstantVelocityDouble(), progress=False)
+    _one_line_error(exc)
+
+
 # -- topics -------------------------------------------------------------------------------------
 
 def test_unknown_topic_lists_available(small_bag):

@@ -22,6 +22,7 @@ import logging
 import shutil
 import sqlite3
 import tempfile
+import zlib
 from collections.abc import Callable
 from contextlib import suppress
 from pathlib import Path
@@ -38,12 +39,16 @@ from planar_vo.io.reader import TYPESTORE, BagReader, one_line
 from planar_vo.ros.messages import odometry_message
 
 __all__ = ['MAX_STAMP_NS', 'ODOMETRY_TYPE', 'STORAGES', 'BagWriter', 'OdometryBagWriter',
-           'check_stamp_ns']
+           'check_stamp_ns', 'stamp_chunk_crcs']
 
 log = logging.getLogger(__name__)
 
 ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+# MCAP records (the format's specification): the file's magic, and the opcodes of a chunk and of
+# the end of the data section.
+_MCAP_MAGIC = b'\x89MCAP0\r\n'
+_MCAP_CHUNK, _MCAP_DATA_END = 0x06, 0x0F
 _BAG_VERSION = 9                       # rosbag2 metadata version written by Jazzy
 # builtin_interfaces/Time holds int32 seconds: stamps from 0 to 2038-01-19 03:14:07.999999999.
 MAX_STAMP_NS = 2**31 * 1_000_000_000 - 1
@@ -63,6 +68,35 @@ def check_stamp_ns(role: str, stamp_ns: int) -> int:
         raise BagError(f'{role}: {stamp_ns} ns is outside the range of a ROS time stamp '
                        f'(0 to {MAX_STAMP_NS} ns, i.e. 1970 to 2038)')
     return int(stamp_ns)
+
+
+def stamp_chunk_crcs(path: Path) -> int:
+    """Write the CRC-32 of each uncompressed chunk's records into an MCAP file's chunk
+    headers (``uncompressed_crc``; 0 means none, which rosbags' writer leaves): readers then
+    detect damaged chunk data (a user test: 64 KiB overwritten inside a bag replayed without a
+    word, the poses 9 cm off). Streams the file a chunk at a time (rosbags writes about 1 MiB
+    each); a compressed chunk, or one with a CRC already, is left as it is. Returns the chunks
+    stamped."""
+    stamped = 0
+    with open(path, 'r+b') as f:
+        if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+            raise BagError(f"'{path}' is not an MCAP file")
+        while len(head := f.read(9)) == 9:
+            op, length, start = head[0], int.from_bytes(head[1:], 'little'), f.tell()
+            if op == _MCAP_DATA_END:
+                break
+            if op == _MCAP_CHUNK:
+                # start time, end time, uncompressed size (u64 each), uncompressed CRC (u32),
+                # compression (a u32-length string), records (a u64-length byte string)
+                crc = int.from_bytes(f.read(28)[24:], 'little')
+                compression = f.read(int.from_bytes(f.read(4), 'little'))
+                records = f.read(int.from_bytes(f.read(8), 'little'))
+                if not compression and not crc:
+                    f.seek(start + 24)
+                    f.write(zlib.crc32(records).to_bytes(4, 'little'))
+                    stamped += 1
+            f.seek(start + length)
+    return stamped
 
 
 class BagWriter:
@@ -186,6 +220,8 @@ class BagWriter:
                 for key, value in self.custom_data.items():
                     writer.set_custom_data(key, value)
                 writer.close()
+                for mcap in (self._tmp / self.path.name).glob('*.mcap'):
+                    stamp_chunk_crcs(mcap)
                 self._refuse_existing()
                 (self._tmp / self.path.name).rename(self.path)
             except Exception as err:   # noqa: BLE001 - storage, OS and rosbags errors
