@@ -287,10 +287,12 @@ class MotionEstimator:
             if len(value) and not value.weights.min() >= 0:
                 raise InputError(f'{name}: expected non-negative weights, got minimum '
                                  f'{value.weights.min()}')
+        # (with model: planar the vote is the answer: the Sampson cost's own minimum; else the
+        # general refinement follows from it)
+        planar = self.config.model == 'planar'
         motion, vstats = vote_planar_motion(level.p1, level.p2, level.A, level.weights,
-                                            self.voting,
-                                            covariance=self.config.model == 'planar',
-                                            check=False)
+                                            self.voting, covariance=planar, check=False,
+                                            sampson=planar)
         vote = (motion.alpha, motion.beta, bool(vstats.reliable))
         if self.config.model == 'planar':
             return self._planar(acs, motion, vstats, vote)
@@ -417,7 +419,8 @@ class MotionEstimator:
             w_rest = w[unexplained]
             m2, v2 = vote_planar_motion(level.p1[unexplained], level.p2[unexplained],
                                         level.A[unexplained], w_rest, self.voting,
-                                        covariance=False, check=False, scan=False)
+                                        covariance=False, check=False, scan=False,
+                                        sampson=False)
             # The revote's inliers, counted at its own coarse scales, overstate the support
             # its motion would keep at the first answer's: one below the screen's bar cannot
             # matter (with random outliers, 0.09 of the first answer's support typically and

@@ -136,7 +136,8 @@ def vote_planar_motion_focal(p1: np.ndarray, p2: np.ndarray, A: np.ndarray,
     best = None
     for log_f in modes:
         f0 = math.exp(log_f)
-        motion, stats = vote_planar_motion(p1 / f0, p2 / f0, A, w, config, clusters=clusters)
+        motion, stats = vote_planar_motion(p1 / f0, p2 / f0, A, w, config, clusters=clusters,
+                                           sampson=False)
         support = float(w[stats.inliers].sum())
         if np.isfinite(motion.alpha) and (best is None or support > best[0]):
             best = (support, f0, motion, stats)
@@ -150,6 +151,7 @@ def vote_planar_motion_focal(p1: np.ndarray, p2: np.ndarray, A: np.ndarray,
             p1[idx], p2[idx], A[idx], w[idx], clusters[idx], motion.alpha + motion.beta,
             motion.beta, math.log(f), stats.point_scale, stats.affine_scale, (lo, hi))
         f = math.exp(log_f)
+        # (the answer's motion: the Sampson cost's minimum at the refined focal length)
         motion, stats = vote_planar_motion(p1 / f, p2 / f, A, w, config, clusters=clusters)
         if not np.isfinite(motion.alpha) or stats.num_inliers < 3:
             break
@@ -415,7 +417,7 @@ def profile_steps(p1: np.ndarray, p2: np.ndarray, A: np.ndarray, w: np.ndarray,
     time): ``yield`` after each step, the `PairProfile` (or None) as its return value. A caller
     with a time budget advances it with ``next`` (`OnlineFocalCalibrator.work`)."""
     config = VotingConfig() if config is None else config
-    motion, stats = vote_planar_motion(p1 / f_ref, p2 / f_ref, A, w, config)
+    motion, stats = vote_planar_motion(p1 / f_ref, p2 / f_ref, A, w, config, sampson=False)
     if not stats.reliable:
         return None
     sp_px, sa = (stats.point_scale * f_ref, stats.affine_scale) if noise is None else noise

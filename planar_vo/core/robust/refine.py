@@ -279,3 +279,92 @@ def select_and_refine(rows: np.ndarray, w: np.ndarray, theta: float, beta: float
         return theta, beta, inliers, np.full((2, 2), np.inf), float('nan')
     cov, rms = cluster_covariance(rows, w * inliers, theta, beta, H, f, clusters, scratch)
     return theta, beta, inliers, cov, rms
+
+
+def sampson_refine(q1: np.ndarray, q2: np.ndarray, A: np.ndarray, w: np.ndarray,
+                   theta: float, beta: float, sp: float, sa: float, iterations: int = 1,
+                   max_sigmas: float = 10.0) -> tuple[float, float]:
+    """Gauss-Newton on the Sampson cost itself, ``sum_i w_i sum_k r_ik^2 / var_ik(theta,
+    beta)``, of the given ACs (the inliers) from ``(theta, beta)``: the whitening's own
+    derivative included, which `select_and_refine` (the whitening held per round) leaves out.
+
+    That refinement stops at a self-consistent point, biased at second order in the noise
+    where the variances change with the motion (away from straight ahead): a library user test
+    measured 3.2 and 3.7 standard deviations of bias in alpha and beta at 5 deg of yaw and beta
+    -60 deg (1,600 ACs, 0.5 px, 0.005 affine noise); this minimum is unbiased there. From that
+    point one step suffices (bias 0.00 and -0.11 standard deviations there; six: 0.00 and
+    -0.08), hence one by default (about 0.3 ms on 1,600 ACs). A step that does not lower the
+    cost is halved; the iteration ends when a step moves the motion by less than a hundredth of
+    its standard deviation. A step of more than ``max_sigmas`` standard deviations is not
+    taken: the start was not near a minimum of this cost, and a step that long can land in
+    another basin (on the paper's protocol, 50 ACs on one plane: a correct answer 0.2 deg off
+    stepped to one 14.5 deg off). Returns ``(theta, beta)``.
+    """
+    n = q1.shape[0]
+    u1, v1, u2 = (np.ascontiguousarray(c) for c in (q1[:, 0], q1[:, 1], q2[:, 0]))
+    vv1, vv2 = v1 * v1, q2[:, 1] * q2[:, 1]
+    a1, a2, a3, a4 = (A[:, i, j] for i, j in ((0, 0), (0, 1), (1, 0), (1, 1)))
+    # The rows kind-major (all epipolar rows, then the two affine ones): contiguous per kind.
+    rows = np.ascontiguousarray(design_rows(q1, q2, A).reshape(4, n, 3).transpose(0, 2, 1)
+                                ).reshape(4, 3 * n)
+    sp2, sa2 = sp * sp, sa * sa
+    w3 = np.tile(w, 3)
+    # The ACs' own parts of the variances (each a quadratic form in the motion's sines and
+    # cosines): the point terms of the affine rows.
+    p1, p2 = sp2 * (a3 * a3 + 1.0), sp2 * a1 * a1
+    p3, p4 = sp2 * a4 * a4, sp2 * (a2 * a2 + 1.0)
+
+    def evaluate(t: float, b: float, jacobian: bool = True):
+        """The cost, the whitened residuals ``e`` (3N,) and (with ``jacobian``) their
+        Gauss-Newton Jacobian (2, 3N)."""
+        ct, st, cb, sb = math.cos(t), math.sin(t), math.cos(b), math.sin(b)
+        r = np.array([ct, st, cb, sb]) @ rows
+        lift = u1 * st - ct                             # (d/du1 of the epipolar row)
+        side = cb - u2 * sb
+        h = vv1 * (sb * sb) + lift * lift
+        var = np.empty((3, n))
+        var[0] = sp2 * (vv2 * (st * st) + side * side + h)
+        var[1] = p1 * (st * st) + p2 * (sb * sb) + sa2 * h
+        var[2] = p3 * (st * st) + p4 * (sb * sb) + sa2 * h
+        var = var.reshape(-1)
+        var += 1e-300
+        sd = np.sqrt(var)
+        e = r / sd
+        if not jacobian:
+            return float(w3 @ (e * e)), e, None
+        h_t, h_b = 2.0 * lift * (u1 * ct + st), (2.0 * sb * cb) * vv1
+        dvar = np.empty((2, 3, n))
+        dvar[0, 0] = sp2 * ((2.0 * st * ct) * vv2 + h_t)
+        dvar[1, 0] = sp2 * (-2.0 * side * (sb + u2 * cb) + h_b)
+        dvar[0, 1] = (2.0 * st * ct) * p1 + sa2 * h_t
+        dvar[1, 1] = (2.0 * sb * cb) * p2 + sa2 * h_b
+        dvar[0, 2] = (2.0 * st * ct) * p3 + sa2 * h_t
+        dvar[1, 2] = (2.0 * sb * cb) * p4 + sa2 * h_b
+        dr = np.array([[-st, ct, 0.0, 0.0], [0.0, 0.0, -sb, cb]]) @ rows
+        J = dr / sd - dvar.reshape(2, -1) * (0.5 * e / var)
+        return float(w3 @ (e * e)), e, J
+
+    f, e, J = evaluate(theta, beta)
+    for k in range(iterations):
+        H = (J * w3) @ J.T
+        g = (J * w3) @ e
+        det = H[0, 0] * H[1, 1] - H[0, 1] ** 2
+        if not det > 0:
+            break
+        step = -np.array([H[1, 1] * g[0] - H[0, 1] * g[1], H[0, 0] * g[1] - H[0, 1] * g[0]]) / det
+        if not float(step @ H @ step) <= max_sigmas * max_sigmas:
+            break
+        scale = 1.0
+        while scale > 1e-3:
+            f_new, _, _ = evaluate(theta + scale * step[0], beta + scale * step[1], False)
+            if f_new < f:
+                break
+            scale *= 0.5
+        if scale <= 1e-3:
+            break
+        theta, beta = theta + scale * float(step[0]), beta + scale * float(step[1])
+        # (the step in standard deviations: H is the information of the whitened problem)
+        if scale * scale * float(step @ H @ step) < 1e-4 or k == iterations - 1:
+            break
+        f, e, J = evaluate(theta, beta)
+    return theta, beta
