@@ -829,6 +829,13 @@ def test_cli_eval_kitti_pose_file_errors_are_one_line(tmp_path, rng, capsys, ext
                  '--camera-height', '1.5']) == 1
     assert capsys.readouterr().err == ('planar_vo eval: error: --camera-height: only for camera '
                                        'poses (--est-frame camera, or a KITTI pose file EST)\n')
+    # ... and a height that import-kitti would take (a user test: 0 and 1e9 were).
+    for height in ('0', '1e9'):
+        assert main(['eval', str(tmp_path / 'cam.tum'), '--est-frame', 'camera', '--gt',
+                     str(tmp_path / 'gt.tum'), '--camera-height', height]) == 1
+        assert capsys.readouterr().err == (
+            f'planar_vo eval: error: --camera-height: expected a height above the ground of '
+            f'0.01-100 m (the range of mount.height), got {float(height):g}\n')
     # --est-times belongs to a KITTI pose file only.
     assert main(['eval', str(tmp_path / 'cam.tum'), '--est-times', str(tmp_path / 'times.txt'),
                  '--gt', str(tmp_path / 'gt.tum')]) == 1

@@ -3,7 +3,11 @@
 EST and GT are TUM files or bags (directory, .mcap or .db3). A bag written by ``planar_vo
 replay`` holds both: the estimate on /odom and the copied ground truth, which is used when --gt
 is not given. Poses are associated by stamp, the estimate is aligned (Umeyama SE(3) by default),
-and ATE, RPE per frame and per distance, and per-frame yaw-change and heading errors are printed;
+and ATE, RPE per frame and per distance, and per-frame yaw-change and heading errors are printed
+(the yaw-change error: each step's change of yaw, estimate minus reference; the heading error:
+the direction of each step's travel in the frame before it, ``atan2(dy, dx)`` of base_link's
+forward and left motion, estimate minus reference, so a positive bias is travel turned left of
+the reference's; degrees);
 with --out-dir, metrics.json and PNG plots are written there. When EST is a bag whose topic
 carries a pose covariance (Odometry), its consistency with the errors is printed too: each
 axis's |error| / std and the 2D position's Mahalanobis distance, against the reference anchored
@@ -130,9 +134,10 @@ def _load_estimate(args: argparse.Namespace, part: dict):
                          'KITTI pose file EST)')
     if height is None:
         height = args.camera_height = 1.65
-    if not (math.isfinite(height) and height >= 0):
-        raise InputError(f'--camera-height: expected a non-negative height in metres, got '
-                         f'{height}')
+    if not (math.isfinite(height) and 0.01 <= height <= 100.0):
+        # (a user test: 0 and 1e9 were taken, which import-kitti refuses)
+        raise InputError(f'--camera-height: expected a height above the ground of 0.01-100 m '
+                         f'(the range of mount.height), got {height:g}')
     if kitti:
         if args.est_frame == 'base':
             raise InputError('--est-frame: a KITTI pose file holds camera poses (T_w_cam); '

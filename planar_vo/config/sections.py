@@ -253,7 +253,7 @@ class FrontendConfig(Options):
     Attributes:
         method: ``'flow'`` (DIS optical flow + per-patch affine refinement; the default),
             ``'klt'`` (KLT tracks refined by affine Lucas-Kanade) or ``'asift'`` (faithful to
-            the paper, about 2 s per frame pair).
+            the paper, 4-11 s per frame pair on one core: `planar_vo bench frontend`).
         max_correspondences: cap on ACs per frame pair, the front-end's per-frame budget. For
             ``flow``, on the candidates: the grid's cells grow until at most this many have
             enough texture (the points stay spread over the image, the faint road included),

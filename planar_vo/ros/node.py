@@ -123,7 +123,7 @@ LIVE_PARAMETERS = frozenset({'ros.publish_tf', 'ros.path_max_length', 'ros.path_
 
 # Speed samples kept by the subscription while the single-threaded executor processes an image:
 # 5 s of a 100 Hz wheel-speed topic, far longer than any frame takes (16-65 ms with the default
-# front-end, about 2 s with asift). Only the queue's depth differs from the sensor-data profile.
+# front-end, 4-11 s with asift). Only the queue's depth differs from the sensor-data profile.
 SPEED_QUEUE_DEPTH = 500
 
 
