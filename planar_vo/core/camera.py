@@ -416,7 +416,11 @@ class CameraModel:
     # -- pixels ------------------------------------------------------------------------------
 
     def pixel_to_normalized(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixels ``(N, 2)`` -> ideal normalised coordinates, with the Jacobian ``dq/dp``."""
+        """Pixels ``(N, 2)`` -> ideal normalised coordinates, with the Jacobian ``dq/dp``.
+
+        A non-finite pixel, or one the distortion cannot be inverted at, gives NaN in its row
+        (not an error: `AffineCorrespondences.transformed` drops such items, the others go on).
+        """
         p = as_array('p', p, (None, 2), min_items=0, finite=False)
         xd, L_inv = self._pixel_to_distorted(p)
         if not self.is_distorted:
