@@ -1297,6 +1297,12 @@ def test_a_frame_stamped_a_little_early_fills_its_own_slot(local_node):
     for i in [k for k in range(60) if k != 30]:
         node._note_gap(125_000_000 * i - (160_000_000 if i == 50 else 0))
     assert (node._counters['gaps'], node._counters['missing_frames']) == (1, 1)
+    # An earlier frame sent again (its stamp seen before) is no mis-stamped new one: the two
+    # frames lost after it are both missing.
+    node = local_node(MOUNT_PARAMS)
+    for i in list(range(14)) + [11, 16, 17, 18]:
+        node._note_gap(125_000_000 * i)
+    assert (node._counters['gaps'], node._counters['missing_frames']) == (1, 2)
 
 
 def test_frames_lost_right_after_the_start_are_counted(local_node):

@@ -327,6 +327,7 @@ class GapCounter:
         self._open_span: tuple[int, int] | None = None     # the stamps around that gap
         self._early: list[int] = []     # stamps of frames that came before frames stamped earlier
         self._after_gap: list[int] = []     # stamps accepted since the last gap (a few)
+        self._recent: collections.deque[int] = collections.deque(maxlen=self.PERIOD_WINDOW)
         self.gaps = 0
         self.missing = 0
         self.behind = 0         # of the missing frames, those lost while the receiver was busy
@@ -371,12 +372,15 @@ class GapCounter:
             return None
         if check in (StampCheck.INSIDE_GAP, StampCheck.OUT_OF_ORDER):
             # Stamped before the previous frame with no gap open here to fill (that frame's
-            # slot is taken): its stamp is wrong, and it fills a slot of the interval it came
-            # in (a user test: a frame stamped 56 ms early was counted out of order and its
-            # slot missing too).
-            self._glitched += 1
+            # slot is taken): a new stamp is a wrong one, and the frame fills a slot of the
+            # interval it came in (a user test: a frame stamped 56 ms early was counted out of
+            # order and its slot missing too); the stamp of a frame already seen is that frame
+            # sent again, which fills none.
+            if stamp_ns not in self._recent:
+                self._glitched += 1
             return None
         last, self._last_ns = self._last_ns, stamp_ns
+        self._recent.append(stamp_ns)
         glitched, self._glitched = self._glitched, 0
         early = sum(1 for t in self._early if last is not None and last < t <= stamp_ns)
         self._early = [t for t in self._early if t > stamp_ns]
