@@ -291,6 +291,10 @@ def test_wrong_arguments_are_typed_errors():
                                                     r'float64 values$'),
             (lambda: level.subset(np.ones(3, bool)), r'^subset of \d+ correspondences: '
                                                      r'boolean index did not match'),
+            (lambda: level.subset(np.zeros(0, bool)), r'^subset of \d+ correspondences: '
+                                                      r'boolean index did not match'),
+            (lambda: AffineCorrespondences.concatenate(None),
+             r'^concatenate: expected a list of AffineCorrespondences, got NoneType$'),
             (lambda: AffineCorrespondences.concatenate([level, 2]),
              r'^concatenate: item 1: expected AffineCorrespondences, got int$')):
         with pytest.raises(InputError, match=message):

@@ -1220,6 +1220,10 @@ def test_frames_dropped_while_the_node_is_busy_are_counted_not_a_new_rate(local_
     # The callback's timing: waiting when the last ended (the node back to back) or not.
     node._callback_end = 10.0
     assert node._waited(10.0005) and not node._waited(10.01)
+    # Every callback's end counts (a review: a CameraInfo with every image ran between two
+    # images' callbacks and read as idle time) ...
+    node._busy(lambda: None)()
+    assert 0.0 <= time.perf_counter() - node._callback_end < 1.0
     node._queued = True
     for i in range(11, 41, 2):                             # every other frame dropped
         node._note_gap(period * i)
@@ -1231,6 +1235,13 @@ def test_frames_dropped_while_the_node_is_busy_are_counted_not_a_new_rate(local_
     assert '15 frames missing in 15 gaps (15 dropped unprocessed: the node fell behind the ' \
            'camera)' in node.summary()
     assert node._period_behind == 15
+    # ... and at most 2 ms of idle time, whatever the stamps' interval (a bag played five
+    # times faster: a node that keeps up waits 5 ms of a 20 ms wall-clock interval).
+    slow = local_node(MOUNT_PARAMS)
+    for i in range(10):
+        slow._note_gap(100_000_000 * i)
+    slow._callback_end = 10.0
+    assert slow._waited(10.0015) and not slow._waited(10.005)
     # The same intervals when the node was waiting for its images: the camera's new rate.
     node = local_node(MOUNT_PARAMS)
     for i in list(range(10)) + list(range(11, 41, 2)):
@@ -1281,6 +1292,16 @@ def test_a_new_cause_of_a_drop_is_logged_at_once(local_node, drive_bag):
     dropped = [ln for level, ln in lines if 'dropped, bad_image' in ln]
     assert node.outcomes['bad_image'] == 7 and len(dropped) == 2, dropped
     assert 'image.encoding' in dropped[1] and '32FC1' in dropped[1]
+    # Messages that differ in more than numbers (a decoder's text, say): four causes apart,
+    # then the reason's own limit (one more line, then held back).
+    from planar_vo.pipeline import DropReason, FrameResult
+
+    for k in range(6):
+        node._report_drop(10 ** 9 * (k + 1), FrameResult(
+            stamp=k + 1.0, ok=False, pose=np.eye(4), pose_covariance=np.zeros((6, 6)),
+            reason=DropReason.PIPELINE_ERROR, message=f'ValueError: case {"abcdef"[k]} 12.5'))
+    logged = [ln for level, ln in lines if 'dropped, pipeline_error' in ln]
+    assert [ln[-11:] for ln in logged] == [f'case {c} 12.5' for c in 'abcde'], logged
 
 
 def test_a_frame_stamped_a_little_early_fills_its_own_slot(local_node):

@@ -67,7 +67,11 @@ class AffineCorrespondences:
         try:
             if not isinstance(index, slice):
                 index = np.asarray(index)
-                if index.size == 0:
+                if index.dtype == bool and index.shape != (len(self),):
+                    # (numpy takes an empty one as no index at all)
+                    raise IndexError(f'boolean index did not match: a mask of '
+                                     f'{index.shape} for {len(self)} items')
+                if index.size == 0 and index.dtype != bool:
                     index = index.astype(np.intp)                # (an empty list: nothing)
                 elif index.dtype != bool and not np.issubdtype(index.dtype, np.integer):
                     raise IndexError(f'expected integer indices or a boolean mask, got '
@@ -147,7 +151,11 @@ class AffineCorrespondences:
     def concatenate(items: list[AffineCorrespondences]) -> AffineCorrespondences:
         """Join several sets into one (`InputError` for items that are not
         `AffineCorrespondences`)."""
-        items = list(items)
+        try:
+            items = list(items)
+        except TypeError:
+            raise InputError(f'concatenate: expected a list of AffineCorrespondences, got '
+                             f'{type(items).__name__}') from None
         for k, item in enumerate(items):
             if not isinstance(item, AffineCorrespondences):
                 raise InputError(f'concatenate: item {k}: expected AffineCorrespondences, got '

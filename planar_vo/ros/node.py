@@ -22,11 +22,13 @@ Topics (relative names, so that ``--ros-args -r image:=/camera/image_raw`` remap
 
 Every image yields either an odometry message or a counted `DropReason` (an image the node
 cannot decode counts as ``bad_image``); the first image after start-up or ``~/reset`` yields
-the origin's odometry and is counted as ``first_frames``; each reason is logged as a specific
-warning at most once per ``ros.warn_period`` seconds, and every change of the tracking state
-is logged once. Frames the transport lost never reach the node: they show up as gaps in the
-image stamps and are counted as ``missing_frames``; a clock glitch or a jump back of the
-stamps (a looped bag) is not a gap.
+the origin's odometry and is counted as ``first_frames``; each reason and cause (the message,
+numbers aside; a few causes per reason) is logged as a specific warning at most once per
+``ros.warn_period`` seconds, and every change of the tracking state is logged once. Frames
+the transport lost, or the node's full queue dropped, never reach the node: they show up as
+gaps in the image stamps and are counted as ``missing_frames`` (those dropped while the node
+was busy as ``missing_behind`` too); a clock glitch or a jump back of the stamps (a looped
+bag) is not a gap.
 
 Parameters are the dotted keys of `planar_vo.config.PlanarVoConfig` (``voting.bins``, ...),
 declared with descriptions, ranges and read-only flags, and validated through the same config
@@ -36,6 +38,7 @@ rejected. `LIVE_PARAMETERS` may change at run time; the others are read at start
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import difflib
 import functools
@@ -156,11 +159,14 @@ _INT64_MAX = 2 ** 63 - 1
 # that releases them when no image comes runs five times as often: 0.6 s at most).
 _PENDING_IMAGES = 3
 _CAMERA_INFO_WAIT = 0.5
-# Numbers in a drop's message (stamps, sizes): not part of its cause (`_report_drop`).
+# Numbers in a drop's message (stamps, sizes): not part of its cause; at most this many causes
+# per reason are rate-limited apart (`_report_drop`).
 _NUMBER = re.compile(r'\d+(?:\.\d+)?')
-# An image whose callback starts within this share of the camera's frame interval after the
-# last one ended was waiting in the queue: the node runs back to back (`_waited`).
-_QUEUED_SHARE = 0.1
+_CAUSES = 4
+# An image whose callback starts within this share of the camera's frame interval (and this
+# many seconds) after the node's last callback ended was waiting in the queue: the node runs
+# back to back (`_waited`).
+_QUEUED_SHARE, _QUEUED_MAX_S = 0.1, 0.002
 _monotonic = time.monotonic            # the waiting images' clock (tests replace it)
 # The focal length is logged again when it moved by this share since the last line (the
 # self-calibration's progress: a handful of lines in a turn, none while it holds still).
@@ -272,6 +278,7 @@ class PlanarVoNode(Node):
         self._node_time = 0.0
         odometry = self.config.odometry
         self._gaps = GapCounter(odometry.max_frame_gap, odometry.max_time_jump_back)
+        self._causes: dict[str, collections.OrderedDict] = {}    # `_report_drop`
         # When the last image callback ended, and whether the image of this one was already
         # waiting then (`_image`): the node is the bottleneck, frames are dropped from its
         # subscription queue.
@@ -320,22 +327,22 @@ class PlanarVoNode(Node):
         self._wait_timer = None
         if self._expects_camera_info:
             self._camera_info_sub = self.create_subscription(
-                CameraInfo, 'camera_info', self._on_camera_info, qos_profile=sensor_qos(),
-                qos_overriding_options=overriding)
+                CameraInfo, 'camera_info', self._busy(self._on_camera_info),
+                qos_profile=sensor_qos(), qos_overriding_options=overriding)
             # Releases images that waited too long when no further image comes to do it.
             self._wait_timer = self.create_timer(
-                _CAMERA_INFO_WAIT / 5, self._release_overdue,
+                _CAMERA_INFO_WAIT / 5, self._busy(self._release_overdue),
                 clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._speed_sub = None
         if self.config.scale.source == 'speed':
             speed_type = Odometry if ros.speed_topic_type == 'odometry' else TwistStamped
             self._speed_sub = self.create_subscription(
-                speed_type, 'speed', self._on_speed, qos_profile=sensor_qos(SPEED_QUEUE_DEPTH),
-                qos_overriding_options=overriding)
+                speed_type, 'speed', self._busy(self._on_speed),
+                qos_profile=sensor_qos(SPEED_QUEUE_DEPTH), qos_overriding_options=overriding)
         self._check_qos_names()
-        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.create_service(Trigger, '~/reset', self._busy(self._on_reset))
         # Steady time: diagnostics and the no-image warning go on when a simulated clock stops.
-        self.create_timer(ros.diagnostics_period, self._on_diagnostics_timer,
+        self.create_timer(ros.diagnostics_period, self._busy(self._on_diagnostics_timer),
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._silence_reported = False
         self._image_watch = self._watch_timer(ros.image_timeout)
@@ -589,14 +596,28 @@ class PlanarVoNode(Node):
             self._queued = False
             self._callback_end = time.perf_counter()
 
+    def _busy(self, callback):
+        """``callback`` noting when it ended (`_waited`: the node's other callbacks, a
+        CameraInfo with every image, run between two images' and keep it busy too; a review:
+        counted as idle time, they hid a node falling behind a 60 Hz camera)."""
+        @functools.wraps(callback)
+        def noted(*args):
+            try:
+                return callback(*args)
+            finally:
+                self._callback_end = time.perf_counter()
+        return noted
+
     def _waited(self, now: float) -> bool:
-        """Whether this image was already waiting when the last image callback ended: the
+        """Whether this image was already waiting when the node's last callback ended: the
         time between them is a small share (`_QUEUED_SHARE`) of the camera's frame interval,
-        so the node runs back to back and frames beyond its queue's depth are dropped."""
+        and under `_QUEUED_MAX_S` (a bag played faster than its stamps: the interval in
+        wall-clock time is shorter), so the node runs back to back and frames beyond its queue's
+        depth are dropped."""
         period = self._gaps.period_ns
         if self._callback_end is None or period is None:
             return False
-        return now - self._callback_end < _QUEUED_SHARE * period * 1e-9
+        return now - self._callback_end < min(_QUEUED_SHARE * period * 1e-9, _QUEUED_MAX_S)
 
     def _take_image(self, msg: Image | CompressedImage, decode) -> None:
         """`_image` (the callback's timing apart)."""
@@ -930,12 +951,22 @@ class PlanarVoNode(Node):
             self.get_logger().info(f'{_format_stamp(stamp_ns)}: first frame of the keyframe '
                                    f'chain ({result.message}); odometry at the origin')
             return
-        # Rate-limited per reason and cause (the message's first clause, numbers aside): a
-        # new cause of the same reason is logged at once (a user test: six images of an
-        # unsupported encoding after a zero-size one were never named in the log).
-        cause = _NUMBER.sub('#', result.message.split(':', 1)[0])[:80]
-        self._warn(f'{result.reason.value}: {cause}', f'frame {_format_stamp(stamp_ns)} '
-                   f'dropped, {result.reason.value}: {result.message}', result.reason.value)
+        # Rate-limited per reason and cause (the message up to its first ';', numbers aside:
+        # stamps, sizes; what follows is the state it left, 'tracking lost: ...'): a new
+        # cause of the same reason is logged at once (a user test: six images of an
+        # unsupported encoding after a zero-size one were never named in the log); beyond
+        # `_CAUSES` causes per reason (messages that differ in more than numbers) the reason's
+        # own limit holds.
+        reason = result.reason.value
+        cause = _NUMBER.sub('#', result.message.split(';', 1)[0])[:120]
+        causes = self._causes.setdefault(reason, collections.OrderedDict())
+        if cause in causes or len(causes) < _CAUSES:
+            causes[cause] = None
+            key = f'{reason}: {cause}'
+        else:
+            key = reason
+        self._warn(key, f'frame {_format_stamp(stamp_ns)} dropped, {reason}: '
+                        f'{result.message}', reason)
 
     def _focal_values(self, line: str | None = None) -> dict[str, Any]:
         """``focal_px``, ``focal_std_px``, ``focal_source`` (`VisualOdometry.focal_length`: the
@@ -1014,7 +1045,7 @@ class PlanarVoNode(Node):
     def _watch_timer(self, timeout: float):
         """The no-image timer (`_on_image_watch`), on the steady clock (it goes on when a
         simulated clock stops)."""
-        return self.create_timer(timeout, self._on_image_watch,
+        return self.create_timer(timeout, self._busy(self._on_image_watch),
                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _on_image_watch(self) -> None:
