@@ -1220,6 +1220,26 @@ def test_a_frame_stamped_early_among_the_first_is_not_said_to_follow_a_gap():
                               'one was stamped ahead of its time')
 
 
+def test_late_frames_of_a_gap_counted_as_the_receivers_take_it_off_both_counts():
+    """A gap noted while the receiver was busy counts its frames as missing and 'behind'; the
+    frames that come late into it take them off both (a review: 'behind' stayed)."""
+    from planar_vo.pipeline.clock import GapCounter
+
+    P = 100_000_000
+    gaps = GapCounter(10.0, 1.0)
+    for i in range(10):
+        gaps.note(i * P)
+    gaps.note(13 * P, busy=True)
+    assert (gaps.gaps, gaps.missing, gaps.behind) == (1, 3, 3)
+    gaps.note(11 * P)                                       # late, inside the gap
+    assert (gaps.gaps, gaps.missing, gaps.behind) == (1, 2, 2)
+    gaps.note(14 * P)
+    gaps.note(17 * P)                                       # the camera's own gap
+    assert (gaps.gaps, gaps.missing, gaps.behind) == (2, 4, 2)
+    gaps.note(15 * P)
+    assert (gaps.gaps, gaps.missing, gaps.behind) == (2, 3, 2)
+
+
 def test_a_frame_stamped_ahead_within_the_max_gap_is_confirmed_mis_stamped():
     """A frame stamped 3 s ahead (under max_frame_gap) opens what looks like a gap; the first
     frame inside it is refused, the second confirms that the one before them was mis-stamped:

@@ -324,6 +324,7 @@ class GapCounter:
         self._glitched = 0      # frames refused as far ahead or behind since the last one
         self._open = 0          # frames the last gap (of the last few frames) still counts
         self._open_age = 0      # frames accepted since that gap
+        self._open_behind = False   # ... it was the receiver's (`note`'s ``busy``)
         self._open_span: tuple[int, int] | None = None     # the stamps around that gap
         self._early: list[int] = []     # stamps of frames that came before frames stamped earlier
         self._after_gap: list[int] = []     # stamps accepted since the last gap (a few)
@@ -417,7 +418,7 @@ class GapCounter:
                 else:
                     change = self._rate_change(dt, missing, period)
                 self._open, self._open_age = (0 if change is not None else missing), 1
-                self._open_span = (last, stamp_ns)
+                self._open_span, self._open_behind = (last, stamp_ns), busy
                 return Gap(dt, missing, period, change, busy)
         self._run.clear()
         self._intervals.append(dt)
@@ -430,6 +431,8 @@ class GapCounter:
             return
         self._open -= frames
         self.missing -= frames
+        if self._open_behind:                   # (frames of the receiver's gap came late)
+            self.behind = max(self.behind - frames, 0)
         self.behind = min(self.behind, self.missing)
         if self._run:
             self._run[-1][1] -= frames
