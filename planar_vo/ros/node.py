@@ -38,7 +38,6 @@ rejected. `LIVE_PARAMETERS` may change at run time; the others are read at start
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import difflib
 import functools
@@ -278,7 +277,7 @@ class PlanarVoNode(Node):
         self._node_time = 0.0
         odometry = self.config.odometry
         self._gaps = GapCounter(odometry.max_frame_gap, odometry.max_time_jump_back)
-        self._causes: dict[str, collections.OrderedDict] = {}    # `_report_drop`
+        self._causes: dict[str, set[str]] = {}    # drop causes rate-limited apart, per reason
         # When the last image callback ended, and whether the image of this one was already
         # waiting then (`_image`): the node is the bottleneck, frames are dropped from its
         # subscription queue.
@@ -967,9 +966,9 @@ class PlanarVoNode(Node):
         # own limit holds.
         reason = result.reason.value
         cause = _NUMBER.sub('#', result.message.split(';', 1)[0])[:120]
-        causes = self._causes.setdefault(reason, collections.OrderedDict())
+        causes = self._causes.setdefault(reason, set())
         if cause in causes or len(causes) < _CAUSES:
-            causes[cause] = None
+            causes.add(cause)
             key = f'{reason}: {cause}'
         else:
             key = reason

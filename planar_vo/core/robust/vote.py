@@ -91,7 +91,7 @@ def vote_planar_motion(q1: np.ndarray, q2: np.ndarray, A: np.ndarray,
             unexplained).
         sampson: False skips the last refinement on the Sampson cost itself
             (`refine.sampson_refine`: unbiased where the refinement with the whitening held per
-            round is biased at second order in the noise; 0.3-0.8 ms on 1,600-4,000 ACs) for a
+            round is biased at second order in the noise; about 0.2 ms per 1,000 inliers) for a
             caller whose own refinement follows (the pipeline's general motion, the focal
             profiles).
 
