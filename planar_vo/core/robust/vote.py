@@ -240,20 +240,12 @@ def _two_rounds(q1, q2, A, w, theta0, beta0, members, config, clusters, covarian
         theta, beta, sp, sa = sampled
         twice, scratch, wrows, sample = True, None, None, None
     else:
-        # Residual terms at the start: the members (near both modes of the vote) calibrate
-        # the noise scales, and the resulting whitening is kept for a first refinement (the
-        # vote is within a degree, where the first-order standard deviations barely change).
-        rows = refine.design_rows(q1, q2, A)
-        r, g, h = refine.residual_terms(q1, q2, A, rows, theta0, beta0)
-        sp, sa = refine.robust_scales(r[members], g[members], h[members])
-        sp, sa = min(sp, sp_cap), min(sa, sa_cap)
-        # The rows are whitened in place (and rebuilt in the same buffer for the second
-        # round): with one scratch buffer for the fits, two arrays of the rows' size serve
-        # every step below (see `refine.select_and_refine` on why).
-        wrows, scratch = refine.whiten_rows(rows, g, h, sp, sa, out=rows), np.empty_like(rows)
-        theta, beta, inliers, cov, rms = refine.select_and_refine(
-            wrows, w, theta0, beta0, config, passes=1, covariance=not config.refine,
-            scratch=scratch)
+        # The whitened rows are rebuilt in the same buffer for the second round: with one
+        # scratch buffer for the fits, two arrays of the rows' size serve every step below
+        # (see `refine.select_and_refine` on why).
+        wrows, scratch, (theta, beta, inliers, cov, rms), sp, sa = _first_round(
+            q1, q2, A, w, theta0, beta0, members, config, covariance=not config.refine,
+            keep=True)
         twice = config.refine and np.count_nonzero(inliers) >= max(config.min_inliers, 4)
         sample = thin(np.flatnonzero(inliers))
     if twice:
@@ -294,18 +286,30 @@ def _sampled_first_round(q1, q2, A, w, theta0, beta0, members, config):
     own = at[members[in_sub[members]]]
     if own.size < max(config.min_inliers, 4):
         return None
-    q1, q2, A, w = q1[sub], q2[sub], A[sub], w[sub]
-    rows = refine.design_rows(q1, q2, A)
-    r, g, h = refine.residual_terms(q1, q2, A, rows, theta0, beta0)
-    sp_cap, sa_cap = _noise_caps(config)
-    sp, sa = refine.robust_scales(r[own], g[own], h[own])
-    sp, sa = min(sp, sp_cap), min(sa, sa_cap)
-    wrows = refine.whiten_rows(rows, g, h, sp, sa, out=rows)
-    theta, beta, inliers, _, _ = refine.select_and_refine(wrows, w, theta0, beta0, config,
-                                                          passes=1, covariance=False)
+    _, _, (theta, beta, inliers, _, _), sp, sa = _first_round(
+        q1[sub], q2[sub], A[sub], w[sub], theta0, beta0, own, config, covariance=False)
     if np.count_nonzero(inliers) < max(config.min_inliers, 4):
         return None
     return theta, beta, sp, sa
+
+
+def _first_round(q1, q2, A, w, theta0, beta0, members, config, *, covariance, keep=False):
+    """The first round of `_two_rounds` on the given ACs: the residual terms at the start,
+    noise scales from ``members`` (near both modes of the vote: the lower quartile, capped)
+    and, with that whitening kept (the vote is within a degree, where the first-order
+    standard deviations barely change), one selection and refinement. Returns the whitened
+    rows, a scratch buffer of their shape (``keep``; else None), `refine.select_and_refine`'s
+    ``(theta, beta, inliers, cov, rms)`` and the scales ``sp, sa``."""
+    rows = refine.design_rows(q1, q2, A)
+    r, g, h = refine.residual_terms(q1, q2, A, rows, theta0, beta0)
+    sp_cap, sa_cap = _noise_caps(config)
+    sp, sa = refine.robust_scales(r[members], g[members], h[members])
+    sp, sa = min(sp, sp_cap), min(sa, sa_cap)
+    wrows = refine.whiten_rows(rows, g, h, sp, sa, out=rows)       # (in place)
+    scratch = np.empty_like(rows) if keep else None
+    fit = refine.select_and_refine(wrows, w, theta0, beta0, config, passes=1,
+                                   covariance=covariance, scratch=scratch)
+    return wrows, scratch, fit, sp, sa
 
 
 # Above this many ACs the first round of `_two_rounds` runs on an even sample of about as many
