@@ -1851,6 +1851,8 @@ def test_renamed_node_with_the_shipped_parameter_file_resets_and_publishes_diagn
     assert values['listening_on'] == '/camera/image_raw /camera/camera_info'
     assert float(values['focal_px']) == 500.0 and values['scale_source'] == 'ground'
     assert int(values['road_top_ups']) >= 0
+    # (the rendered drive's road ACs suffice: no step from the road's pixels)
+    assert int(values['image_road_steps']) == 0
     assert ours[-1].level == DiagnosticStatus.OK
 
 

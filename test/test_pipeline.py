@@ -154,25 +154,38 @@ def test_scale_sources(source, bound):
         assert abs(heading) < np.deg2rad(0.5)
 
 
-def test_ground_scale_tops_up_road_acs_the_budget_left_out():
-    """A front-end budget too small for the road ACs the ground scale needs: without the top-up
-    no step is metric (unit steps: the distance is wrong); with it the front-end adds road ACs
-    from the same flows and the drive is measured at the camera height."""
-    def run(top_up: bool):
-        config = PlanarVoConfig.from_dict({
-            'mount': {'height': HEIGHT}, 'frontend': {'max_correspondences': 150},
-            'scale': {'ground_min_correspondences': 40, 'ground_top_up': top_up}})
-        trajectory, results, vo = _run('straight', config)
-        assert all(r.ok for r in results[1:])
-        sources = [r.scale_source for r in results[1:]]
-        return _errors(trajectory, results), sources, vo.road_top_ups
+def _few_road_acs(top_up: bool, image: bool):
+    """The straight drive with a front-end budget too small for the road ACs the ground scale
+    needs (150 ACs, at least 40 on the road): final errors, step sources, the odometry."""
+    config = PlanarVoConfig.from_dict({
+        'mount': {'height': HEIGHT}, 'frontend': {'max_correspondences': 150},
+        'scale': {'ground_min_correspondences': 40, 'ground_top_up': top_up,
+                  'ground_image': image}})
+    trajectory, results, vo = _run('straight', config)
+    assert all(r.ok for r in results[1:])
+    return _errors(trajectory, results), [r.scale_source for r in results[1:]], vo
 
-    (pos, _, distance), sources, top_ups = run(False)
-    assert 'ground' not in sources and top_ups == 0 and pos > 0.1 * distance
-    (pos, _, distance), sources, top_ups = run(True)
-    assert top_ups >= sources.count('ground') >= 5
+
+def test_ground_scale_tops_up_road_acs_the_budget_left_out():
+    """Without the top-up (nor the road's pixels) no step is metric (unit steps: the distance
+    is wrong); with it the front-end adds road ACs from the same flows and the drive is
+    measured at the camera height."""
+    (pos, _, distance), sources, vo = _few_road_acs(top_up=False, image=False)
+    assert 'ground' not in sources and vo.road_top_ups == 0 and pos > 0.1 * distance
+    (pos, _, distance), sources, vo = _few_road_acs(top_up=True, image=False)
+    assert vo.road_top_ups >= sources.count('ground') >= 5
     assert set(sources) <= {'ground', 'hold', 'unit'} and sources.count('unit') <= 1
     assert pos < 0.02 * distance
+
+
+def test_ground_scale_from_the_road_pixels_where_road_acs_are_too_few():
+    """Too few road ACs and no top-up (a fast car's flow keeps little of the near road): with
+    the road's pixels (`scale.ground_image`, the default) every step is measured at the camera
+    height, the blocks of road that matched counting as road ACs."""
+    (pos, _, distance), sources, vo = _few_road_acs(top_up=False, image=True)
+    assert vo.road_top_ups == 0
+    assert sources.count('ground') == vo.image_road_steps >= len(sources) - 1
+    assert pos < 0.02 * distance, (pos, distance)
 
 
 def test_speed_source_falls_back_before_the_first_speed_message():

@@ -638,3 +638,16 @@ def test_the_odometry_bag_and_the_evaluation_say_what_made_them(tmp_path, capsys
                  '--odom-topic', '/vo/odom']) == 0
     assert main(['eval', 'vo2']) == 0
     assert 'estimate: vo2 (/vo/odom)\n' in capsys.readouterr().out
+
+
+def test_summary_counts_the_steps_measured_on_the_road_pixels():
+    """The step-lengths line names the steps the road's pixels measured (none: not said)."""
+    from planar_vo.tools.replay import ReplaySummary
+
+    summary = ReplaySummary('in', 'out', frames_in=20, odometry_out=19,
+                            scale_sources={'ground': 18}, road_top_ups=7, image_road_steps=5)
+    line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
+    assert line.endswith("ground 18 (road top-ups 7, from the road's pixels 5)"), line
+    summary.image_road_steps = 0
+    line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
+    assert line.endswith('ground 18 (road top-ups 7)'), line

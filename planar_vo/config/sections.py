@@ -391,6 +391,14 @@ class ScaleConfig(Options):
             road alone (`KLTExtractor.extract_more`); not ASIFT. A fast car sees little near
             road, and the budget's cells (or the frame's stronger corners) leave few
             candidates on it.
+        ground_image: when the road ACs (topped up or not) are still too few, the step is
+            found from the road's pixels (`planar_vo.pipeline.road_image`): the road
+            homography's one unknown, the step, scanned by correlating blocks of the road
+            ahead within ``ground_lateral_std`` of the line of travel; the blocks' matches
+            then measure the step as road ACs would. The flow loses the near road at motorway
+            speeds (KITTI 06 at 3.6 m per frame: 0-23 road ACs a frame), its pixels remain.
+        ground_image_max_speed: the vehicle's top speed (m/s): the longest step the road's
+            pixels are searched for is this times the frames' interval.
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'
@@ -415,6 +423,9 @@ class ScaleConfig(Options):
     ground_normal_acs: int = bounded(60, 10)
     ground_normal_refit: int = bounded(10, 1)
     ground_top_up: bool = True
+    ground_image: bool = True
+    ground_image_max_speed: float = bounded(70.0, 0.0, 1e3, low_open=True,
+                                            expected='a positive speed in m/s')
 
 
 @dataclasses.dataclass(frozen=True)

@@ -114,6 +114,8 @@ class ReplaySummary:
             ``speed``, ``hold``, ``unit``, ``stationary``, ...).
         road_top_ups: frames whose ground scale asked the front-end for more road ACs (the
             processor's ``road_top_ups``; None if it has none).
+        image_road_steps: steps measured on the road's pixels where the road ACs were too few
+            (the processor's ``image_road_steps``; None if it has none).
         why_none: without any motion estimated (no odometry beyond the origin), the most
             frequent drop reason and its first message (empty otherwise).
         unreadable: messages per topic that the bag's index counts but reading skipped
@@ -153,6 +155,7 @@ class ReplaySummary:
     scale: str = ''
     scale_sources: dict[str, int] = field(default_factory=dict)
     road_top_ups: int | None = None
+    image_road_steps: int | None = None
     why_none: str = ''
     unreadable: dict[str, int] = field(default_factory=dict)
     gaps: int = 0
@@ -219,7 +222,9 @@ class ReplaySummary:
               if self.carry else []),
             *([f'  scale              {self.scale}'] if self.scale else []),
             f'  step lengths       {sources}'
-            + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups})')
+            + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups}'
+               + ('' if not self.image_road_steps
+                  else f', from the road\'s pixels {self.image_road_steps}') + ')')
             + self._unit_note(),
             f'  wall time          {self.wall_time:.2f} s'
             + (' (both passes)' if self.first_pass else ''),
@@ -678,6 +683,8 @@ def _fill(summary: ReplaySummary, processor, writer, copy, dropped, first, sourc
     summary.scale_sources = dict(sources)
     top_ups = getattr(processor, 'road_top_ups', None)
     summary.road_top_ups = top_ups if isinstance(top_ups, int) else None
+    pixels = getattr(processor, 'image_road_steps', None)
+    summary.image_road_steps = pixels if isinstance(pixels, int) else None
     summary.wall_time = time.perf_counter() - start
 
 
