@@ -188,6 +188,42 @@ def test_ground_scale_from_the_road_pixels_where_road_acs_are_too_few():
     assert pos < 0.02 * distance, (pos, distance)
 
 
+def test_road_pixel_steps_state_at_least_the_road_acs_deviation(monkeypatch, caplog):
+    """A step from the road's pixels states at least the median relative standard deviation of
+    the recent steps from road ACs (their errors are shared); a scan without a step is counted
+    by its reason (numbers as '#') and logged the first time."""
+    import logging
+    import types
+
+    from planar_vo.pipeline import odometry
+    from planar_vo.pipeline.road_image import ImageRoadScale
+
+    vo = VisualOdometry(PlanarVoConfig.from_dict({'mount': {'height': HEIGHT}}), CAMERA)
+    found = ImageRoadScale(2.0, 0.01, 20, np.zeros(3), np.zeros(2), 0.4, '',
+                           np.zeros((20, 2)), np.zeros((20, 2)), np.zeros((20, 2, 2)),
+                           np.ones(20))
+    monkeypatch.setattr(odometry, 'image_road_scale', lambda *a, **k: found)
+    monkeypatch.setattr(vo, '_road_step', lambda *a, **k: (2.0, 1e-6, 0.003))
+    image = np.zeros((CAMERA.height, CAMERA.width), np.uint8)
+    est = types.SimpleNamespace(R=np.eye(3), t=np.array([0.0, 0.0, -1.0]))
+    step = vo._image_road_step(CAMERA, est, image, image, 0.1, 5.0)
+    assert step == (2.0, 1e-6, 0.003) and vo.image_road_steps == 1     # no road-AC steps yet
+    vo._road_relative_stds.extend([0.04, 0.05, 0.06])
+    step = vo._image_road_step(CAMERA, est, image, image, 0.1, 5.1)
+    assert step[0] == 2.0 and step[1] == pytest.approx((0.05 * 2.0) ** 2) and step[2] == 0.003
+    missed = ImageRoadScale(math.nan, math.inf, 0, np.zeros(3), np.zeros(2), 0.01,
+                            'no clear best step (contrast 0.012)')
+    monkeypatch.setattr(odometry, 'image_road_scale', lambda *a, **k: missed)
+    with caplog.at_level(logging.INFO, logger='planar_vo.pipeline.odometry'):
+        assert vo._image_road_step(CAMERA, est, image, image, 0.1, 5.2) is None
+        assert vo._image_road_step(CAMERA, est, image, image, 0.1, 5.3) is None
+    assert vo.image_road_misses == {'no clear best step (contrast #)': 2}
+    assert vo.image_road_steps == 2
+    lines = [r.getMessage() for r in caplog.records if "road's pixels" in r.getMessage()]
+    assert len(lines) == 1 and 'no clear best step (contrast 0.012)' in lines[0]
+    assert 'scale.ground_image_max_speed 70 m/s x 0.100 s' in lines[0]
+
+
 def test_speed_source_falls_back_before_the_first_speed_message():
     config = PlanarVoConfig.from_dict({'mount': {'height': HEIGHT},
                                        'scale': {'source': 'speed', 'fallback': 'ground'}})
@@ -1512,12 +1548,17 @@ def test_the_scale_status_names_the_source_and_the_camera_height():
     def status(**scale):
         return VisualOdometry(PlanarVoConfig.from_dict(scale)).scale_status()
 
+    pixels = ("; too few road ACs: the road's pixels (steps up to "
+              "scale.ground_image_max_speed 70 m/s)")
     assert status(mount={'height': 1.65, 'height_std': 0.02}) == \
-        'ground at the camera height 1.65 +- 0.02 m (mount.height); fallback hold'
+        'ground at the camera height 1.65 +- 0.02 m (mount.height)' + pixels + '; fallback hold'
     assert status() == ("ground at the camera height 1.5 +- 0.01 m (mount.height, the default: "
-                        "set the car's); fallback hold")
+                        "set the car's)" + pixels + "; fallback hold")
+    assert status(scale={'ground_image': False}) == (
+        "ground at the camera height 1.5 +- 0.01 m (mount.height, the default: set the car's); "
+        "fallback hold")
     assert status(scale={'source': 'speed', 'fallback': 'ground'}) == \
-        'speed topic (+- 0.1 m/s); fallback ground'
+        'speed topic (+- 0.1 m/s)' + pixels + '; fallback ground'
     assert status(scale={'source': 'fixed', 'fixed_speed': 8.0}) == \
         'fixed speed 8 +- 3 m/s; fallback hold'
     assert status(scale={'source': 'unit'}) == 'none (unit steps: no metric scale)'

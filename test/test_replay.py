@@ -49,7 +49,8 @@ def test_replay_evaluate_and_evo(tmp_path, capsys, drive_bags, evo_env, storage)
     assert 'dropped            0 (none)' in text
     # The scale's source and the camera height it rests on (here the default: said so).
     assert "  scale              ground at the camera height 1.5 +- 0.01 m (mount.height, the " \
-           "default: set the car's); fallback hold\n" in text
+           "default: set the car's); too few road ACs: the road's pixels (steps up to " \
+           "scale.ground_image_max_speed 70 m/s); fallback hold\n" in text
     # Every odometry message's step length has a named source; the drive's are mostly metric.
     line = next(x for x in text.splitlines() if x.startswith('  step lengths'))
     counts = dict(item.rsplit(' ', 1) for item in
@@ -647,7 +648,13 @@ def test_summary_counts_the_steps_measured_on_the_road_pixels():
     summary = ReplaySummary('in', 'out', frames_in=20, odometry_out=19,
                             scale_sources={'ground': 18}, road_top_ups=7, image_road_steps=5)
     line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
-    assert line.endswith("ground 18 (road top-ups 7, from the road's pixels 5)"), line
-    summary.image_road_steps = 0
+    assert line.endswith("ground 18 (road top-ups 7; 5 ground steps from the road's pixels)"), \
+        line
+    summary.image_road_misses = {'the best step lies at the end of the range (# m of #-# m)': 2,
+                                 'no clear best step (contrast #)': 1}
+    line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
+    assert line.endswith("; 3 scans of the road's pixels found no step, most often (2): the "
+                         "best step lies at the end of the range (# m of #-# m))"), line
+    summary.image_road_steps, summary.image_road_misses = 0, {}
     line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
     assert line.endswith('ground 18 (road top-ups 7)'), line

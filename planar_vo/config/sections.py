@@ -425,7 +425,7 @@ class ScaleConfig(Options):
     ground_top_up: bool = True
     ground_image: bool = True
     ground_image_max_speed: float = bounded(70.0, 0.0, 1e3, low_open=True,
-                                            expected='a positive speed in m/s')
+                                            expected='a positive speed in m/s, at most 1000')
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,14 +8,17 @@ moves by a hundred pixels and more and stretches between frames; README Findings
 pixels still say ``s``:
 
 1. Blocks of road ahead in image 2 (whole blocks whose rays meet the road within
-   ``max_depth`` and within ``lateral_std`` of the line of travel), image 1 sampled where
-   ``H(s)^-1`` maps their pixels, on images shrunk to about 320 pixels wide and smoothed.
+   ``max_depth`` and within ``lateral_std`` of the line of travel; at most 128, evenly
+   picked), image 1 sampled where ``H(s)^-1`` maps their pixels, on images shrunk to at most
+   320 pixels wide and smoothed (a distorted camera's images undistorted first).
 2. Coarse: the blocks' mean normalised cross-correlation, scanned over ``s`` across the given
-   range in steps that move the fastest block by a shrunk pixel; its best ``s`` must be inside
-   the range and clearly better than the typical ``s`` (``min_contrast``).
-3. Fine: at twice that resolution, each block's own correlation over four times finer steps
-   around it, its peak (a parabola through the best three) its step ``s_b`` when it correlates
-   at least ``min_ncc``.
+   range in steps that move the fastest block by a shrunk pixel each (at most 200 steps); its
+   best ``s`` must be inside the range and clearly better than the typical ``s``
+   (``min_contrast``).
+3. Fine: at the next resolution (half the shrink, at least full resolution), each block's own
+   correlation over two coarse steps either side in steps four times finer, its peak (a
+   parabola through the best three) its step ``s_b`` when it correlates at least
+   ``min_ncc``.
 4. The blocks' weighted mean (weight: how far a block moves in the image per metre of step,
    squared, times the lateral weight of `road_scale`) after a 3-MAD clip of the blocks'
    disagreement in pixels, its standard deviation from their scatter. Each block is a
@@ -27,15 +30,16 @@ pixels still say ``s``:
 Measured through the pipeline (dev script, the scan run on every frame beside the road ACs,
 its own motion and road normal, each step against the ground truth's): KITTI 05's first 120
 frames -1.0 % mean and 3.6 % RMS error (the road ACs -0.3 % and 4.6 %); every 3rd frame of KITTI
-05 -0.3 % and 5.3 % (6.8 %); the KITTI 06 excerpt +2.4 % and 3.1 % (+1.9 % and 3.3 %), every
-3rd frame of it (3.6 m per frame, road ACs for 2 of 16 steps) +5.3 % and 6.2 %. Errors over
-the stated standard deviations have an RMS of 1.1-1.8 (the road ACs' 0.7-1.3): the pipeline
-uses the blocks only where the road ACs are too few. A scan costs 8.6-11.9 ms (median; its
-length grows with the range of steps).
+05 -0.6 % and 5.1 % (6.7 %), every 4th -0.4 % and 6.1 % (7.6 %); the KITTI 06 excerpt +2.1 %
+and 2.8 % (+1.9 % and 3.3 %), every 3rd frame of it (3.6 m per frame, road ACs for 2 of 16
+steps) +4.3 % and 5.6 %. The answer does not depend on the range searched (one KITTI 05 pair,
+ranges from 5 to 310 m: 3.804 m each time, 3.803 at 310). A scan costs 7-31 ms on KITTI-like
+images 613 to 1226 pixels wide (at most 128 blocks; 12-13 ms at full KITTI size).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -43,7 +47,9 @@ import cv2
 import numpy as np
 
 from planar_vo.core.camera import CameraModel
+from planar_vo.core.checks import as_array, as_rotation
 from planar_vo.core.robust.stats import MAD_TO_SIGMA, median, weighted_median
+from planar_vo.errors import ConfigError, InputError
 from planar_vo.pipeline.scale import _sensitivities, _step_terms
 
 __all__ = ['ImageRoadScale', 'image_road_scale']
@@ -56,10 +62,14 @@ _BLOCK = 8
 _BLUR = 1.0
 # Rays at least this far below the horizon (n . Q) at every corner of a block.
 _MIN_ELEVATION = 0.02
-# The fine stage: one coarse step either side of the coarse answer, in this many steps each.
-_FINE_SPLIT = 4
-# At most this many steps in the coarse scan.
+# The fine stage: this many coarse steps either side of the coarse answer, this many fine
+# steps to each.
+_FINE_SPAN, _FINE_SPLIT = 2, 4
+# At most this many steps in the coarse scan, and blocks in either scan.
 _MAX_STEPS = 200
+_MAX_BLOCKS = 128
+# The fastest block's track over the range, sampled at this many steps to space the scan.
+_TRACK = 1024
 
 
 @dataclass(frozen=True)
@@ -131,13 +141,16 @@ class _Road:
             X = lam[:, None] * np.column_stack([q, np.ones(len(q))])
             depth = np.linalg.norm(X, axis=1)
             lateral = X @ side
-            ok &= (depth <= max_depth) & (np.abs(lateral) <= lateral_std
-                                          if lateral_std > 0 else True)
-        self.corner = np.column_stack([gx[ok], gy[ok]])     # top-left (full pixels)
+            ok &= (depth <= max_depth) & (np.abs(lateral) <= lateral_std)
+        keep = np.flatnonzero(ok)
+        if keep.size > _MAX_BLOCKS:
+            # Evenly over the road (row-major order): a tall image or a camera pitched down
+            # sees many more blocks, and a scan's cost grows with them.
+            keep = keep[np.linspace(0, keep.size - 1, _MAX_BLOCKS).astype(np.intp)]
+        self.corner = np.column_stack([gx[keep], gy[keep]])  # top-left (full pixels)
         self.size = size
-        self.q2 = q[ok]                                     # block centres, normalised
-        self.weight = (np.exp(-0.5 * (lateral[ok] / lateral_std) ** 2) if lateral_std > 0
-                       else np.ones(int(ok.sum())))
+        self.q2 = q[keep]                                   # block centres, normalised
+        self.weight = np.exp(-0.5 * (lateral[keep] / lateral_std) ** 2)
 
     def samples(self, spacing: int) -> tuple[np.ndarray, np.ndarray]:
         """Per block, sample pixels every ``spacing`` full pixels (full-resolution
@@ -176,12 +189,37 @@ class _Road:
 
 
 def _pixels(camera: CameraModel, q: np.ndarray) -> np.ndarray:
-    """Normalised ``(..., 2)`` -> pixels (``camera.normalized_to_pixel`` without its Jacobian
-    for an undistorted camera)."""
-    if camera.is_distorted:
-        return camera.normalized_to_pixel(q.reshape(-1, 2))[0].reshape(q.shape)
+    """Normalised ``(..., 2)`` -> pixels of an undistorted ``camera``."""
     K = camera.K
     return q @ K[:2, :2].T + K[:2, 2]
+
+
+@functools.lru_cache(maxsize=4)
+def _undistortion(width: int, height: int, K: tuple, model: str, D: tuple
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Maps for `cv2.remap` from a distorted camera's image to the undistorted one of the same
+    size and intrinsics (float32, 2 x 4 bytes per pixel; a few cameras kept)."""
+    camera = CameraModel(width, height, np.array(K).reshape(3, 3), model, D)
+    v, u = np.mgrid[0:height, 0:width]
+    p = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
+    q = (p - camera.K[:2, 2]) @ np.linalg.inv(camera.K[:2, :2]).T
+    d, _ = camera.normalized_to_pixel(q)
+    d = np.nan_to_num(d, nan=-1.0).astype(np.float32)
+    return d[:, 0].reshape(height, width), d[:, 1].reshape(height, width)
+
+
+def _undistorted(camera: CameraModel, *images: np.ndarray) -> tuple[CameraModel, list]:
+    """An undistorted camera of the same size and intrinsics, and the images seen by it
+    (unchanged without distortion)."""
+    if not camera.is_distorted:
+        return camera, list(images)
+    K = tuple(float(x) for x in camera.K.ravel())
+    mx, my = _undistortion(camera.width, camera.height, K, camera.distortion_model,
+                           tuple(float(x) for x in camera.D))
+    pinhole = CameraModel(camera.width, camera.height, camera.K)
+    return pinhole, [cv2.remap(image, mx, my, cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                     for image in images]
 
 
 def _correlations(image1: np.ndarray, values2: np.ndarray, pixels1: np.ndarray,
@@ -224,10 +262,10 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
             to the vehicle's top speed times the frames' interval, or around a known speed's.
         max_depth: road farther along the ray (m) is not used.
         lateral_std: blocks weighted by ``exp(-x^2 / (2 lateral_std^2))`` of their lateral
-            distance ``x`` (m) from the line of travel, none beyond ``lateral_std`` (unlike
-            road ACs, blocks pass no test of being road: the kerbs, parked cars and verges
-            beside the road made the steps 12 % long on KITTI 05 with blocks out to three
-            lane widths); 0: all alike, no limit.
+            distance ``x`` (m) from the line of travel, none beyond ``lateral_std`` (positive;
+            unlike road ACs, blocks pass no test of being road: the kerbs, parked cars and
+            verges beside the road made the steps 12 % long on KITTI 05 with blocks out to
+            three lane widths).
         min_blocks: fewer blocks give no answer.
         min_ncc: a block counts when its correlation peaks at least this high.
         min_contrast: the coarse scan's best mean cost (1 - correlation) must lie this far
@@ -235,45 +273,49 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
 
     Returns:
         An `ImageRoadScale` (``reason`` set and ``scale`` NaN without an answer).
+
+    Raises:
+        InputError: images not 8-bit grey of the camera's size, ``camera`` not a
+            `CameraModel`, ``R`` not a rotation, ``t`` or ``n`` not a non-zero 3-vector.
+        ConfigError: a non-positive ``height``, ``max_depth`` or ``lateral_std``, or
+            ``min_blocks`` below 1.
     """
-    t = np.asarray(t, dtype=np.float64) / float(np.linalg.norm(t))
-    n = np.asarray(n, dtype=np.float64) / float(np.linalg.norm(n))
+    camera, R, t, n, height = _checked(gray1, gray2, camera, R, t, n, height, max_depth,
+                                       lateral_std, min_blocks)
     low, high = (float(x) for x in steps)
     if not (math.isfinite(high) and high > max(low, 0.0) and low >= 0.0):
         return _failed(f'no range of steps ({low}, {high})')
-    coarse = max(1, int(round(camera.size[0] / _COARSE_WIDTH)))
+    camera, (gray1, gray2) = _undistorted(camera, gray1, gray2)
+    coarse = max(1, math.ceil(camera.size[0] / _COARSE_WIDTH))
     fine = max(1, coarse // 2)
-    road = _Road(camera, R, t, n, float(height), max_depth, lateral_std, coarse)
+    road = _Road(camera, R, t, n, height, max_depth, lateral_std, coarse)
     if len(road.q2) < min_blocks:
         return _failed(f'{len(road.q2)} road blocks in view')
     # -- coarse scan over the range: steps that move the fastest block by a shrunk pixel ------
-    ends = road.to_image1(road.q2, np.array([low, high]))
-    with np.errstate(invalid='ignore'):
-        travel = np.nanmax(np.linalg.norm(ends[1] - ends[0], axis=-1)) / coarse
-    if not (math.isfinite(travel) and travel > 0):
-        return _failed('the road does not move')
-    count = int(min(max(math.ceil(travel), 8), _MAX_STEPS))
-    delta = (high - low) / count
-    grid = low + delta * np.arange(count + 1)
-    grid = grid[grid > 0]
+    grid = _scan_steps(road, low, high, coarse)
+    if len(grid) < 3:
+        return _failed(f'the range of steps ({low:g}, {high:g} m) moves the road by less than '
+                       f'3 pixels')
     p2, q2 = road.samples(2 * coarse)
     small1 = _shrink(gray1, coarse)
     ncc = _correlations(small1, _sample(_shrink(gray2, coarse), p2, coarse),
                         road.to_image1(q2, grid), coarse)
-    complete = np.isfinite(ncc).all(axis=0)
-    if complete.sum() < min_blocks:
-        return _failed(f'{int(complete.sum())} road blocks seen in both images')
-    cost = (1.0 - ncc[:, complete]).mean(axis=1)
+    # A block whose samples leave image 1 or meet no texture there (the far road near the
+    # horizon, where long steps take them) says nothing at that step: no correlation.
+    seen = np.isfinite(ncc).any(axis=0)
+    if seen.sum() < min_blocks:
+        return _failed(f'{int(seen.sum())} road blocks seen in both images')
+    cost = (1.0 - np.nan_to_num(ncc[:, seen], nan=0.0)).mean(axis=1)
     k = int(np.argmin(cost))
     contrast = float(median(cost) - cost[k])
-    if (k == 0 and grid[0] > 0) or k == len(grid) - 1:
-        return _failed('the best step lies at the end of the range', contrast)
+    if k == 0 or k == len(grid) - 1:
+        return _failed(f'the best step lies at the end of the range ({grid[k]:.3g} m of '
+                       f'{low:g}-{high:g} m)', contrast)
     if contrast < min_contrast:
         return _failed(f'no clear best step (contrast {contrast:.3f})', contrast)
-    # -- fine: each block around it, at twice the resolution ----------------------------------
-    split = _FINE_SPLIT
-    fine_grid = grid[k] + delta / split * np.arange(-split, split + 1)
-    fine_grid = fine_grid[fine_grid > 0]
+    # -- fine: each block around it, at the next resolution ----------------------------------
+    span = grid[max(k - _FINE_SPAN, 0)], grid[min(k + _FINE_SPAN, len(grid) - 1)]
+    fine_grid = np.linspace(span[0], span[1], 2 * _FINE_SPAN * _FINE_SPLIT + 1)
     p2, q2 = road.samples(coarse)
     ncc = _correlations(_shrink(gray1, fine), _sample(_shrink(gray2, fine), p2, fine),
                         road.to_image1(q2, fine_grid), fine)
@@ -288,7 +330,7 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
     y0, y1, y2 = ncc[best[idx] - 1, idx], peak[idx], ncc[best[idx] + 1, idx]
     curv = y0 - 2.0 * y1 + y2
     offset = np.where(curv < 0, 0.5 * (y0 - y2) / np.where(curv < 0, curv, -1.0), 0.0)
-    s_b = fine_grid[best[idx]] + np.clip(offset, -0.5, 0.5) * (delta / split)
+    s_b = fine_grid[best[idx]] + np.clip(offset, -0.5, 0.5) * (fine_grid[1] - fine_grid[0])
     # -- the step: blocks as road correspondences ---------------------------------------------
     centre = road.q2[idx]
     eps = 1e-3 * high
@@ -320,6 +362,56 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
     precision = speed[keep] ** 2
     return ImageRoadScale(scale, std, G, d_rot, d_normal, contrast, '', q1, centre, A,
                           precision / precision.max())
+
+
+def _checked(gray1, gray2, camera, R, t, n, height, max_depth, lateral_std, min_blocks):
+    """The arguments of `image_road_scale` checked (``t``, ``n`` unit, ``height`` a float)."""
+    if not isinstance(camera, CameraModel):
+        raise InputError(f'camera: expected a CameraModel, got {type(camera).__name__}')
+    for name, image in (('gray1', gray1), ('gray2', gray2)):
+        shape = getattr(image, 'shape', None)
+        if shape != (camera.height, camera.width) or getattr(image, 'dtype', None) != np.uint8:
+            raise InputError(f'{name}: expected an 8-bit grey image of the camera\'s size '
+                             f'{camera.width}x{camera.height}, got '
+                             f'{getattr(image, "dtype", type(image).__name__)} {shape}')
+    R = as_rotation('R', R)
+    unit = []
+    for name, value in (('t', t), ('n', n)):
+        v = as_array(name, value, (3,))
+        norm = float(np.linalg.norm(v))
+        if not norm > 0.0:
+            raise InputError(f'{name}: expected a non-zero direction, got {v.tolist()}')
+        unit.append(v / norm)
+    for name, value in (('height', height), ('max_depth', max_depth),
+                        ('lateral_std', lateral_std)):
+        if not (isinstance(value, (int, float, np.floating, np.integer))
+                and math.isfinite(value) and value > 0):
+            raise ConfigError(f'{name}: expected a positive number, got {value!r}')
+    if not (isinstance(min_blocks, (int, np.integer)) and min_blocks >= 1):
+        raise ConfigError(f'min_blocks: expected an integer of at least 1, got {min_blocks!r}')
+    return camera, R, unit[0], unit[1], float(height)
+
+
+def _scan_steps(road: _Road, low: float, high: float, coarse: int) -> np.ndarray:
+    """The coarse scan's steps in ``(low, high]`` (positive): spaced so that the block that
+    moves fastest over the range moves by one shrunk pixel from each to the next (its image
+    motion per metre falls as the step grows, so the steps are not evenly spaced), at most
+    `_MAX_STEPS` of them (then further apart)."""
+    ends = road.to_image1(road.q2, np.array([low, high]))
+    with np.errstate(invalid='ignore'):
+        reach = np.linalg.norm(ends[1] - ends[0], axis=-1)
+    if not np.isfinite(reach).any():
+        return np.zeros(0)
+    fastest = int(np.nanargmax(reach))
+    dense = np.linspace(low, high, _TRACK)
+    track = road.to_image1(road.q2[fastest:fastest + 1], dense)[:, 0]          # (T, 2)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(track, axis=0), axis=1))])
+    arc /= coarse
+    if not (np.isfinite(arc).all() and arc[-1] > 0):
+        return np.zeros(0)
+    spacing = max(1.0, arc[-1] / _MAX_STEPS)
+    grid = np.interp(np.arange(0.0, arc[-1] + 1e-9, spacing), arc, dense)
+    return grid[grid > 0]
 
 
 def _sample(image: np.ndarray, pixels: np.ndarray, factor: int) -> np.ndarray:

@@ -1153,6 +1153,7 @@ class PlanarVoNode(Node):
             'scale_source': (last.scale_source if last.ok else 'none') if last else 'none',
             'road_top_ups': self._vo.road_top_ups,
             'image_road_steps': self._vo.image_road_steps,
+            'image_road_misses': sum(self._vo.image_road_misses.values()),
             **self._focal_values(),
             'path_poses': len(self._path) + (self._path_tip is not None),
             **{f'period.{k}': v for k, v in sorted(self._period.items())},

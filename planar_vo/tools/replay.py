@@ -114,8 +114,10 @@ class ReplaySummary:
             ``speed``, ``hold``, ``unit``, ``stationary``, ...).
         road_top_ups: frames whose ground scale asked the front-end for more road ACs (the
             processor's ``road_top_ups``; None if it has none).
-        image_road_steps: steps measured on the road's pixels where the road ACs were too few
-            (the processor's ``image_road_steps``; None if it has none).
+        image_road_steps: ground steps measured on the road's pixels where the road ACs were
+            too few (the processor's ``image_road_steps``; None if it has none).
+        image_road_misses: the road's pixels' scans that found no step, by reason (the
+            processor's ``image_road_misses``).
         why_none: without any motion estimated (no odometry beyond the origin), the most
             frequent drop reason and its first message (empty otherwise).
         unreadable: messages per topic that the bag's index counts but reading skipped
@@ -156,6 +158,7 @@ class ReplaySummary:
     scale_sources: dict[str, int] = field(default_factory=dict)
     road_top_ups: int | None = None
     image_road_steps: int | None = None
+    image_road_misses: dict[str, int] = field(default_factory=dict)
     why_none: str = ''
     unreadable: dict[str, int] = field(default_factory=dict)
     gaps: int = 0
@@ -223,8 +226,7 @@ class ReplaySummary:
             *([f'  scale              {self.scale}'] if self.scale else []),
             f'  step lengths       {sources}'
             + ('' if self.road_top_ups is None else f' (road top-ups {self.road_top_ups}'
-               + ('' if not self.image_road_steps
-                  else f', from the road\'s pixels {self.image_road_steps}') + ')')
+               + self._pixels_note() + ')')
             + self._unit_note(),
             f'  wall time          {self.wall_time:.2f} s'
             + (' (both passes)' if self.first_pass else ''),
@@ -243,6 +245,20 @@ class ReplaySummary:
                 f'; the {unreadable} unreadable images leave gaps too' if unreadable else '')
         return (f' ({plural(self.missing_frames, "frame")} missing in '
                 f'{plural(self.gaps, "gap")} of the stamps{also})')
+
+    def _pixels_note(self) -> str:
+        """The ground steps from the road's pixels and the scans that found none (empty if
+        neither)."""
+        note = ''
+        if self.image_road_steps:
+            note += f"; {self.image_road_steps} ground steps from the road's pixels"
+        misses = sum(self.image_road_misses.values())
+        if misses:
+            why, count = max(self.image_road_misses.items(), key=lambda item: item[1])
+            note += (f"; {misses} scans of the road's pixels found no step"
+                     + (f', most often ({count}):' if len(self.image_road_misses) > 1 else ':')
+                     + f' {why}')
+        return note
 
     def _unit_note(self) -> str:
         """Steps without a metric length, said in words (a user test: 'unit 50' alone read
@@ -685,6 +701,8 @@ def _fill(summary: ReplaySummary, processor, writer, copy, dropped, first, sourc
     summary.road_top_ups = top_ups if isinstance(top_ups, int) else None
     pixels = getattr(processor, 'image_road_steps', None)
     summary.image_road_steps = pixels if isinstance(pixels, int) else None
+    misses = getattr(processor, 'image_road_misses', None)
+    summary.image_road_misses = dict(misses) if isinstance(misses, dict) else {}
     summary.wall_time = time.perf_counter() - start
 
 
