@@ -221,7 +221,17 @@ def test_road_pixel_steps_state_at_least_the_road_acs_deviation(monkeypatch, cap
     assert vo.image_road_steps == 2
     lines = [r.getMessage() for r in caplog.records if "road's pixels" in r.getMessage()]
     assert len(lines) == 1 and 'no clear best step (contrast 0.012)' in lines[0]
-    assert 'scale.ground_image_max_speed 70 m/s x 0.100 s' in lines[0]
+    assert 'scale.ground_image_max_speed 70 m/s x 0.100 s)' in lines[0]
+    assert caplog.records[-1].levelno == logging.INFO
+    # The longest step searched fitting best: a warning that the vehicle may be faster.
+    missed = ImageRoadScale(math.nan, math.inf, 0, np.zeros(3), np.zeros(2), 0.3,
+                            'the best step is the longest searched (6.97 m of 0-7 m)')
+    monkeypatch.setattr(odometry, 'image_road_scale', lambda *a, **k: missed)
+    with caplog.at_level(logging.INFO, logger='planar_vo.pipeline.odometry'):
+        assert vo._image_road_step(CAMERA, est, image, image, 0.1, 5.4) is None
+    assert caplog.records[-1].levelno == logging.WARNING
+    assert caplog.records[-1].getMessage().endswith(
+        'scale.ground_image_max_speed 70 m/s x 0.100 s: is the vehicle faster?)')
 
 
 def test_speed_source_falls_back_before_the_first_speed_message():

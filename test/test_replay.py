@@ -650,11 +650,14 @@ def test_summary_counts_the_steps_measured_on_the_road_pixels():
     line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
     assert line.endswith("ground 18 (road top-ups 7; 5 ground steps from the road's pixels)"), \
         line
-    summary.image_road_misses = {'the best step lies at the end of the range (# m of #-# m)': 2,
+    summary.image_road_misses = {'the best step is the longest searched (# m of #-# m)': 2,
                                  'no clear best step (contrast #)': 1}
     line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
     assert line.endswith("; 3 scans of the road's pixels found no step, most often (2): the "
-                         "best step lies at the end of the range (# m of #-# m))"), line
-    summary.image_road_steps, summary.image_road_misses = 0, {}
+                         "best step is the longest searched (# m of #-# m))"), line
+    summary.image_road_steps, summary.image_road_misses = 1, {}
+    line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
+    assert line.endswith("(road top-ups 7; 1 ground step from the road's pixels)"), line
+    summary.image_road_steps = 0
     line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
     assert line.endswith('ground 18 (road top-ups 7)'), line

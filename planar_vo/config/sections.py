@@ -398,7 +398,8 @@ class ScaleConfig(Options):
             then measure the step as road ACs would. The flow loses the near road at motorway
             speeds (KITTI 06 at 3.6 m per frame: 0-23 road ACs a frame), its pixels remain.
         ground_image_max_speed: the vehicle's top speed (m/s): the longest step the road's
-            pixels are searched for is this times the frames' interval.
+            pixels are searched for is this times the frames' interval (when the longest
+            step searched fits best, a warning asks whether the vehicle is faster).
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'

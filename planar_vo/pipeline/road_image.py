@@ -294,7 +294,7 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
     # -- coarse scan over the range: steps that move the fastest block by a shrunk pixel ------
     grid = _scan_steps(road, low, high, coarse)
     if len(grid) < 3:
-        return _failed(f'the range of steps ({low:g}, {high:g} m) moves the road by less than '
+        return _failed(f'the range of steps ({low:.3g}, {high:.3g} m) moves the road by less than '
                        f'3 pixels')
     p2, q2 = road.samples(2 * coarse)
     small1 = _shrink(gray1, coarse)
@@ -308,11 +308,14 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
     cost = (1.0 - np.nan_to_num(ncc[:, seen], nan=0.0)).mean(axis=1)
     k = int(np.argmin(cost))
     contrast = float(median(cost) - cost[k])
-    if k == 0 or k == len(grid) - 1:
-        return _failed(f'the best step lies at the end of the range ({grid[k]:.3g} m of '
-                       f'{low:g}-{high:g} m)', contrast)
     if contrast < min_contrast:
         return _failed(f'no clear best step (contrast {contrast:.3f})', contrast)
+    if k == 0:
+        return _failed(f'the best step is the shortest searched ({grid[k]:.3g} m of '
+                       f'{low:.3g}-{high:.3g} m)', contrast)
+    if k == len(grid) - 1:
+        return _failed(f'the best step is the longest searched ({grid[k]:.3g} m of '
+                       f'{low:.3g}-{high:.3g} m)', contrast)
     # -- fine: each block around it, at the next resolution ----------------------------------
     span = grid[max(k - _FINE_SPAN, 0)], grid[min(k + _FINE_SPAN, len(grid) - 1)]
     fine_grid = np.linspace(span[0], span[1], 2 * _FINE_SPAN * _FINE_SPLIT + 1)

@@ -251,7 +251,8 @@ class ReplaySummary:
         neither)."""
         note = ''
         if self.image_road_steps:
-            note += f"; {self.image_road_steps} ground steps from the road's pixels"
+            note += (f"; {self.image_road_steps} ground step"
+                     f"{'s' if self.image_road_steps > 1 else ''} from the road's pixels")
         misses = sum(self.image_road_misses.values())
         if misses:
             why, count = max(self.image_road_misses.items(), key=lambda item: item[1])
