@@ -1499,6 +1499,37 @@ def test_a_speed_topic_on_another_clock_is_reported(monkeypatch, local_node, dri
     assert '6 speed messages (1 refused); ' in node.summary()
 
 
+def test_unit_steps_are_warned_per_image_per_period_and_summed_up(local_node, drive_bag):
+    """Steps of unknown length (no road measured, nothing to hold yet) are odometry, but not
+    silently OK (a user test: the first steps of a fast drive were 'ok' at 1 m each): each
+    image's /status warns, /diagnostics names them even beside metric steps, and the shutdown
+    summary counts the step lengths by source."""
+    from collections import Counter
+
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    node = local_node({**MOUNT_PARAMS, 'scale.ground_min_correspondences': 100000,
+                       'scale.ground_top_up': False, 'scale.ground_image': False})
+    info, images = _bag_messages(drive_bag, 5)
+    node._on_camera_info(info)
+    for msg in images:
+        node._on_image(msg)
+    steps = [s for s in node.published['status'] if status_values(s)['result'] == 'ok']
+    assert len(steps) == 4
+    for array in steps:
+        assert status_values(array)['scale_source'] == 'unit'
+        status = array.status[0]
+        assert status.level == DiagnosticStatus.WARN
+        assert status.message.endswith('; a unit step: no metric scale yet from scale.source '
+                                       'ground'), status.message
+    assert 'step lengths unit 4; ' in node.summary()
+    node._period_scale = Counter({'ground': 2, 'unit': 6})
+    assert node._unscaled_period() == ('6 unit steps (no metric scale yet) in the last 1 s '
+                                       '(steps: ground 2, unit 6)')
+    node._period_scale = Counter({'ground': 8})
+    assert node._unscaled_period() is None
+
+
 def test_an_image_stamp_that_is_no_ros_time_is_a_bad_stamp(local_node, drive_bag):
     """A user test: nanosec 4e9 was read as 4 s later (replay drops such an image)."""
     node = local_node(MOUNT_PARAMS)

@@ -208,8 +208,9 @@ def test_road_pixel_steps_state_at_least_the_road_acs_deviation(monkeypatch, cap
     est = types.SimpleNamespace(R=np.eye(3), t=np.array([0.0, 0.0, -1.0]))
     step = vo._image_road_step(CAMERA, est, image, image, 0.1, 5.0)
     assert step == (2.0, 1e-6, 0.003) and vo.image_road_steps == 1     # no road-AC steps yet
-    vo._road_relative_stds.extend([0.04, 0.05, 0.06])
+    vo._road_relative_stds.extend([(-9.0, 0.5), (4.8, 0.04), (4.9, 0.05), (5.0, 0.06)])
     step = vo._image_road_step(CAMERA, est, image, image, 0.1, 5.1)
+    # (the first is more than 10 s old: left out)
     assert step[0] == 2.0 and step[1] == pytest.approx((0.05 * 2.0) ** 2) and step[2] == 0.003
     missed = ImageRoadScale(math.nan, math.inf, 0, np.zeros(3), np.zeros(2), 0.01,
                             'no clear best step (contrast 0.012)')
@@ -221,7 +222,7 @@ def test_road_pixel_steps_state_at_least_the_road_acs_deviation(monkeypatch, cap
     assert vo.image_road_steps == 2
     lines = [r.getMessage() for r in caplog.records if "road's pixels" in r.getMessage()]
     assert len(lines) == 1 and 'no clear best step (contrast 0.012)' in lines[0]
-    assert 'scale.ground_image_max_speed 70 m/s x 0.100 s)' in lines[0]
+    assert 'steps searched up to 70 m/s x 0.100 s)' in lines[0]
     assert caplog.records[-1].levelno == logging.INFO
     # The longest step searched fitting best: a warning that the vehicle may be faster.
     missed = ImageRoadScale(math.nan, math.inf, 0, np.zeros(3), np.zeros(2), 0.3,
@@ -231,7 +232,34 @@ def test_road_pixel_steps_state_at_least_the_road_acs_deviation(monkeypatch, cap
         assert vo._image_road_step(CAMERA, est, image, image, 0.1, 5.4) is None
     assert caplog.records[-1].levelno == logging.WARNING
     assert caplog.records[-1].getMessage().endswith(
-        'scale.ground_image_max_speed 70 m/s x 0.100 s: is the vehicle faster?)')
+        '70 m/s x 0.100 s: is the vehicle faster than scale.ground_image_max_speed?)')
+    # A measured speed beyond the setting: warned once, and the scan reaches twice that speed.
+    ranges = []
+
+    def scan(*a, steps, **k):
+        ranges.append(steps)
+        return found
+    monkeypatch.setattr(odometry, 'image_road_scale', scan)
+    vo._held = (90.0, 1.0, 5.5, 0.0)
+    with caplog.at_level(logging.INFO, logger='planar_vo.pipeline.odometry'):
+        for stamp in (5.6, 5.7):
+            assert vo._image_road_step(CAMERA, est, image, image, 0.1, stamp)[0] == 2.0
+    assert ranges == [(0.0, pytest.approx(18.0))] * 2
+    faster = [r.getMessage() for r in caplog.records if 'faster than' in r.getMessage()]
+    assert faster[-1].startswith('the vehicle moved at 90.0 m/s (its last measured step), '
+                                 'faster than scale.ground_image_max_speed 70 m/s')
+    assert sum('its last measured step' in m for m in faster) == 1
+
+
+def test_the_road_ac_steps_deviations_are_kept_for_the_pixels_floor():
+    """Every step from road ACs leaves its stamp and relative standard deviation for the floor
+    of the steps from the road's pixels (a review: nothing tested that they are kept)."""
+    trajectory, results, vo = _run('straight')
+    ground = [(r.stamp, r) for r in results if r.ok and r.scale_source == 'ground']
+    assert len(ground) >= 20 and vo.image_road_steps == 0
+    kept = list(vo._road_relative_stds)
+    assert [when for when, _ in kept] == [stamp for stamp, _ in ground][-len(kept):]
+    assert all(0.0 < rel < 0.2 for _, rel in kept)
 
 
 def test_speed_source_falls_back_before_the_first_speed_message():
@@ -1568,7 +1596,7 @@ def test_the_scale_status_names_the_source_and_the_camera_height():
         "ground at the camera height 1.5 +- 0.01 m (mount.height, the default: set the car's); "
         "fallback hold")
     assert status(scale={'source': 'speed', 'fallback': 'ground'}) == \
-        'speed topic (+- 0.1 m/s)' + pixels + '; fallback ground'
+        'speed topic (+- 0.1 m/s); fallback ground' + pixels
     assert status(scale={'source': 'fixed', 'fixed_speed': 8.0}) == \
         'fixed speed 8 +- 3 m/s; fallback hold'
     assert status(scale={'source': 'unit'}) == 'none (unit steps: no metric scale)'

@@ -131,6 +131,16 @@ def test_the_answer_does_not_depend_on_the_range(texture, step):
     np.testing.assert_allclose(answers, step, rtol=0.01)
 
 
+@pytest.mark.parametrize('step, high', [(0.5, 7.0), (2.0, 3.0), (2.0, 7.0), (2.0, 35.0)])
+def test_a_camera_moving_away_from_the_road_ahead(texture, step, high):
+    """Reversing (or a rear camera driving forward): the road leaves image 1's view as the
+    step grows; the scan still spaces its steps by the blocks still in view (a review: the
+    first version left the short steps unscanned and called long ranges motionless)."""
+    image1, image2, R, t, n = _pair(texture, -step, camera=KITTI)
+    found = image_road_scale(image1, image2, KITTI, R, -t, n, HEIGHT, steps=(0.0, high))
+    assert found.scale == pytest.approx(step, rel=0.01), found.reason
+
+
 def test_many_road_blocks_are_thinned(texture):
     """A tall image from a camera pitched down sees the road in many more blocks than a wide
     one: at most 128 are scanned (a review: 741 blocks, 2.2 million samples a scan)."""

@@ -212,7 +212,8 @@ class VisualOdometry:
         # from road ACs (the pixels' steps state at least their median).
         self.image_road_steps = 0
         self.image_road_misses: dict[str, int] = {}
-        self._road_relative_stds: deque[float] = deque(maxlen=_ROAD_STD_HISTORY)
+        self._told_faster = False       # warned that the vehicle outran ground_image_max_speed
+        self._road_relative_stds: deque[tuple[float, float]] = deque(maxlen=_ROAD_STD_HISTORY)
         self._road_fed = False          # this frame's pair went to the road-normal calibration
         odometry = self.config.odometry
         self._clock = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
@@ -397,11 +398,15 @@ class VisualOdometry:
             line = f'fixed speed {cfg.scale.fixed_speed:g} +- {cfg.scale.fixed_speed_std:g} m/s'
         else:
             line = 'none (unit steps: no metric scale)'
-        if 'ground' in (source, cfg.scale.fallback) and cfg.scale.ground_image:
-            line += (f"; too few road ACs: the road's pixels (steps up to "
-                     f"scale.ground_image_max_speed {cfg.scale.ground_image_max_speed:g} m/s)")
+        pixels = (f"; too few road ACs: the road's pixels (steps up to "
+                  f"scale.ground_image_max_speed {cfg.scale.ground_image_max_speed:g} m/s)"
+                  if cfg.scale.ground_image else '')
+        if source == 'ground':
+            line += pixels
         if source != 'unit' and cfg.scale.fallback != source:
             line += f'; fallback {cfg.scale.fallback}'
+            if cfg.scale.fallback == 'ground':
+                line += pixels
         return line
 
     def focal_length(self) -> tuple[float, float, str]:
@@ -1290,7 +1295,7 @@ class VisualOdometry:
                         # The road-normal calibration takes one frame pair once.
                         step = self._road_step(camera, est, more, feed=not self._road_fed)
                 if step is not None:
-                    self._road_relative_stds.append(math.sqrt(step[1]) / step[0])
+                    self._road_relative_stds.append((stamp, math.sqrt(step[1]) / step[0]))
                 elif cfg.ground_image and dt > 0:
                     step = self._image_road_step(camera, est, keyframe.image, gray, dt, stamp)
                 if step is not None:
@@ -1328,7 +1333,8 @@ class VisualOdometry:
         ``image_road_misses`` (the first of each reason logged).
 
         The step's standard deviation is at least the median relative one of the recent steps
-        from road ACs (`_ROAD_STD_HISTORY`): the two share most of a frame's error (on KITTI
+        from road ACs (the last `_ROAD_STD_HISTORY` of them, those of the last
+        `_ROAD_STD_SECONDS` of image time): the two share most of a frame's error (on KITTI
         05's first 120 frames, each step measured both ways, their errors against the ground
         truth correlate at 0.90), which the road ACs, reaching farther and so more sensitive to
         the road normal, state larger; on their own the blocks' stated deviations were 1.6-1.9
@@ -1336,9 +1342,20 @@ class VisualOdometry:
         its Mahalanobis distance 60 % of the time, 93 % without the blocks' steps)."""
         cfg = self.config.scale
         pitch, roll, _ = self.road_normal
+        top = cfg.ground_image_max_speed
+        if self._held is not None and self._held[0] > top:
+            # The last measured speed beyond the configured top speed (a user test: 10 m/s
+            # set, 36 driven, the scans failed and the first warning came a second later).
+            if not self._told_faster:
+                log.warning("the vehicle moved at %.1f m/s (its last measured step), faster "
+                            "than scale.ground_image_max_speed %g m/s: the road's pixels are "
+                            "searched up to twice its speed (raise the setting)",
+                            self._held[0], top)
+                self._told_faster = True
+            top = 2.0 * self._held[0]
         found = image_road_scale(gray1, gray2, camera, est.R, est.t,
                                  normal_from_tilt(pitch, roll), self.config.mount.height,
-                                 steps=(0.0, cfg.ground_image_max_speed * dt),
+                                 steps=(0.0, top * dt),
                                  max_depth=cfg.ground_max_depth,
                                  lateral_std=cfg.ground_lateral_std or _LANE_WIDTH)
         step = None
@@ -1354,14 +1371,16 @@ class VisualOdometry:
                 faster = why.startswith('the best step is the longest searched')
                 (log.warning if faster else log.info)(
                     "the road's pixels gave no step at %.3f s: %s (steps searched up to "
-                    "scale.ground_image_max_speed %g m/s x %.3f s%s)", stamp, why,
-                    cfg.ground_image_max_speed, dt,
-                    ': is the vehicle faster?' if faster else '')
+                    "%g m/s x %.3f s%s)", stamp, why, top, dt,
+                    ': is the vehicle faster than scale.ground_image_max_speed?' if faster
+                    else '')
             self.image_road_misses[key] = self.image_road_misses.get(key, 0) + 1
             return None
         self.image_road_steps += 1
-        if self._road_relative_stds:
-            floor = median(np.array(self._road_relative_stds)) * step[0]
+        recent = [rel for when, rel in self._road_relative_stds
+                  if 0.0 <= seconds_between(stamp, when) <= _ROAD_STD_SECONDS]
+        if recent:
+            floor = median(np.array(recent)) * step[0]
             step = (step[0], max(step[1], floor * floor), step[2])
         return step
 
@@ -2133,8 +2152,10 @@ _IMAGE_PLANE_AXES = np.array([1.0, 1.0, 0.0])
 # Step lengths in metres (not unit steps).
 _METRIC_SOURCES = frozenset({'ground', 'speed', 'fixed', 'hold'})
 # Recent steps from road ACs whose relative standard deviations floor those from the road's
-# pixels (`_image_road_step`): about five seconds at 10 Hz.
-_ROAD_STD_HISTORY = 50
+# pixels (`_image_road_step`): at most this many, of at most this many seconds before (a
+# review: road-AC steps scarce at speed could otherwise reach back minutes, to slower driving
+# whose relative deviations are smaller).
+_ROAD_STD_HISTORY, _ROAD_STD_SECONDS = 50, 10.0
 # The road's pixels are searched within a lane's width of the line of travel when
 # scale.ground_lateral_std is 0 (road ACs weighed alike): blocks pass no test of being road.
 _LANE_WIDTH = 3.5

@@ -29,12 +29,11 @@ pixels still say ``s``:
 
 Measured through the pipeline (dev script, the scan run on every frame beside the road ACs,
 its own motion and road normal, each step against the ground truth's): KITTI 05's first 120
-frames -1.0 % mean and 3.6 % RMS error (the road ACs -0.3 % and 4.6 %); every 3rd frame of KITTI
-05 -0.6 % and 5.1 % (6.7 %), every 4th -0.4 % and 6.1 % (7.6 %); the KITTI 06 excerpt +2.1 %
+frames -1.1 % mean and 3.6 % RMS error (the road ACs -0.3 % and 4.6 %); every 3rd frame of KITTI
+05 -0.3 % and 5.7 % (6.7 %), every 4th -0.4 % and 6.0 % (7.7 %); the KITTI 06 excerpt +2.0 %
 and 2.8 % (+1.9 % and 3.3 %), every 3rd frame of it (3.6 m per frame, road ACs for 2 of 16
-steps) +4.3 % and 5.6 %. The answer does not depend on the range searched (one KITTI 05 pair,
-ranges from 5 to 310 m: 3.804 m each time, 3.803 at 310). A scan costs 7-31 ms on KITTI-like
-images 613 to 1226 pixels wide (at most 128 blocks; 12-13 ms at full KITTI size).
+steps) +4.5 % and 6.1 %. The answer does not depend on the range searched (two KITTI 05 pairs,
+ranges from 5 to 310 m: 3.804 and 3.678 m each time). A scan costs about 10 ms at KITTI size.
 """
 
 from __future__ import annotations
@@ -52,7 +51,7 @@ from planar_vo.core.robust.stats import MAD_TO_SIGMA, median, weighted_median
 from planar_vo.errors import ConfigError, InputError
 from planar_vo.pipeline.scale import _sensitivities, _step_terms
 
-__all__ = ['ImageRoadScale', 'image_road_scale']
+__all__ = ['ImageRoadScale', 'image_road_scale', 'pixels_note']
 
 # Working widths: the coarse scan's images at most this wide, the fine stage's at twice it.
 _COARSE_WIDTH = 320
@@ -65,11 +64,13 @@ _MIN_ELEVATION = 0.02
 # The fine stage: this many coarse steps either side of the coarse answer, this many fine
 # steps to each.
 _FINE_SPAN, _FINE_SPLIT = 2, 4
-# At most this many steps in the coarse scan, and blocks in either scan.
-_MAX_STEPS = 200
+# At least and at most this many steps in the coarse scan, and at most this many blocks in
+# either scan; the scan goes this far beyond the range (a best step there: none).
+_MIN_STEPS, _MAX_STEPS = 5, 200
+_MARGIN = 1.25
 _MAX_BLOCKS = 128
 # The fastest block's track over the range, sampled at this many steps to space the scan.
-_TRACK = 1024
+_TRACK = 256
 
 
 @dataclass(frozen=True)
@@ -172,40 +173,37 @@ class _Road:
         return RT[None] - gain[:, None, None] * np.outer(u, v)[None]
 
     def to_image1(self, q2: np.ndarray, steps: np.ndarray, each: bool = False) -> np.ndarray:
-        """Normalised points of image 2 ``(..., 2)`` -> pixels of image 1 under ``H(s)``: for
-        every step ``(S,)`` ``(S, ..., 2)``, or with ``each`` one step per point
-        (``(B,)`` steps, ``(B, 2)`` points) ``(B, 2)``."""
-        Hinv = self.inverses(steps)
+        """Normalised points of image 2 ``(..., 2)`` -> pixels of image 1 under ``H(s)`` (NaN
+        behind camera 1): for every step ``(S,)`` ``(S, ..., 2)``, or with ``each`` one step
+        per point (``(B,)`` steps, ``(B, 2)`` points) ``(B, 2)``."""
+        M = self.camera.K @ self.inverses(steps)                 # K H(s)^-1 (undistorted)
         Q = np.concatenate([q2, np.ones(q2.shape[:-1] + (1,))], axis=-1)
         if each:
-            Q1 = (Hinv @ Q[:, :, None])[:, :, 0]
+            P = (M @ Q[:, :, None])[:, :, 0]
         else:
-            Q1 = (Q.reshape(-1, 3) @ Hinv.transpose(0, 2, 1)).reshape(
-                (len(Hinv),) + Q.shape)
+            P = (Q.reshape(-1, 3) @ M.transpose(0, 2, 1)).reshape((len(M),) + Q.shape)
         with np.errstate(invalid='ignore', divide='ignore'):
-            q1 = Q1[..., :2] / Q1[..., 2:]
-        q1[Q1[..., 2] <= 0] = np.nan                        # behind camera 1
-        return _pixels(self.camera, q1)
-
-
-def _pixels(camera: CameraModel, q: np.ndarray) -> np.ndarray:
-    """Normalised ``(..., 2)`` -> pixels of an undistorted ``camera``."""
-    K = camera.K
-    return q @ K[:2, :2].T + K[:2, 2]
+            p = P[..., :2] / P[..., 2:]
+        p[P[..., 2] <= 0] = np.nan                                # behind camera 1
+        return p
 
 
 @functools.lru_cache(maxsize=4)
 def _undistortion(width: int, height: int, K: tuple, model: str, D: tuple
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Maps for `cv2.remap` from a distorted camera's image to the undistorted one of the same
-    size and intrinsics (float32, 2 x 4 bytes per pixel; a few cameras kept)."""
-    camera = CameraModel(width, height, np.array(K).reshape(3, 3), model, D)
-    v, u = np.mgrid[0:height, 0:width]
-    p = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
-    q = (p - camera.K[:2, 2]) @ np.linalg.inv(camera.K[:2, :2]).T
-    d, _ = camera.normalized_to_pixel(q)
-    d = np.nan_to_num(d, nan=-1.0).astype(np.float32)
-    return d[:, 0].reshape(height, width), d[:, 1].reshape(height, width)
+    size and intrinsics (OpenCV's, whose models are ROS's: ``plumb_bob`` and
+    ``rational_polynomial`` its standard one, ``equidistant`` its fisheye one; read-only
+    float32, a few cameras kept)."""
+    Km = np.array(K, dtype=np.float64).reshape(3, 3)
+    if model == 'equidistant':
+        mx, my = cv2.fisheye.initUndistortRectifyMap(Km, np.array(D[:4]), np.eye(3), Km,
+                                                     (width, height), cv2.CV_32FC1)
+    else:
+        mx, my = cv2.initUndistortRectifyMap(Km, np.array(D), np.eye(3), Km, (width, height),
+                                             cv2.CV_32FC1)
+    mx.flags.writeable = my.flags.writeable = False
+    return mx, my
 
 
 def _undistorted(camera: CameraModel, *images: np.ndarray) -> tuple[CameraModel, list]:
@@ -247,7 +245,7 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
                      R: np.ndarray, t: np.ndarray, n: np.ndarray, height: float, *,
                      steps: tuple[float, float], max_depth: float = 30.0,
                      lateral_std: float = 3.5, min_blocks: int = 8, min_ncc: float = 0.5,
-                     min_contrast: float = 0.05) -> ImageRoadScale:
+                     min_contrast: float = 0.1) -> ImageRoadScale:
     """The step length ``s`` (m) of ``X2 = R X1 + s t`` from the road's pixels (module
     docstring).
 
@@ -269,7 +267,9 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
         min_blocks: fewer blocks give no answer.
         min_ncc: a block counts when its correlation peaks at least this high.
         min_contrast: the coarse scan's best mean cost (1 - correlation) must lie this far
-            below its median over the range.
+            below its median over the range (on KITTI 05, 129 pairs at 1x, 3x and 4x speed, a
+            review: the right answers at least 0.111, 5 % of them below 0.202; false peaks of
+            a range short of the true step up to 0.088).
 
     Returns:
         An `ImageRoadScale` (``reason`` set and ``scale`` NaN without an answer).
@@ -291,11 +291,12 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
     road = _Road(camera, R, t, n, height, max_depth, lateral_std, coarse)
     if len(road.q2) < min_blocks:
         return _failed(f'{len(road.q2)} road blocks in view')
-    # -- coarse scan over the range: steps that move the fastest block by a shrunk pixel ------
-    grid = _scan_steps(road, low, high, coarse)
-    if len(grid) < 3:
+    # -- coarse scan over the range and a margin beyond it (`_MARGIN`): steps that move the
+    # fastest block by a shrunk pixel -----------------------------------------------------------
+    grid = _scan_steps(road, low, _MARGIN * high, coarse)
+    if len(grid) < _MIN_STEPS:
         return _failed(f'the range of steps ({low:.3g}, {high:.3g} m) moves the road by less than '
-                       f'3 pixels')
+                       f'{_MIN_STEPS} pixels')
     p2, q2 = road.samples(2 * coarse)
     small1 = _shrink(gray1, coarse)
     ncc = _correlations(small1, _sample(_shrink(gray2, coarse), p2, coarse),
@@ -313,9 +314,11 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
     if k == 0:
         return _failed(f'the best step is the shortest searched ({grid[k]:.3g} m of '
                        f'{low:.3g}-{high:.3g} m)', contrast)
-    if k == len(grid) - 1:
-        return _failed(f'the best step is the longest searched ({grid[k]:.3g} m of '
-                       f'{low:.3g}-{high:.3g} m)', contrast)
+    if grid[k] > high:
+        # (in the margin: a step beyond the range fits best; without the margin its best
+        # match inside the range could pass as the answer, a review)
+        return _failed(f'the best step is the longest searched or beyond ({grid[k]:.3g} m, '
+                       f'the range {low:.3g}-{high:.3g} m)', contrast)
     # -- fine: each block around it, at the next resolution ----------------------------------
     span = grid[max(k - _FINE_SPAN, 0)], grid[min(k + _FINE_SPAN, len(grid) - 1)]
     fine_grid = np.linspace(span[0], span[1], 2 * _FINE_SPAN * _FINE_SPLIT + 1)
@@ -396,24 +399,24 @@ def _checked(gray1, gray2, camera, R, t, n, height, max_depth, lateral_std, min_
 
 
 def _scan_steps(road: _Road, low: float, high: float, coarse: int) -> np.ndarray:
-    """The coarse scan's steps in ``(low, high]`` (positive): spaced so that the block that
-    moves fastest over the range moves by one shrunk pixel from each to the next (its image
-    motion per metre falls as the step grows, so the steps are not evenly spaced), at most
-    `_MAX_STEPS` of them (then further apart)."""
-    ends = road.to_image1(road.q2, np.array([low, high]))
-    with np.errstate(invalid='ignore'):
-        reach = np.linalg.norm(ends[1] - ends[0], axis=-1)
-    if not np.isfinite(reach).any():
-        return np.zeros(0)
-    fastest = int(np.nanargmax(reach))
+    """The coarse scan's steps from ``low`` to ``high`` (both included, positive only): spaced
+    so that the blocks' image motion from each step to the next is at most one shrunk pixel
+    (the fastest block still in image 1 at each point of the range: the image motion per metre
+    falls as the step grows for a camera looking ahead, and rises as the road leaves the view
+    for one looking back), between `_MIN_STEPS` and `_MAX_STEPS` steps."""
     dense = np.linspace(low, high, _TRACK)
-    track = road.to_image1(road.q2[fastest:fastest + 1], dense)[:, 0]          # (T, 2)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(track, axis=0), axis=1))])
-    arc /= coarse
-    if not (np.isfinite(arc).all() and arc[-1] > 0):
+    tracks = road.to_image1(road.q2, dense)                                  # (T, B, 2)
+    width, rows = road.camera.size
+    with np.errstate(invalid='ignore'):
+        inside = ((tracks[..., 0] >= 0) & (tracks[..., 0] <= width - 1)
+                  & (tracks[..., 1] >= 0) & (tracks[..., 1] <= rows - 1))
+        moves = np.linalg.norm(np.diff(tracks, axis=0), axis=-1)           # (T-1, B)
+    moves[~(inside[1:] & inside[:-1]) | ~np.isfinite(moves)] = 0.0
+    arc = np.concatenate([[0.0], np.cumsum(moves.max(axis=1))]) / coarse
+    if not arc[-1] > 0:
         return np.zeros(0)
-    spacing = max(1.0, arc[-1] / _MAX_STEPS)
-    grid = np.interp(np.arange(0.0, arc[-1] + 1e-9, spacing), arc, dense)
+    count = int(np.clip(math.ceil(arc[-1] - 1e-9), _MIN_STEPS - 1, _MAX_STEPS - 1))
+    grid = np.interp(np.linspace(0.0, arc[-1], count + 1), arc, dense)     # ends included
     return grid[grid > 0]
 
 
@@ -437,3 +440,18 @@ def _remap(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
     v = cv2.remap(image, grid[..., 0], grid[..., 1], cv2.INTER_LINEAR,
                   borderMode=cv2.BORDER_REPLICATE)
     return v.reshape(-1)[:count].astype(np.float64)
+
+
+def pixels_note(steps: int, misses: dict[str, int]) -> str:
+    """``'; N ground steps from the road's pixels; M scans of the road's pixels found no step,
+    most often (K): reason'`` for summaries (`VisualOdometry.image_road_steps` and
+    ``image_road_misses``), each part only when there is any; empty if neither."""
+    note = ''
+    if steps:
+        note += f"; {steps} ground step{'s' if steps > 1 else ''} from the road's pixels"
+    total = sum(misses.values())
+    if total:
+        why, count = max(misses.items(), key=lambda item: item[1])
+        note += (f"; {total} scan{'s' if total > 1 else ''} of the road's pixels found no step"
+                 + (f', most often ({count}):' if len(misses) > 1 else ':') + f' {why}')
+    return note

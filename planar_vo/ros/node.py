@@ -99,6 +99,7 @@ from planar_vo.core.camera import CameraModel
 from planar_vo.errors import CameraModelError, ConfigError, ImageError, InputError, one_line
 from planar_vo.pipeline import DropReason, FrameResult, TrackingState, VisualOdometry
 from planar_vo.pipeline.clock import GapCounter, Stamp
+from planar_vo.pipeline.road_image import pixels_note
 from planar_vo.pipeline.threads import limit_blas_threads
 from planar_vo.ros.messages import (
     compressed_to_array,
@@ -293,6 +294,7 @@ class PlanarVoNode(Node):
         self._last_frame_id = ''
         self._period: Counter[str] = Counter()           # outcomes since the last diagnostics
         self._period_scale: Counter[str] = Counter()     # scale sources of its odometry
+        self._scale_total: Counter[str] = Counter()      # the same over the whole run
         self._period_time: list[float] = []
         self._period_behind = 0          # frames dropped unprocessed in the period (`_note_gap`)
         self._started = self._last_image = time.monotonic()
@@ -767,6 +769,7 @@ class PlanarVoNode(Node):
         self._period[key] += 1
         if result.ok:
             self._period_scale[result.scale_source] += 1
+            self._scale_total[result.scale_source] += 1
         self._note_tracking(stamp_ns, result)
         path_time = 0.0
         if result.has_odometry:
@@ -1019,6 +1022,12 @@ class PlanarVoNode(Node):
             status.level = DiagnosticStatus.WARN
         key = 'ok' if result.ok else result.reason.value
         status.message = key if not result.message else f'{key}: {result.message}'
+        if result.ok and result.scale_source == 'unit' and self.config.scale.source != 'unit':
+            # A step of unknown length (no metric step yet to hold): say so (a user test: the
+            # first steps of a fast drive were 'ok' at 1 m each).
+            status.level = DiagnosticStatus.WARN
+            status.message += (f'; a unit step: no metric scale yet from scale.source '
+                               f'{self.config.scale.source}')
         values = {
             'stamp_ns': stamp_to_ns(header.stamp),
             'result': key,
@@ -1176,9 +1185,16 @@ class PlanarVoNode(Node):
         named as such."""
         source = self.config.scale.source
         scales = self._period_scale
-        if source == 'unit' or not scales or scales[source] or scales['stationary']:
+        if source == 'unit' or not scales:
             return None
         used = ', '.join(f'{k} {v}' for k, v in sorted(scales.items()))
+        if scales[source] or scales['stationary']:
+            if scales['unit']:
+                # Steps of unknown length beside metric ones (a drive's start before its first
+                # metric step; a user test: the period said OK with 6 of 8 unit steps).
+                return (f'{scales["unit"]} unit steps (no metric scale yet) in the last '
+                        f'{self.config.ros.diagnostics_period:g} s (steps: {used})')
+            return None
         line = (f'no step from scale.source {source} in the last '
                 f'{self.config.ros.diagnostics_period:g} s (steps: {used})')
         if source == 'speed':
@@ -1245,7 +1261,15 @@ class PlanarVoNode(Node):
                 + (f' ({self._counters["speed_errors"]} refused)'
                    if self._counters["speed_errors"] else '') + '; '
                 f'{self._counters["resets"]} resets; mean {mean} per frame; '
+                f'step lengths {self._steps_note()}; '
                 f'{self._vo.focal_status()}' + self._carry_note())
+
+    def _steps_note(self) -> str:
+        """The odometry's step lengths by source, with the ground steps from the road's pixels
+        and that scan's misses (as the replay summary's line)."""
+        note = pixels_note(self._vo.image_road_steps, self._vo.image_road_misses)
+        sources = ', '.join(f'{k} {v}' for k, v in sorted(self._scale_total.items())) or 'none'
+        return sources + (f' ({note[2:]})' if note else '')
 
     def _carry_note(self) -> str:
         """The self-calibrated focal length as the parameters that start this camera's next

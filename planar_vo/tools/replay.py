@@ -48,6 +48,7 @@ from planar_vo.io.outputs import deferred_interrupts
 from planar_vo.io.reader import BagReader, iter_messages, open_bag
 from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
 from planar_vo.pipeline.clock import GAP_WATCH, GapCounter
+from planar_vo.pipeline.road_image import pixels_note
 from planar_vo.tools.provenance import bag_custom_data, provenance
 from planar_vo.pipeline.types import DropReason, FrameResult
 from planar_vo.ros.messages import speed_from_message
@@ -247,19 +248,9 @@ class ReplaySummary:
                 f'{plural(self.gaps, "gap")} of the stamps{also})')
 
     def _pixels_note(self) -> str:
-        """The ground steps from the road's pixels and the scans that found none (empty if
-        neither)."""
-        note = ''
-        if self.image_road_steps:
-            note += (f"; {self.image_road_steps} ground step"
-                     f"{'s' if self.image_road_steps > 1 else ''} from the road's pixels")
-        misses = sum(self.image_road_misses.values())
-        if misses:
-            why, count = max(self.image_road_misses.items(), key=lambda item: item[1])
-            note += (f"; {misses} scans of the road's pixels found no step"
-                     + (f', most often ({count}):' if len(self.image_road_misses) > 1 else ':')
-                     + f' {why}')
-        return note
+        """The ground steps from the road's pixels and the scans that found none (`'; ...'`,
+        empty if neither)."""
+        return pixels_note(self.image_road_steps or 0, self.image_road_misses)
 
     def _unit_note(self) -> str:
         """Steps without a metric length, said in words (a user test: 'unit 50' alone read
