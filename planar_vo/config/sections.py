@@ -394,12 +394,14 @@ class ScaleConfig(Options):
         ground_image: when the road ACs (topped up or not) are still too few, the step is
             found from the road's pixels (`planar_vo.pipeline.road_image`): the road
             homography's one unknown, the step, scanned by correlating blocks of the road
-            ahead within ``ground_lateral_std`` of the line of travel; the blocks' matches
+            ahead within ``ground_lateral_std`` of the line of travel (a lane's width, 3.5 m,
+            when that is 0); the blocks' matches
             then measure the step as road ACs would. The flow loses the near road at motorway
             speeds (KITTI 06 at 3.6 m per frame: 0-23 road ACs a frame), its pixels remain.
         ground_image_max_speed: the vehicle's top speed (m/s): the longest step the road's
             pixels are searched for is this times the frames' interval (when the longest
-            step searched fits best, a warning asks whether the vehicle is faster).
+            step searched fits best, a warning asks whether the vehicle is faster; a measured
+            speed above it widens the search to twice that speed, with a warning).
     """
 
     source: typing.Literal['speed', 'ground', 'fixed', 'unit'] = 'ground'

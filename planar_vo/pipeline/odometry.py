@@ -1325,8 +1325,9 @@ class VisualOdometry:
                          gray2: np.ndarray, dt: float, stamp: float
                          ) -> tuple[float, float, float] | None:
         """`_road_step` on the road's pixels (`image_road_scale`) where the road ACs are too
-        few: the step scanned from 0 to ``scale.ground_image_max_speed`` times ``dt``, the
-        blocks that matched measured as road ACs (the pair's own road normal and every
+        few: the step scanned from 0 to ``scale.ground_image_max_speed`` times ``dt`` (twice
+        the last measured speed instead when that is faster, with a warning), the blocks that
+        matched measured as road ACs (the pair's own road normal and every
         variance term as there), none of them fed to the drive's road-normal calibration
         (measured: fed, they pulled it off, KITTI 06 at 3.6 m per frame 23 % long instead of
         5 %). Counts its answers in ``image_road_steps`` and its misses by reason in
