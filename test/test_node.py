@@ -240,6 +240,8 @@ def test_drive_gives_one_odometry_per_image_tracking_ground_truth(
     assert [status_values(s)['result'] for s in status] == ['first_frame'] + \
         ['ok'] * (len(stamps) - 1)
     assert {status_values(s)['scale_source'] for s in status[1:]} == {source}
+    assert {status_values(s)['scale_from'] for s in status[1:]} == \
+        ({'road ACs'} if source == 'ground' else {''})
     assert float(final['time_ms.total']) > 0 and int(final['inliers']) >= 20
     if source == 'speed':
         assert int(final['speed_messages']) >= len(stamps) - 1
@@ -1518,14 +1520,18 @@ def test_unit_steps_are_warned_per_image_per_period_and_summed_up(local_node, dr
     assert len(steps) == 4
     for array in steps:
         assert status_values(array)['scale_source'] == 'unit'
+        assert status_values(array)['scale_from'] == ''
         status = array.status[0]
         assert status.level == DiagnosticStatus.WARN
-        assert status.message.endswith('; a unit step: no metric scale yet from scale.source '
-                                       'ground'), status.message
-    assert 'step lengths unit 4; ' in node.summary()
+        assert status.message.endswith('; a unit step: no metric length from scale.source '
+                                       'ground or the fallback hold'), status.message
+    assert ('step lengths unit 4 (4 of 4 without a metric length: their positions are in '
+            'steps, not metres); ') in node.summary()
     node._period_scale = Counter({'ground': 2, 'unit': 6})
-    assert node._unscaled_period() == ('6 unit steps (no metric scale yet) in the last 1 s '
+    assert node._unscaled_period() == ('6 unit steps (no metric length) in the last 1 s '
                                        '(steps: ground 2, unit 6)')
+    node._period_scale = Counter({'ground': 9, 'unit': 1})
+    assert node._unscaled_period().startswith('1 unit step (no metric length)')
     node._period_scale = Counter({'ground': 8})
     assert node._unscaled_period() is None
 

@@ -186,6 +186,12 @@ def test_ground_scale_from_the_road_pixels_where_road_acs_are_too_few():
     assert vo.road_top_ups == 0
     assert sources.count('ground') == vo.image_road_steps >= len(sources) - 1
     assert pos < 0.02 * distance, (pos, distance)
+    # Each step says what measured it.
+    _, results, _ = _run('straight', vo.config)
+    assert {r.scale_from for r in results if r.scale_source == 'ground'} == {'road pixels'}
+    assert {r.scale_from for r in results if r.scale_source != 'ground'} <= {''}
+    _, results, _ = _run('straight')
+    assert {r.scale_from for r in results if r.scale_source == 'ground'} == {'road ACs'}
 
 
 def test_road_pixel_steps_state_at_least_the_road_acs_deviation(monkeypatch, caplog):
@@ -245,6 +251,27 @@ def test_road_pixel_steps_state_at_least_the_road_acs_deviation(monkeypatch, cap
         for stamp in (5.6, 5.7):
             assert vo._image_road_step(CAMERA, est, image, image, 0.1, stamp)[0] == 2.0
     assert ranges == [(0.0, pytest.approx(18.0))] * 2
+    # Nothing measured to widen by, and the longest step fitting best: once more over twice
+    # the range, with a warning (a review: a start above the setting never widened).
+    vo._held, ranges[:] = None, []
+    longest = ImageRoadScale(math.nan, math.inf, 0, np.zeros(3), np.zeros(2), 0.3,
+                             'the best step is the longest searched or beyond (8.6 m, the '
+                             'range 0-7 m)')
+
+    def scan2(*a, steps, **k):
+        ranges.append(steps)
+        return longest if steps[1] < 10.0 else found
+    monkeypatch.setattr(odometry, 'image_road_scale', scan2)
+    with caplog.at_level(logging.INFO, logger='planar_vo.pipeline.odometry'):
+        assert vo._image_road_step(CAMERA, est, image, image, 0.1, 5.8)[0] == 2.0
+    assert ranges == [(0.0, pytest.approx(7.0)), (0.0, pytest.approx(14.0))]
+    assert caplog.records[-1].levelno == logging.WARNING
+    assert "found the step beyond scale.ground_image_max_speed 70 m/s" in \
+        caplog.records[-1].getMessage()
+    # A reset (also a jump back in time) forgets the road-AC deviations of the old time base.
+    assert vo._road_relative_stds
+    vo.reset()
+    assert not vo._road_relative_stds
     faster = [r.getMessage() for r in caplog.records if 'faster than' in r.getMessage()]
     assert faster[-1].startswith('the vehicle moved at 90.0 m/s (its last measured step), '
                                  'faster than scale.ground_image_max_speed 70 m/s')

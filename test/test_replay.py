@@ -655,6 +655,13 @@ def test_summary_counts_the_steps_measured_on_the_road_pixels():
     line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
     assert line.endswith("; 3 scans of the road's pixels found no step, most often (2): the "
                          "best step is the longest searched (# m of #-# m))"), line
+    # A reason is shown as first said when the processor kept it.
+    summary.image_road_examples = {
+        'the best step is the longest searched (# m of #-# m)':
+            'the best step is the longest searched (6.98 m of 0-7 m)'}
+    line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
+    assert line.endswith('most often (2): the best step is the longest searched (6.98 m of '
+                         '0-7 m))'), line
     summary.image_road_steps, summary.image_road_misses = 1, {}
     line = next(x for x in summary.format().splitlines() if x.startswith('  step lengths'))
     assert line.endswith("(road top-ups 7; 1 ground step from the road's pixels)"), line

@@ -213,7 +213,8 @@ class VisualOdometry:
         self.image_road_steps = 0
         self.image_road_misses: dict[str, int] = {}
         self._told_faster = False       # warned that the vehicle outran ground_image_max_speed
-        self._road_relative_stds: deque[tuple[float, float]] = deque(maxlen=_ROAD_STD_HISTORY)
+        self._step_from = ''            # what measured the last ground step (`_scale`)
+        self.image_road_examples: dict[str, str] = {}    # a miss's first message, by reason
         self._road_fed = False          # this frame's pair went to the road-normal calibration
         odometry = self.config.odometry
         self._clock = FrameClock(odometry.max_frame_gap, odometry.max_time_jump_back)
@@ -255,6 +256,9 @@ class VisualOdometry:
         self._recent_steps: deque[tuple] = deque(maxlen=GAP_WATCH + 2)
         self._late_gap: float | None = None
         self._held: tuple[float, float, float, float] | None = None   # speed, std, stamp, bias
+        # (the road-AC steps' deviations for the pixels' floor are of this time base only: a
+        # review, a looped bag's first pass came back as the second reached its stamps)
+        self._road_relative_stds: deque[tuple[float, float]] = deque(maxlen=_ROAD_STD_HISTORY)
         # The last frame that reached tracking and its stamp, and why the run of frames
         # identical to it is a frozen camera's ('' while it is not; `_frozen`).
         self._previous_gray: np.ndarray | None = None
@@ -752,6 +756,7 @@ class VisualOdometry:
             self._offer_focal_pair(gray, camera, float(alpha))
             timings['focal'] = time.perf_counter() - t
         return self._result(stamp, True, keyframe=new_keyframe, scale_source=source,
+                            scale_from=self._step_from if source == 'ground' else '',
                             num_correspondences=len(acs), num_inliers=est.num_inliers,
                             alpha=float(alpha), beta=float(beta),
                             message='' if bridged is None else
@@ -1294,10 +1299,12 @@ class VisualOdometry:
                         self.road_top_ups += 1
                         # The road-normal calibration takes one frame pair once.
                         step = self._road_step(camera, est, more, feed=not self._road_fed)
+                self._step_from = 'road ACs'
                 if step is not None:
                     self._road_relative_stds.append((stamp, math.sqrt(step[1]) / step[0]))
                 elif cfg.ground_image and dt > 0:
                     step = self._image_road_step(camera, est, keyframe.image, gray, dt, stamp)
+                    self._step_from = 'road pixels'
                 if step is not None:
                     # The camera height's relative error is shared by every step too, and
                     # independent of the road normal's: in quadrature per step (exact while
@@ -1354,11 +1361,23 @@ class VisualOdometry:
                             self._held[0], top)
                 self._told_faster = True
             top = 2.0 * self._held[0]
-        found = image_road_scale(gray1, gray2, camera, est.R, est.t,
-                                 normal_from_tilt(pitch, roll), self.config.mount.height,
-                                 steps=(0.0, top * dt),
-                                 max_depth=cfg.ground_max_depth,
-                                 lateral_std=cfg.ground_lateral_std or _LANE_WIDTH)
+
+        def scan(speed: float):
+            return image_road_scale(gray1, gray2, camera, est.R, est.t,
+                                    normal_from_tilt(pitch, roll), self.config.mount.height,
+                                    steps=(0.0, speed * dt), max_depth=cfg.ground_max_depth,
+                                    lateral_std=cfg.ground_lateral_std or _LANE_WIDTH)
+
+        found = scan(top)
+        if found.reason.startswith(_LONGEST) and not self._held:
+            # Nothing measured to widen the search by (a drive's start, a reset): once more
+            # over twice the range (a review: a start above the setting never widened).
+            wider = scan(2.0 * top)
+            if wider.blocks:
+                log.warning("the road's pixels found the step beyond scale.ground_image_max_"
+                            "speed %g m/s (%.2f m in %.3f s): is the vehicle faster?", top,
+                            wider.scale, dt)
+                found, top = wider, 2.0 * top
         step = None
         if found.blocks:
             blocks = AffineCorrespondences(found.q1, found.q2, found.A, found.weights)
@@ -1367,9 +1386,10 @@ class VisualOdometry:
             why = found.reason or 'its blocks measured no step as road ACs would'
             key = re.sub(r'\d[\d.]*', '#', why)
             if key not in self.image_road_misses:
+                self.image_road_examples[key] = why
                 # The longest step searched fitting best: the vehicle may be faster than the
                 # configured top speed (a user test: 5 m/s set, 11.5 driven, nothing said).
-                faster = why.startswith('the best step is the longest searched')
+                faster = why.startswith(_LONGEST)
                 (log.warning if faster else log.info)(
                     "the road's pixels gave no step at %.3f s: %s (steps searched up to "
                     "%g m/s x %.3f s%s)", stamp, why, top, dt,
@@ -2157,6 +2177,8 @@ _METRIC_SOURCES = frozenset({'ground', 'speed', 'fixed', 'hold'})
 # review: road-AC steps scarce at speed could otherwise reach back minutes, to slower driving
 # whose relative deviations are smaller).
 _ROAD_STD_HISTORY, _ROAD_STD_SECONDS = 50, 10.0
+# `image_road_scale`'s reason when the longest step searched, or one beyond, fits best.
+_LONGEST = 'the best step is the longest searched'
 # The road's pixels are searched within a lane's width of the line of travel when
 # scale.ground_lateral_std is 0 (road ACs weighed alike): blocks pass no test of being road.
 _LANE_WIDTH = 3.5

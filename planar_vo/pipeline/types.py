@@ -75,6 +75,8 @@ class FrameResult:
         scale_source: where the step length came from: ``'speed'``, ``'ground'``, ``'fixed'``,
             ``'hold'`` (the last metric speed, its uncertainty growing), ``'stationary'``, or
             ``'unit'`` (no metric scale: a unit step whose covariance says it is unknown).
+        scale_from: for a ``'ground'`` step, what measured it: ``'road ACs'`` or ``"road
+            pixels"`` (`scale.ground_image`); empty otherwise.
         num_correspondences, num_inliers: ACs extracted and accepted.
         alpha, beta: the camera motion since the reference keyframe (radians; NaN if none).
         timings: seconds spent per stage (``'decode'``, ``'correspondences'``, ``'solve'``, ...).
@@ -93,6 +95,7 @@ class FrameResult:
     message: str = ''
     keyframe: bool = False
     scale_source: str = 'unit'
+    scale_from: str = ''
     num_correspondences: int = 0
     num_inliers: int = 0
     alpha: float = float('nan')

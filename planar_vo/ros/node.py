@@ -96,7 +96,14 @@ from std_srvs.srv import Trigger
 
 from planar_vo.config import PlanarVoConfig, describe, flatten, ranges
 from planar_vo.core.camera import CameraModel
-from planar_vo.errors import CameraModelError, ConfigError, ImageError, InputError, one_line
+from planar_vo.errors import (
+    CameraModelError,
+    ConfigError,
+    ImageError,
+    InputError,
+    one_line,
+    plural,
+)
 from planar_vo.pipeline import DropReason, FrameResult, TrackingState, VisualOdometry
 from planar_vo.pipeline.clock import GapCounter, Stamp
 from planar_vo.pipeline.road_image import pixels_note
@@ -1023,11 +1030,12 @@ class PlanarVoNode(Node):
         key = 'ok' if result.ok else result.reason.value
         status.message = key if not result.message else f'{key}: {result.message}'
         if result.ok and result.scale_source == 'unit' and self.config.scale.source != 'unit':
-            # A step of unknown length (no metric step yet to hold): say so (a user test: the
+            # A step of unknown length (no metric step to hold): say so (a user test: the
             # first steps of a fast drive were 'ok' at 1 m each).
             status.level = DiagnosticStatus.WARN
-            status.message += (f'; a unit step: no metric scale yet from scale.source '
-                               f'{self.config.scale.source}')
+            status.message += (f'; a unit step: no metric length from scale.source '
+                               f'{self.config.scale.source} or the fallback '
+                               f'{self.config.scale.fallback}')
         values = {
             'stamp_ns': stamp_to_ns(header.stamp),
             'result': key,
@@ -1035,6 +1043,7 @@ class PlanarVoNode(Node):
             'keyframe': result.keyframe,
             # Every frame names its scale source: 'none' when it produced no step.
             'scale_source': result.scale_source if result.ok else 'none',
+            'scale_from': result.scale_from if result.ok else '',
             **self._focal_values(focal),
             'correspondences': result.num_correspondences,
             'inliers': result.num_inliers,
@@ -1133,7 +1142,10 @@ class PlanarVoNode(Node):
         elif (unscaled := self._unscaled_period()) is not None:
             status.level = DiagnosticStatus.WARN
             status.message = f'{state.value}; {unscaled}'
-            self._warn('scale', unscaled)
+            # (unit steps beside metric ones warned apart: one key held the other back, a
+            # review)
+            self._warn('unit_steps' if 'unit step' in unscaled.split('(')[0] else 'scale',
+                       unscaled)
         elif not frames and self._pending:
             # Images came and wait for the first CameraInfo (a user test: '0.0 images/s; no
             # image for 0.0 s').
@@ -1180,9 +1192,9 @@ class PlanarVoNode(Node):
 
     def _unscaled_period(self) -> str | None:
         """Why the odometry of the last diagnostics period had no step from the configured
-        scale source (only fallbacks: held or unit steps), or None when it had (or stood
-        still). A speed topic whose samples never cover the image stamps (another clock) is
-        named as such."""
+        scale source (only fallbacks: held or unit steps) or unit steps beside its steps, or
+        None when it had neither (or stood still). A speed topic whose samples never cover the
+        image stamps (another clock) is named as such."""
         source = self.config.scale.source
         scales = self._period_scale
         if source == 'unit' or not scales:
@@ -1192,8 +1204,8 @@ class PlanarVoNode(Node):
             if scales['unit']:
                 # Steps of unknown length beside metric ones (a drive's start before its first
                 # metric step; a user test: the period said OK with 6 of 8 unit steps).
-                return (f'{scales["unit"]} unit steps (no metric scale yet) in the last '
-                        f'{self.config.ros.diagnostics_period:g} s (steps: {used})')
+                return (f'{plural(scales["unit"], "unit step")} (no metric length) in the '
+                        f'last {self.config.ros.diagnostics_period:g} s (steps: {used})')
             return None
         line = (f'no step from scale.source {source} in the last '
                 f'{self.config.ros.diagnostics_period:g} s (steps: {used})')
@@ -1267,8 +1279,14 @@ class PlanarVoNode(Node):
     def _steps_note(self) -> str:
         """The odometry's step lengths by source, with the ground steps from the road's pixels
         and that scan's misses (as the replay summary's line)."""
-        note = pixels_note(self._vo.image_road_steps, self._vo.image_road_misses)
+        vo = self._vo
+        note = pixels_note(vo.image_road_steps, vo.image_road_misses, vo.image_road_examples)
         sources = ', '.join(f'{k} {v}' for k, v in sorted(self._scale_total.items())) or 'none'
+        unit = self._scale_total['unit']
+        if unit and self.config.scale.source != 'unit':
+            # (as the replay's: 'unit 50' alone read like a success, a user test)
+            note += (f'; {unit} of {sum(self._scale_total.values())} without a metric length: '
+                     f'their positions are in steps, not metres')
         return sources + (f' ({note[2:]})' if note else '')
 
     def _carry_note(self) -> str:

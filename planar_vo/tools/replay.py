@@ -118,7 +118,8 @@ class ReplaySummary:
         image_road_steps: ground steps measured on the road's pixels where the road ACs were
             too few (the processor's ``image_road_steps``; None if it has none).
         image_road_misses: the road's pixels' scans that found no step, by reason (the
-            processor's ``image_road_misses``).
+            processor's ``image_road_misses``), and each reason's first message
+            (``image_road_examples``).
         why_none: without any motion estimated (no odometry beyond the origin), the most
             frequent drop reason and its first message (empty otherwise).
         unreadable: messages per topic that the bag's index counts but reading skipped
@@ -160,6 +161,7 @@ class ReplaySummary:
     road_top_ups: int | None = None
     image_road_steps: int | None = None
     image_road_misses: dict[str, int] = field(default_factory=dict)
+    image_road_examples: dict[str, str] = field(default_factory=dict)
     why_none: str = ''
     unreadable: dict[str, int] = field(default_factory=dict)
     gaps: int = 0
@@ -250,7 +252,8 @@ class ReplaySummary:
     def _pixels_note(self) -> str:
         """The ground steps from the road's pixels and the scans that found none (`'; ...'`,
         empty if neither)."""
-        return pixels_note(self.image_road_steps or 0, self.image_road_misses)
+        return pixels_note(self.image_road_steps or 0, self.image_road_misses,
+                           self.image_road_examples)
 
     def _unit_note(self) -> str:
         """Steps without a metric length, said in words (a user test: 'unit 50' alone read
@@ -695,6 +698,8 @@ def _fill(summary: ReplaySummary, processor, writer, copy, dropped, first, sourc
     summary.image_road_steps = pixels if isinstance(pixels, int) else None
     misses = getattr(processor, 'image_road_misses', None)
     summary.image_road_misses = dict(misses) if isinstance(misses, dict) else {}
+    examples = getattr(processor, 'image_road_examples', None)
+    summary.image_road_examples = dict(examples) if isinstance(examples, dict) else {}
     summary.wall_time = time.perf_counter() - start
 
 
