@@ -33,7 +33,7 @@ its own motion and road normal, each step against the ground truth's): KITTI 05'
 frames -1.1 % mean and 3.6 % RMS error (the road ACs -0.3 % and 4.6 %); every 3rd frame of KITTI
 05 -0.3 % and 5.7 % (6.7 %), every 4th -0.4 % and 6.1 % (7.7 %); the KITTI 06 excerpt +2.0 %
 and 2.8 % (+1.9 % and 3.3 %), every 3rd frame of it (3.6 m per frame, road ACs for 2 of 16
-steps) +4.5 % and 6.1 %. The answer does not depend on the range searched (two KITTI 05 pairs,
+steps) +4.5 % and 6.2 %. The answer does not depend on the range searched (two KITTI 05 pairs,
 ranges from 5 to 310 m: 3.804 and 3.678 m each time). A scan costs about 10 ms at KITTI size.
 """
 
