@@ -229,7 +229,7 @@ def _correlations(image1: np.ndarray, values2: np.ndarray, pixels1: np.ndarray,
     (``values2`` ``(B, m)``) with image 1 (shrunk by ``factor``) at ``pixels1`` ``(S, B, m, 2)``
     (full-resolution pixels); NaN where a sample falls outside image 1."""
     S, B, m, _ = pixels1.shape
-    xy = ((pixels1 + 0.5) / factor - 0.5).astype(np.float32).reshape(1, -1, 2)
+    xy = _shrunk(pixels1, factor).reshape(1, -1, 2)
     rows, cols = image1.shape
     with np.errstate(invalid='ignore'):
         inside = ((xy[..., 0] >= 0) & (xy[..., 0] <= cols - 1) & (xy[..., 1] >= 0)
@@ -303,10 +303,16 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
     if np.count_nonzero(grid <= high) < _MIN_STEPS:
         return _failed(f'the range of steps ({low:.3g}, {high:.3g} m) moves the road by less than '
                        f'{_MIN_STEPS} pixels')
-    p2, q2 = road.samples(2 * coarse)
-    small1 = _shrink(gray1, coarse)
-    ncc = _correlations(small1, _sample(_shrink(gray2, coarse), p2, coarse),
-                        road.to_image1(q2, grid), coarse)
+    shrunk = functools.lru_cache(maxsize=None)(lambda i, f: _shrink((gray1, gray2)[i], f))
+
+    def correlations(steps: np.ndarray, factor: int, spacing: int) -> np.ndarray:
+        # The blocks' samples every `spacing` full pixels, on the images shrunk by `factor`
+        # (made once per factor: at full resolution both stages use the same).
+        p2, q2 = road.samples(spacing)
+        return _correlations(shrunk(0, factor), _sample(shrunk(1, factor), p2, factor),
+                             road.to_image1(q2, steps), factor)
+
+    ncc = correlations(grid, coarse, 2 * coarse)
     # A block whose samples leave image 1 or meet no texture there (the far road near the
     # horizon, where long steps take them) says nothing at that step: no correlation.
     seen = np.isfinite(ncc).any(axis=0)
@@ -332,9 +338,7 @@ def image_road_scale(gray1: np.ndarray, gray2: np.ndarray, camera: CameraModel,
     # -- fine: each block around it, at the next resolution ----------------------------------
     span = grid[max(k - _FINE_SPAN, 0)], grid[min(k + _FINE_SPAN, len(grid) - 1)]
     fine_grid = np.linspace(span[0], span[1], 2 * _FINE_SPAN * _FINE_SPLIT + 1)
-    p2, q2 = road.samples(coarse)
-    ncc = _correlations(_shrink(gray1, fine), _sample(_shrink(gray2, fine), p2, fine),
-                        road.to_image1(q2, fine_grid), fine)
+    ncc = correlations(fine_grid, fine, coarse)
     best = np.argmax(np.nan_to_num(ncc, nan=-2.0), axis=0)
     cols = np.arange(ncc.shape[1])
     peak = ncc[best, cols]
@@ -438,8 +442,13 @@ def _scan_steps(road: _Road, low: float, high: float, coarse: int) -> np.ndarray
 
 def _sample(image: np.ndarray, pixels: np.ndarray, factor: int) -> np.ndarray:
     """``image`` (shrunk by ``factor``) at full-resolution ``pixels`` ``(B, m, 2)``: ``(B, m)``."""
-    xy = ((pixels + 0.5) / factor - 0.5).astype(np.float32).reshape(-1, 2)
-    return _remap(image, xy).reshape(pixels.shape[:2])
+    return _remap(image, _shrunk(pixels, factor).reshape(-1, 2)).reshape(pixels.shape[:2])
+
+
+def _shrunk(pixels: np.ndarray, factor: int) -> np.ndarray:
+    """Full-resolution pixel coordinates in an image shrunk by ``factor`` (`_shrink`'s
+    INTER_AREA: pixel centres), float32 for `cv2.remap`."""
+    return ((pixels + 0.5) / factor - 0.5).astype(np.float32)
 
 
 # cv2.remap takes maps of fewer than 32767 columns and rows: points in rows of this many.

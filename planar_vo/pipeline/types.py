@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['DropReason', 'FrameResult', 'TrackingState']
+__all__ = ['DropReason', 'FrameResult', 'TrackingState', 'unit_note']
 
 
 class DropReason(str, enum.Enum):
@@ -112,3 +112,14 @@ class FrameResult:
         unknown). A consumer then has ``odom -> base_link`` from the first image on, and an
         evaluation matches every frame."""
         return self.ok or self.reason is DropReason.FIRST_FRAME
+
+
+def unit_note(sources: dict[str, int]) -> str:
+    """``'N of M without a metric length: their positions are in steps, not metres'`` for the
+    step lengths by source (``FrameResult.scale_source`` counts), or ``''`` with no unit step
+    (a user test: 'unit 50' alone read like a success)."""
+    unit = sources.get('unit', 0)
+    if not unit:
+        return ''
+    return (f'{unit} of {sum(sources.values())} without a metric length: their positions are '
+            f'in steps, not metres')

@@ -107,6 +107,7 @@ from planar_vo.errors import (
 from planar_vo.pipeline import DropReason, FrameResult, TrackingState, VisualOdometry
 from planar_vo.pipeline.clock import GapCounter, Stamp
 from planar_vo.pipeline.road_image import pixels_note
+from planar_vo.pipeline.types import unit_note
 from planar_vo.pipeline.threads import limit_blas_threads
 from planar_vo.ros.messages import (
     compressed_to_array,
@@ -1282,11 +1283,8 @@ class PlanarVoNode(Node):
         vo = self._vo
         note = pixels_note(vo.image_road_steps, vo.image_road_misses, vo.image_road_examples)
         sources = ', '.join(f'{k} {v}' for k, v in sorted(self._scale_total.items())) or 'none'
-        unit = self._scale_total['unit']
-        if unit and self.config.scale.source != 'unit':
-            # (as the replay's: 'unit 50' alone read like a success, a user test)
-            note += (f'; {unit} of {sum(self._scale_total.values())} without a metric length: '
-                     f'their positions are in steps, not metres')
+        if self.config.scale.source != 'unit' and self._scale_total['unit']:
+            note += '; ' + unit_note(self._scale_total)
         return sources + (f' ({note[2:]})' if note else '')
 
     def _carry_note(self) -> str:

@@ -50,7 +50,7 @@ from planar_vo.io.writer import ODOMETRY_TYPE, OdometryBagWriter
 from planar_vo.pipeline.clock import GAP_WATCH, GapCounter
 from planar_vo.pipeline.road_image import pixels_note
 from planar_vo.tools.provenance import bag_custom_data, provenance
-from planar_vo.pipeline.types import DropReason, FrameResult
+from planar_vo.pipeline.types import DropReason, FrameResult, unit_note
 from planar_vo.ros.messages import speed_from_message
 
 __all__ = ['COPY_TYPES', 'SPEED_TYPES', 'FrameProcessor', 'ReplaySummary', 'replay_bag']
@@ -258,12 +258,8 @@ class ReplaySummary:
     def _unit_note(self) -> str:
         """Steps without a metric length, said in words (a user test: 'unit 50' alone read
         like a success)."""
-        unit = self.scale_sources.get('unit', 0)
-        if not unit:
-            return ''
-        total = sum(self.scale_sources.values())
-        return (f' ({unit} of {total} without a metric length: their positions are in steps, '
-                f'not metres)')
+        note = unit_note(self.scale_sources)
+        return f' ({note})' if note else ''
 
     def _origins_note(self) -> str:
         """What the odometry count holds beyond estimated motion: the origin(s), and why
